@@ -1,0 +1,142 @@
+//! Transforms between the LiDAR frame, the rectified camera frame and the image
+//! of the left colour camera (P2): the KITTI chain `y = P2 · R0_rect · Tr_velo_to_cam · x`.
+
+use fusiondet_kitti::Calib;
+use nalgebra::{Matrix3, Matrix3x4, Matrix4, Vector3, Vector4};
+
+/// The calibration of one frame, prepared for fast transforms.
+#[derive(Debug, Clone)]
+pub struct CameraModel {
+    /// P2, rectified camera → image.
+    pub p2: Matrix3x4<f64>,
+    /// LiDAR → rectified camera (R0_rect · Tr_velo_to_cam as a 4×4).
+    pub velo_to_rect: Matrix4<f64>,
+    /// Rectified camera → LiDAR (its inverse).
+    pub rect_to_velo: Matrix4<f64>,
+}
+
+fn mat34(m: &[[f64; 4]; 3]) -> Matrix3x4<f64> {
+    Matrix3x4::from_fn(|r, c| m[r][c])
+}
+
+impl CameraModel {
+    /// Builds the model; fails only if the extrinsics are singular.
+    pub fn from_calib(calib: &Calib) -> Result<CameraModel, String> {
+        let r0 = Matrix3::from_fn(|r, c| calib.r0_rect[r][c]);
+        let mut r0_h = Matrix4::identity();
+        r0_h.fixed_view_mut::<3, 3>(0, 0).copy_from(&r0);
+        let mut tr = Matrix4::identity();
+        tr.fixed_view_mut::<3, 4>(0, 0)
+            .copy_from(&mat34(&calib.tr_velo_to_cam));
+        let velo_to_rect = r0_h * tr;
+        let rect_to_velo = velo_to_rect
+            .try_inverse()
+            .ok_or("R0_rect · Tr_velo_to_cam is not invertible")?;
+        Ok(CameraModel {
+            p2: mat34(&calib.p[2]),
+            velo_to_rect,
+            rect_to_velo,
+        })
+    }
+
+    pub fn fu(&self) -> f64 {
+        self.p2[(0, 0)]
+    }
+    pub fn fv(&self) -> f64 {
+        self.p2[(1, 1)]
+    }
+    pub fn cu(&self) -> f64 {
+        self.p2[(0, 2)]
+    }
+    pub fn cv(&self) -> f64 {
+        self.p2[(1, 2)]
+    }
+
+    pub fn velo_to_rect(&self, p: [f64; 3]) -> [f64; 3] {
+        let v = self.velo_to_rect * Vector4::new(p[0], p[1], p[2], 1.0);
+        [v.x, v.y, v.z]
+    }
+
+    pub fn rect_to_velo(&self, p: [f64; 3]) -> [f64; 3] {
+        let v = self.rect_to_velo * Vector4::new(p[0], p[1], p[2], 1.0);
+        [v.x, v.y, v.z]
+    }
+
+    /// Projects a rectified-camera point to pixels; returns (u, v, depth).
+    /// The pixel is meaningless when depth ≤ 0 (behind the camera).
+    pub fn rect_to_image(&self, p: [f64; 3]) -> (f64, f64, f64) {
+        let y = self.p2 * Vector4::new(p[0], p[1], p[2], 1.0);
+        (y.x / y.z, y.y / y.z, y.z)
+    }
+
+    /// Back-projects pixel (u, v) at depth `depth` (the third homogeneous coordinate
+    /// of P2's output) to the rectified camera frame: the exact inverse of
+    /// [`CameraModel::rect_to_image`].
+    pub fn image_to_rect(&self, u: f64, v: f64, depth: f64) -> [f64; 3] {
+        let m = self.p2.fixed_view::<3, 3>(0, 0).into_owned();
+        let t = self.p2.column(3).into_owned();
+        let rhs = Vector3::new(u * depth, v * depth, depth) - t;
+        let x = m.try_inverse().map(|inv| inv * rhs).unwrap_or(rhs);
+        [x.x, x.y, x.z]
+    }
+
+    pub fn velo_to_image(&self, p: [f64; 3]) -> (f64, f64, f64) {
+        self.rect_to_image(self.velo_to_rect(p))
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// Frame 000000's calibration (KITTI, CC BY-NC-SA 3.0).
+    pub(crate) fn sample_calib() -> Calib {
+        Calib {
+            p: [
+                [[707.0493, 0.0, 604.0814, 0.0], [0.0, 707.0493, 180.5066, 0.0], [0.0, 0.0, 1.0, 0.0]],
+                [[707.0493, 0.0, 604.0814, -379.7842], [0.0, 707.0493, 180.5066, 0.0], [0.0, 0.0, 1.0, 0.0]],
+                [[707.0493, 0.0, 604.0814, 45.75831], [0.0, 707.0493, 180.5066, -0.3454157], [0.0, 0.0, 1.0, 0.004981016]],
+                [[707.0493, 0.0, 604.0814, -334.1081], [0.0, 707.0493, 180.5066, 2.33066], [0.0, 0.0, 1.0, 0.003201153]],
+            ],
+            r0_rect: [
+                [0.9999128, 0.01009263, -0.008511932],
+                [-0.01012729, 0.9999406, -0.004037671],
+                [0.008470675, 0.004123522, 0.9999556],
+            ],
+            tr_velo_to_cam: [
+                [0.006927964, -0.9999722, -0.002757829, -0.02457729],
+                [-0.001162982, 0.002749836, -0.9999955, -0.06127237],
+                [0.9999753, 0.006931141, -0.001143899, -0.3321029],
+            ],
+            tr_imu_to_velo: [
+                [0.9999976, 0.0007553071, -0.002035826, -0.8086759],
+                [-0.0007854027, 0.9998898, -0.01482298, 0.3195559],
+                [0.002024406, 0.01482454, 0.9998881, -0.7997231],
+            ],
+        }
+    }
+
+    #[test]
+    fn velo_rect_round_trip() {
+        let cam = CameraModel::from_calib(&sample_calib()).unwrap();
+        let p = [12.3, -4.5, -1.2];
+        let back = cam.rect_to_velo(cam.velo_to_rect(p));
+        for k in 0..3 {
+            assert!((back[k] - p[k]).abs() < 1e-9);
+        }
+        // LiDAR forward is camera depth.
+        let r = cam.velo_to_rect([10.0, 0.0, 0.0]);
+        assert!((r[2] - 10.0).abs() < 0.5 && r[0].abs() < 0.5);
+    }
+
+    #[test]
+    fn image_round_trip() {
+        let cam = CameraModel::from_calib(&sample_calib()).unwrap();
+        let p = [2.0, 1.5, 20.0];
+        let (u, v, d) = cam.rect_to_image(p);
+        let back = cam.image_to_rect(u, v, d);
+        for k in 0..3 {
+            assert!((back[k] - p[k]).abs() < 1e-9, "{back:?}");
+        }
+    }
+}

@@ -1,0 +1,47 @@
+//! `image_2/NNNNNN.png`: the left colour camera image.
+
+use crate::error::{FormatError, Result};
+use image::RgbImage;
+use std::path::Path;
+
+pub fn read_image(path: &Path) -> Result<RgbImage> {
+    let reader = image::ImageReader::open(path).map_err(|e| FormatError::io(path, e))?;
+    let img = reader
+        .with_guessed_format()
+        .map_err(|e| FormatError::io(path, e))?
+        .decode()
+        .map_err(|e| FormatError::file(path, format!("cannot decode image: {e}")))?;
+    Ok(img.to_rgb8())
+}
+
+/// Encodes `image` as PNG and writes it atomically.
+pub fn write_png(path: &Path, image: &RgbImage) -> Result<()> {
+    let mut bytes = Vec::new();
+    image
+        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .map_err(|e| FormatError::file(path, format!("cannot encode PNG: {e}")))?;
+    crate::atomic::write_atomic(path, &bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn png_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.png");
+        let img = RgbImage::from_fn(7, 3, |x, y| image::Rgb([x as u8, y as u8, 9]));
+        write_png(&path, &img).unwrap();
+        assert_eq!(read_image(&path).unwrap(), img);
+    }
+
+    #[test]
+    fn garbage_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.png");
+        std::fs::write(&path, b"not a png").unwrap();
+        let err = read_image(&path).unwrap_err().to_string();
+        assert!(err.contains("x.png"), "{err}");
+    }
+}

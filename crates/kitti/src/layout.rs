@@ -1,0 +1,74 @@
+//! Where the files of a KITTI-format dataset live:
+//! `ROOT/training/{velodyne,calib,label_2,image_2}/NNNNNN.*`, `ROOT/ImageSets/*.txt`,
+//! `ROOT/rgb_detections/rgb_detection_{split}.txt`.
+
+use std::path::{Path, PathBuf};
+
+/// Paths inside one `training/` (or `testing/`) directory.
+#[derive(Debug, Clone)]
+pub struct FrameDir {
+    pub root: PathBuf,
+}
+
+impl FrameDir {
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        FrameDir { root: root.into() }
+    }
+    pub fn velodyne(&self, id: &str) -> PathBuf {
+        self.root.join("velodyne").join(format!("{id}.bin"))
+    }
+    pub fn calib(&self, id: &str) -> PathBuf {
+        self.root.join("calib").join(format!("{id}.txt"))
+    }
+    pub fn label(&self, id: &str) -> PathBuf {
+        self.root.join("label_2").join(format!("{id}.txt"))
+    }
+    pub fn image(&self, id: &str) -> PathBuf {
+        self.root.join("image_2").join(format!("{id}.png"))
+    }
+}
+
+/// A dataset root holding `training/`, `ImageSets/` and optionally `rgb_detections/`.
+#[derive(Debug, Clone)]
+pub struct DatasetDir {
+    pub root: PathBuf,
+}
+
+impl DatasetDir {
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        DatasetDir { root: root.into() }
+    }
+    pub fn training(&self) -> FrameDir {
+        FrameDir::new(self.root.join("training"))
+    }
+    pub fn split(&self, name: &str) -> PathBuf {
+        self.root.join("ImageSets").join(format!("{name}.txt"))
+    }
+    pub fn rgb_detections(&self, split: &str) -> PathBuf {
+        self.root
+            .join("rgb_detections")
+            .join(format!("rgb_detection_{split}.txt"))
+    }
+}
+
+/// Formats a frame index as KITTI's six-digit id.
+pub fn frame_id(index: usize) -> String {
+    format!("{index:06}")
+}
+
+/// Lists the frame ids present in a directory (files `NNNNNN.<ext>`), sorted.
+pub fn list_frame_ids(dir: &Path, ext: &str) -> std::io::Result<Vec<String>> {
+    let mut ids = Vec::new();
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        if path.extension().and_then(|e| e.to_str()) == Some(ext) {
+            if let Some(stem) = path.file_stem().and_then(|s| s.to_str()) {
+                if !stem.is_empty() && stem.bytes().all(|b| b.is_ascii_digit()) {
+                    ids.push(stem.to_string());
+                }
+            }
+        }
+    }
+    ids.sort();
+    Ok(ids)
+}
