@@ -1,14 +1,7 @@
-pub fn add(left: u64, right: u64) -> u64 {
-    left + right
-}
+//! Frustum datasets for the frustum detectors (F-ConvNet and its variants):
+//! frustum extraction from 2D boxes, point sampling, sub-frustum slicing,
+//! training targets and batching into flat arrays the networks consume.
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+pub mod batch;
 
-    #[test]
-    fn it_works() {
-        let result = add(2, 2);
-        assert_eq!(result, 4);
-    }
-}
+pub use batch::{BatchScale, BatchTargets, FrustumBatch};
