@@ -60,7 +60,18 @@ pub fn bev_polygon(b: &Box3d) -> [[f64; 2]; 4] {
 pub fn projected_bounds(b: &Box3d, cam: &CameraModel) -> Option<Box2d> {
     const NEAR: f64 = 0.1;
     const EDGES: [(usize, usize); 12] = [
-        (0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7),
+        (0, 1),
+        (1, 2),
+        (2, 3),
+        (3, 0),
+        (4, 5),
+        (5, 6),
+        (6, 7),
+        (7, 4),
+        (0, 4),
+        (1, 5),
+        (2, 6),
+        (3, 7),
     ];
     let c = corners(b);
     let mut pts: Vec<[f64; 3]> = c.iter().copied().filter(|p| p[2] >= NEAR).collect();
@@ -74,7 +85,12 @@ pub fn projected_bounds(b: &Box3d, cam: &CameraModel) -> Option<Box2d> {
     if pts.is_empty() {
         return None;
     }
-    let mut out = Box2d { x1: f64::MAX, y1: f64::MAX, x2: f64::MIN, y2: f64::MIN };
+    let mut out = Box2d {
+        x1: f64::MAX,
+        y1: f64::MAX,
+        x2: f64::MIN,
+        y2: f64::MIN,
+    };
     for p in pts {
         let (u, v, _) = cam.rect_to_image(p);
         out.x1 = out.x1.min(u);
@@ -129,7 +145,15 @@ mod tests {
     use crate::camera::tests::sample_calib;
 
     fn car() -> Box3d {
-        Box3d { h: 1.5, w: 1.6, l: 3.9, x: 2.0, y: 1.7, z: 15.0, ry: 0.3 }
+        Box3d {
+            h: 1.5,
+            w: 1.6,
+            l: 3.9,
+            x: 2.0,
+            y: 1.7,
+            z: 15.0,
+            ry: 0.3,
+        }
     }
 
     #[test]
@@ -144,7 +168,10 @@ mod tests {
     fn corners_have_the_box_dimensions() {
         let c = corners(&car());
         let d = |i: usize, j: usize| {
-            ((c[i][0] - c[j][0]).powi(2) + (c[i][1] - c[j][1]).powi(2) + (c[i][2] - c[j][2]).powi(2)).sqrt()
+            ((c[i][0] - c[j][0]).powi(2)
+                + (c[i][1] - c[j][1]).powi(2)
+                + (c[i][2] - c[j][2]).powi(2))
+            .sqrt()
         };
         assert!((d(0, 1) - 1.6).abs() < 1e-12);
         assert!((d(1, 2) - 3.9).abs() < 1e-12);
@@ -161,7 +188,15 @@ mod tests {
         let (s, c) = b.ry.sin_cos();
         // A point 1.9 m along the length axis is inside, 2.0 m is not.
         let along = |t: f64| [b.x + c * t, b.y - 0.5, b.z - s * t];
-        let inside = points_in_box(&b, &[along(1.9), along(2.0), [b.x, b.y + 0.01, b.z], [b.x, b.y - 1.4, b.z]]);
+        let inside = points_in_box(
+            &b,
+            &[
+                along(1.9),
+                along(2.0),
+                [b.x, b.y + 0.01, b.z],
+                [b.x, b.y - 1.4, b.z],
+            ],
+        );
         assert_eq!(inside, [true, false, false, true]);
     }
 
@@ -176,10 +211,24 @@ mod tests {
             [0.0, 0.0, 1.0, 0.002745884],
         ];
         let cam = CameraModel::from_calib(&calib).unwrap();
-        let b = Box3d { h: 1.67, w: 1.87, l: 3.69, x: -16.53, y: 2.39, z: 58.49, ry: 1.57 };
+        let b = Box3d {
+            h: 1.67,
+            w: 1.87,
+            l: 3.69,
+            x: -16.53,
+            y: 2.39,
+            z: 58.49,
+            ry: 1.57,
+        };
         let p = project_to_image(&b, &cam, 1242.0, 375.0).unwrap();
-        assert!((p.x1 - 387.63).abs() < 1.0 && (p.x2 - 423.81).abs() < 1.0, "{p:?}");
-        assert!((p.y1 - 181.54).abs() < 1.0 && (p.y2 - 203.12).abs() < 1.0, "{p:?}");
+        assert!(
+            (p.x1 - 387.63).abs() < 1.0 && (p.x2 - 423.81).abs() < 1.0,
+            "{p:?}"
+        );
+        assert!(
+            (p.y1 - 181.54).abs() < 1.0 && (p.y2 - 203.12).abs() < 1.0,
+            "{p:?}"
+        );
     }
 
     #[test]

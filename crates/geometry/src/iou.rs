@@ -69,7 +69,10 @@ pub fn convex_intersection_area(a: &[[f64; 2]; 4], b: &[[f64; 2]; 4]) -> f64 {
     let a = counter_clockwise(a);
     let b = counter_clockwise(b);
     // Scale-aware tolerance for "on the edge".
-    let scale = a.iter().chain(b.iter()).fold(1.0f64, |m, p| m.max(p[0].abs()).max(p[1].abs()));
+    let scale = a
+        .iter()
+        .chain(b.iter())
+        .fold(1.0f64, |m, p| m.max(p[0].abs()).max(p[1].abs()));
     let eps = 1e-12 * scale * scale;
     let mut subject: Vec<[f64; 2]> = a.to_vec();
     let mut next: Vec<[f64; 2]> = Vec::with_capacity(8);
@@ -78,7 +81,8 @@ pub fn convex_intersection_area(a: &[[f64; 2]; 4], b: &[[f64; 2]; 4]) -> f64 {
             return 0.0;
         }
         let (e0, e1) = (b[i], b[(i + 1) % 4]);
-        let side = |p: [f64; 2]| (e1[0] - e0[0]) * (p[1] - e0[1]) - (e1[1] - e0[1]) * (p[0] - e0[0]);
+        let side =
+            |p: [f64; 2]| (e1[0] - e0[0]) * (p[1] - e0[1]) - (e1[1] - e0[1]) * (p[0] - e0[0]);
         next.clear();
         let n = subject.len();
         for k in 0..n {
@@ -143,7 +147,12 @@ pub fn overlap_3d(a: &Box3d, b: &Box3d, norm: Normalization) -> f64 {
         return 0.0;
     }
     let inter = bev_intersection(a, b) * hov;
-    finish(inter, (a.l * a.w * a.h).abs(), (b.l * b.w * b.h).abs(), norm)
+    finish(
+        inter,
+        (a.l * a.w * a.h).abs(),
+        (b.l * b.w * b.h).abs(),
+        norm,
+    )
 }
 
 pub fn iou_3d(a: &Box3d, b: &Box3d) -> f64 {
@@ -156,7 +165,15 @@ mod tests {
     use proptest::prelude::*;
 
     fn b3(x: f64, z: f64, l: f64, w: f64, ry: f64) -> Box3d {
-        Box3d { h: 1.5, w, l, x, y: 1.0, z, ry }
+        Box3d {
+            h: 1.5,
+            w,
+            l,
+            x,
+            y: 1.0,
+            z,
+            ry,
+        }
     }
 
     #[test]
@@ -165,11 +182,17 @@ mod tests {
         assert!((iou_bev(&b, &b) - 1.0).abs() < 1e-12);
         assert!((iou_3d(&b, &b) - 1.0).abs() < 1e-12);
         // Identical footprint, the other heading by pi: same polygon, vertices shifted.
-        let flipped = Box3d { ry: b.ry + std::f64::consts::PI, ..b };
+        let flipped = Box3d {
+            ry: b.ry + std::f64::consts::PI,
+            ..b
+        };
         assert!((iou_bev(&b, &flipped) - 1.0).abs() < 1e-9);
         // A square rotated by 90 degrees is the same footprint too.
         let sq = b3(0.0, 10.0, 2.0, 2.0, 0.0);
-        let sq90 = Box3d { ry: std::f64::consts::FRAC_PI_2, ..sq };
+        let sq90 = Box3d {
+            ry: std::f64::consts::FRAC_PI_2,
+            ..sq
+        };
         assert!((iou_bev(&sq, &sq90) - 1.0).abs() < 1e-9);
     }
 
@@ -180,7 +203,10 @@ mod tests {
         let b = b3(1.0, 0.0, 2.0, 2.0, 0.0);
         assert!((iou_bev(&a, &b) - 2.0 / 6.0).abs() < 1e-12);
         // A square and itself rotated 45 degrees: octagon of area 8(sqrt2 - 1).
-        let r = Box3d { ry: std::f64::consts::FRAC_PI_4, ..a };
+        let r = Box3d {
+            ry: std::f64::consts::FRAC_PI_4,
+            ..a
+        };
         let inter = 8.0 * (2f64.sqrt() - 1.0);
         assert!((iou_bev(&a, &r) - inter / (8.0 - inter)).abs() < 1e-12);
         // Half height overlap halves the 3D intersection.
@@ -194,16 +220,53 @@ mod tests {
 
     #[test]
     fn image_boxes() {
-        let a = Box2d { x1: 0.0, y1: 0.0, x2: 10.0, y2: 10.0 };
-        let b = Box2d { x1: 5.0, y1: 0.0, x2: 15.0, y2: 10.0 };
+        let a = Box2d {
+            x1: 0.0,
+            y1: 0.0,
+            x2: 10.0,
+            y2: 10.0,
+        };
+        let b = Box2d {
+            x1: 5.0,
+            y1: 0.0,
+            x2: 15.0,
+            y2: 10.0,
+        };
         assert!((iou_2d(&a, &b) - 50.0 / 150.0).abs() < 1e-12);
-        assert_eq!(iou_2d(&a, &Box2d { x1: 10.0, y1: 0.0, x2: 20.0, y2: 10.0 }), 0.0);
+        assert_eq!(
+            iou_2d(
+                &a,
+                &Box2d {
+                    x1: 10.0,
+                    y1: 0.0,
+                    x2: 20.0,
+                    y2: 10.0
+                }
+            ),
+            0.0
+        );
         assert!((iou_2d(&a, &a) - 1.0).abs() < 1e-15);
     }
 
     fn arb_box() -> impl Strategy<Value = Box3d> {
-        (-20.0..20.0f64, 0.0..60.0f64, 0.3..6.0f64, 0.3..3.0f64, -4.0..4.0f64, 0.5..3.0f64, -1.0..3.0f64)
-            .prop_map(|(x, z, l, w, ry, h, y)| Box3d { h, w, l, x, y, z, ry })
+        (
+            -20.0..20.0f64,
+            0.0..60.0f64,
+            0.3..6.0f64,
+            0.3..3.0f64,
+            -4.0..4.0f64,
+            0.5..3.0f64,
+            -1.0..3.0f64,
+        )
+            .prop_map(|(x, z, l, w, ry, h, y)| Box3d {
+                h,
+                w,
+                l,
+                x,
+                y,
+                z,
+                ry,
+            })
     }
 
     fn moved(b: &Box3d, theta: f64, tx: f64, ty: f64, tz: f64) -> Box3d {

@@ -89,13 +89,20 @@ pub fn parse_calib(text: &str, path: &Path) -> Result<Calib> {
         if values[slot].is_none() {
             return Err(FormatError::file(
                 path,
-                format!("missing calibration key `{name}`; a KITTI calib file needs P0, P1, P2, P3, R0_rect, Tr_velo_to_cam and Tr_imu_to_velo"),
+                format!(
+                    "missing calibration key `{name}`; a KITTI calib file needs P0, P1, P2, P3, R0_rect, Tr_velo_to_cam and Tr_imu_to_velo"
+                ),
             ));
         }
     }
     let v = |i: usize| values[i].as_deref().unwrap_or_default();
     Ok(Calib {
-        p: [to_mat34(v(0)), to_mat34(v(1)), to_mat34(v(2)), to_mat34(v(3))],
+        p: [
+            to_mat34(v(0)),
+            to_mat34(v(1)),
+            to_mat34(v(2)),
+            to_mat34(v(3)),
+        ],
         r0_rect: to_mat33(v(4)),
         tr_velo_to_cam: to_mat34(v(5)),
         tr_imu_to_velo: to_mat34(v(6)),

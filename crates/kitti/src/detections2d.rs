@@ -76,7 +76,10 @@ pub fn parse_detections2d(text: &str, path: &Path) -> Result<Vec<Detection2d>> {
                     path,
                     line_no,
                     "type id",
-                    format!("`{}` is not 1 (Pedestrian), 2 (Car) or 3 (Cyclist)", cols[1]),
+                    format!(
+                        "`{}` is not 1 (Pedestrian), 2 (Car) or 3 (Cyclist)",
+                        cols[1]
+                    ),
                 )
             })?;
         let mut v = [0.0; 5];

@@ -57,14 +57,9 @@ pub type Result<T> = std::result::Result<T, FormatError>;
 /// Parses one finite f64 field; NaN and infinities are rejected because every
 /// later computation (IoU, projection, training targets) would silently break on them.
 pub(crate) fn parse_finite(path: &Path, line: usize, field: &str, text: &str) -> Result<f64> {
-    let value: f64 = text.parse().map_err(|_| {
-        FormatError::field(
-            path,
-            line,
-            field,
-            format!("`{text}` is not a number"),
-        )
-    })?;
+    let value: f64 = text
+        .parse()
+        .map_err(|_| FormatError::field(path, line, field, format!("`{text}` is not a number")))?;
     if !value.is_finite() {
         return Err(FormatError::field(
             path,

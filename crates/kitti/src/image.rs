@@ -18,7 +18,10 @@ pub fn read_image(path: &Path) -> Result<RgbImage> {
 pub fn write_png(path: &Path, image: &RgbImage) -> Result<()> {
     let mut bytes = Vec::new();
     image
-        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
         .map_err(|e| FormatError::file(path, format!("cannot encode PNG: {e}")))?;
     crate::atomic::write_atomic(path, &bytes)
 }

@@ -32,8 +32,11 @@ impl ObjectClass {
     ];
 
     /// The three classes the benchmark evaluates.
-    pub const EVALUATED: [ObjectClass; 3] =
-        [ObjectClass::Car, ObjectClass::Pedestrian, ObjectClass::Cyclist];
+    pub const EVALUATED: [ObjectClass; 3] = [
+        ObjectClass::Car,
+        ObjectClass::Pedestrian,
+        ObjectClass::Cyclist,
+    ];
 
     pub fn as_str(self) -> &'static str {
         match self {
@@ -282,14 +285,17 @@ DontCare -1 -1 -10 503.89 169.71 590.61 190.13 -1 -1 -1 -1000 -1000 -1000 -10\n"
 
     #[test]
     fn short_line_names_file_line_and_field() {
-        let err = parse_objects("Car 0 0 1.0 1 2 3\n", p()).unwrap_err().to_string();
+        let err = parse_objects("Car 0 0 1.0 1 2 3\n", p())
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("label_2/000001.txt:1"), "{err}");
         assert!(err.contains("expected 15 columns"), "{err}");
     }
 
     #[test]
     fn non_numeric_field_is_named() {
-        let line = "\nCar 0.00 0 -1.57 599.41 abc 629.75 189.25 2.85 2.63 12.34 0.47 1.49 69.44 -1.56\n";
+        let line =
+            "\nCar 0.00 0 -1.57 599.41 abc 629.75 189.25 2.85 2.63 12.34 0.47 1.49 69.44 -1.56\n";
         let err = parse_objects(line, p()).unwrap_err().to_string();
         assert!(err.contains(":2: field `bbox_top`"), "{err}");
     }
@@ -307,21 +313,25 @@ DontCare -1 -1 -10 503.89 169.71 590.61 190.13 -1 -1 -1 -1000 -1000 -1000 -10\n"
 
     #[test]
     fn unknown_class_is_rejected() {
-        let line = "Bus 0.00 0 -1.57 599.41 156.40 629.75 189.25 2.85 2.63 12.34 0.47 1.49 69.44 -1.56";
+        let line =
+            "Bus 0.00 0 -1.57 599.41 156.40 629.75 189.25 2.85 2.63 12.34 0.47 1.49 69.44 -1.56";
         let err = parse_objects(line, p()).unwrap_err().to_string();
         assert!(err.contains("unknown class `Bus`"), "{err}");
     }
 
     #[test]
     fn fractional_occlusion_is_rejected() {
-        let line = "Car 0.00 1.5 -1.57 599.41 156.40 629.75 189.25 2.85 2.63 12.34 0.47 1.49 69.44 -1.56";
+        let line =
+            "Car 0.00 1.5 -1.57 599.41 156.40 629.75 189.25 2.85 2.63 12.34 0.47 1.49 69.44 -1.56";
         let err = parse_objects(line, p()).unwrap_err().to_string();
         assert!(err.contains("field `occluded`"), "{err}");
     }
 
     #[test]
     fn missing_file_is_an_io_error_with_path() {
-        let err = read_objects(Path::new("/no/such/label.txt")).unwrap_err().to_string();
+        let err = read_objects(Path::new("/no/such/label.txt"))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("/no/such/label.txt"), "{err}");
     }
 }

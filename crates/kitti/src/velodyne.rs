@@ -87,6 +87,9 @@ mod tests {
         let err = parse_velodyne(&encode_velodyne(&pts), Path::new("a.bin"))
             .unwrap_err()
             .to_string();
-        assert!(err.contains("field `y`") && err.contains("point 1"), "{err}");
+        assert!(
+            err.contains("field `y`") && err.contains("point 1"),
+            "{err}"
+        );
     }
 }
