@@ -61,12 +61,13 @@ pub fn list_frame_ids(dir: &Path, ext: &str) -> std::io::Result<Vec<String>> {
     let mut ids = Vec::new();
     for entry in std::fs::read_dir(dir)? {
         let path = entry?.path();
-        if path.extension().and_then(|e| e.to_str()) == Some(ext) {
-            if let Some(stem) = path.file_stem().and_then(|s| s.to_str()) {
-                if !stem.is_empty() && stem.bytes().all(|b| b.is_ascii_digit()) {
-                    ids.push(stem.to_string());
-                }
-            }
+        let stem = path.file_stem().and_then(|s| s.to_str());
+        if path.extension().and_then(|e| e.to_str()) == Some(ext)
+            && let Some(stem) = stem
+            && !stem.is_empty()
+            && stem.bytes().all(|b| b.is_ascii_digit())
+        {
+            ids.push(stem.to_string());
         }
     }
     ids.sort();

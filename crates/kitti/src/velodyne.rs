@@ -9,7 +9,7 @@ pub type LidarPoint = [f32; 4];
 
 /// Decodes a point cloud; the length must be a multiple of 16 bytes and every value finite.
 pub fn parse_velodyne(bytes: &[u8], path: &Path) -> Result<Vec<LidarPoint>> {
-    if bytes.len() % 16 != 0 {
+    if !bytes.len().is_multiple_of(16) {
         return Err(FormatError::file(
             path,
             format!(
