@@ -1,14 +1,29 @@
-pub fn add(left: u64, right: u64) -> u64 {
-    left + right
-}
+//! Pictures of KITTI frames: the camera image with projected 3D boxes above a
+//! bird's-eye view of the point cloud with the same boxes, as in detection papers'
+//! qualitative figures. Ground truth is green, detections orange; DontCare regions
+//! are faint dashed 2D rectangles on the image only (they carry no 3D box).
+//!
+//! [`load_frame`] reads a frame, [`render_frame`] draws it; the pieces
+//! ([`render_camera`], [`render_bev`], [`legend`], [`draw`], [`text`]) are public so
+//! that other figures (several frames on one sheet, curves) can reuse them.
+
+pub mod bev;
+pub mod camera_view;
+pub mod draw;
+pub mod error;
+pub mod frame;
+pub mod legend;
+pub mod load;
+pub mod style;
+pub mod text;
 
 #[cfg(test)]
-mod tests {
-    use super::*;
+mod testutil;
 
-    #[test]
-    fn it_works() {
-        let result = add(2, 2);
-        assert_eq!(result, 4);
-    }
-}
+pub use bev::{BevMap, BevRange};
+pub use error::VizError;
+pub use frame::{
+    FrameView, RenderOptions, render_bev, render_camera, render_frame, render_frame_with,
+    stack_vertical,
+};
+pub use load::{load_frame, result_file};

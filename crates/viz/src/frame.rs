@@ -1,0 +1,218 @@
+//! One frame's picture: legend strip, camera image with projected boxes, and the
+//! bird's-eye view below it at the same width, as in detection papers' qualitative
+//! figures.
+
+use crate::bev::{self, BevMap, BevRange};
+use crate::camera_view;
+use crate::legend::{Entry, Icon, render_legend};
+use crate::style::{self, BACKGROUND, Source};
+use fusiondet_geometry::CameraModel;
+use fusiondet_kitti::{LidarPoint, Object, ObjectClass};
+use image::{GenericImage, RgbImage};
+
+/// Everything drawn for one frame.
+#[derive(Debug, Clone)]
+pub struct FrameView {
+    /// Shown first in the legend, e.g. the frame id.
+    pub title: String,
+    /// The left colour camera image (`image_2`).
+    pub image: RgbImage,
+    pub camera: CameraModel,
+    /// The LiDAR scan in the LiDAR frame.
+    pub points: Vec<LidarPoint>,
+    /// Ground-truth labels, DontCare included (drawn as faint 2D regions).
+    pub ground_truth: Vec<Object>,
+    /// Detections, or `None` when none were asked for (the legend then omits them;
+    /// `Some(vec![])` says "0 detections").
+    pub detections: Option<Vec<Object>>,
+    /// Remarks printed under the legend, e.g. that a result file was missing.
+    pub notes: Vec<String>,
+}
+
+/// How to draw; the defaults suit KITTI's 1242×375 images.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderOptions {
+    /// Detections scoring below this are not drawn (detections without a score always are).
+    pub score_threshold: Option<f64>,
+    pub bev_range: BevRange,
+    /// Spacing of the BEV grid and its distance labels, metres.
+    pub grid_step: f64,
+    /// Draw DontCare regions (faint dashed 2D boxes on the image; never in the BEV).
+    pub dont_care: bool,
+    /// Side of the square drawn for each LiDAR point in the BEV, pixels.
+    pub point_size: u32,
+    /// Integer scale of the 8×8 font for box labels.
+    pub label_scale: u32,
+    /// Integer scale of the 8×8 font for the legend and grid labels.
+    pub text_scale: u32,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions {
+            score_threshold: None,
+            bev_range: BevRange::default(),
+            grid_step: 10.0,
+            dont_care: true,
+            point_size: 2,
+            label_scale: 1,
+            text_scale: 2,
+        }
+    }
+}
+
+impl FrameView {
+    /// Ground-truth objects with a 3D box (DontCare left out).
+    pub fn boxes_gt(&self) -> Vec<&Object> {
+        self.ground_truth
+            .iter()
+            .filter(|o| o.class != ObjectClass::DontCare)
+            .collect()
+    }
+
+    /// Detections passing the threshold, lowest score first so that the best are
+    /// drawn on top.
+    pub fn boxes_detected(&self, options: &RenderOptions) -> Vec<&Object> {
+        let mut shown: Vec<&Object> = self
+            .detections
+            .iter()
+            .flatten()
+            .filter(|o| o.class != ObjectClass::DontCare)
+            .filter(|o| match (o.score, options.score_threshold) {
+                (Some(s), Some(t)) => s >= t,
+                _ => true,
+            })
+            .collect();
+        shown.sort_by(|a, b| {
+            a.score
+                .unwrap_or(f64::INFINITY)
+                .total_cmp(&b.score.unwrap_or(f64::INFINITY))
+        });
+        shown
+    }
+}
+
+/// The camera image with DontCare regions, ground truth and detections drawn on it.
+pub fn render_camera(view: &FrameView, options: &RenderOptions) -> RgbImage {
+    let mut img = view.image.clone();
+    if options.dont_care {
+        camera_view::draw_dont_care(&mut img, &view.ground_truth);
+    }
+    let (gt, det) = (view.boxes_gt(), view.boxes_detected(options));
+    camera_view::draw_boxes(&mut img, &view.camera, &gt, Source::GroundTruth);
+    camera_view::draw_boxes(&mut img, &view.camera, &det, Source::Detection);
+    let mut placed = Vec::new();
+    let scale = options.label_scale;
+    camera_view::draw_labels(
+        &mut img,
+        &view.camera,
+        &gt,
+        Source::GroundTruth,
+        scale,
+        &mut placed,
+    );
+    camera_view::draw_labels(
+        &mut img,
+        &view.camera,
+        &det,
+        Source::Detection,
+        scale,
+        &mut placed,
+    );
+    img
+}
+
+/// The bird's-eye view, `width` pixels wide; also returns how many points were dimmed
+/// for lying outside the camera's view.
+pub fn render_bev(view: &FrameView, options: &RenderOptions, width: u32) -> (RgbImage, usize) {
+    let map = BevMap::new(options.bev_range, width);
+    let mut img = RgbImage::from_pixel(map.width, map.height, BACKGROUND);
+    bev::draw_grid(&mut img, &map, options.grid_step, options.text_scale);
+    bev::draw_fov(&mut img, &map, &view.camera, view.image.width());
+    let dimmed = bev::draw_points(
+        &mut img,
+        &map,
+        &view.camera,
+        view.image.dimensions(),
+        &view.points,
+        options.point_size,
+    );
+    bev::draw_footprints(&mut img, &map, &view.boxes_gt(), Source::GroundTruth);
+    bev::draw_footprints(
+        &mut img,
+        &map,
+        &view.boxes_detected(options),
+        Source::Detection,
+    );
+    bev::draw_ego(&mut img, &map);
+    (img, dimmed)
+}
+
+/// The legend entries that apply to this frame.
+fn legend_entries(view: &FrameView, options: &RenderOptions, dimmed: usize) -> Vec<Entry> {
+    let mut entries = vec![Entry::new(
+        Icon::Line(Source::GroundTruth),
+        format!("ground truth ({})", view.boxes_gt().len()),
+    )];
+    if view.detections.is_some() {
+        let n = view.boxes_detected(options).len();
+        let text = match options.score_threshold {
+            Some(t) => format!("detections >= {t:.2} ({n})"),
+            None => format!("detections ({n})"),
+        };
+        entries.push(Entry::new(Icon::Line(Source::Detection), text));
+    }
+    if options.dont_care
+        && view
+            .ground_truth
+            .iter()
+            .any(|o| o.class == ObjectClass::DontCare)
+    {
+        entries.push(Entry::new(Icon::Dashed, "DontCare (2D)"));
+    }
+    entries.push(Entry::new(Icon::Front, "front / heading"));
+    entries.push(Entry::new(
+        Icon::Ramp,
+        format!("height 0-{:.0} m", style::HEIGHT_RAMP_TOP),
+    ));
+    if dimmed > 0 {
+        entries.push(Entry::new(Icon::DimRamp, "outside image"));
+    }
+    entries
+}
+
+/// Stacks pictures top to bottom, centred, separated by `gap` background rows: the
+/// whole figure of [`render_frame_with`], or several frames into one sheet.
+pub fn stack_vertical(parts: &[RgbImage], gap: u32) -> RgbImage {
+    let width = parts.iter().map(|p| p.width()).max().unwrap_or(0);
+    let height =
+        parts.iter().map(|p| p.height()).sum::<u32>() + gap * parts.len().saturating_sub(1) as u32;
+    let mut out = RgbImage::from_pixel(width.max(1), height.max(1), BACKGROUND);
+    let mut y = 0;
+    for p in parts {
+        // Cannot fail: `out` is as wide as the widest part and as tall as all of them.
+        let _ = out.copy_from(p, (width - p.width()) / 2, y);
+        y += p.height() + gap;
+    }
+    out
+}
+
+/// The whole figure with default options.
+pub fn render_frame(view: &FrameView) -> RgbImage {
+    render_frame_with(view, &RenderOptions::default())
+}
+
+/// The whole figure: legend, camera image, bird's-eye view (same width as the image).
+pub fn render_frame_with(view: &FrameView, options: &RenderOptions) -> RgbImage {
+    let width = view.image.width();
+    let camera = render_camera(view, options);
+    let (bev, dimmed) = render_bev(view, options, width);
+    let legend = render_legend(
+        width,
+        &view.title,
+        &legend_entries(view, options, dimmed),
+        &view.notes,
+        options.text_scale,
+    );
+    stack_vertical(&[legend, camera, bev], 4)
+}
