@@ -20,6 +20,9 @@ pub mod text;
 #[cfg(test)]
 mod testutil;
 
+/// The `image` crate of this API's [`image::RgbImage`]s, for callers without their own.
+pub use image;
+
 pub use bev::{BevMap, BevRange};
 pub use error::VizError;
 pub use frame::{

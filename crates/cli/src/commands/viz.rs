@@ -1,8 +1,100 @@
-//! `fusiondet viz` (being written).
+//! `fusiondet viz`: draws one frame (camera image with projected 3D boxes above a
+//! bird's-eye view) to a PNG. The drawing lives in `fusiondet-viz`.
+
+use anyhow::{Context, bail};
+use fusiondet_kitti::FrameDir;
+use fusiondet_kitti::image::write_png;
+use fusiondet_viz::{BevRange, RenderOptions, load_frame, render_frame_with};
+use std::path::PathBuf;
 
 #[derive(clap::Args)]
-pub struct VizArgs {}
+pub struct VizArgs {
+    /// KITTI `training/` (or `testing/`) directory with image_2/, calib/, velodyne/ and label_2/.
+    #[arg(long)]
+    pub data_dir: PathBuf,
+    /// Frame id, e.g. 000001 (shorter numbers are zero-padded to six digits).
+    #[arg(long)]
+    pub id: String,
+    /// Directory of KITTI result files (ID.txt or data/ID.txt) drawn as detections.
+    /// A directory without this frame draws ground truth only, with a warning.
+    #[arg(long)]
+    pub result_dir: Option<PathBuf>,
+    /// Leave out detections scoring below this.
+    #[arg(long)]
+    pub score_threshold: Option<f64>,
+    /// Output PNG (written atomically).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Bird's-eye view: metres shown ahead of the camera.
+    #[arg(long, default_value_t = 70.0)]
+    pub bev_forward: f64,
+    /// Bird's-eye view: metres shown to each side.
+    #[arg(long, default_value_t = 40.0)]
+    pub bev_side: f64,
+    /// Do not draw KITTI's DontCare regions (faint dashed 2D boxes on the image).
+    #[arg(long)]
+    pub no_dont_care: bool,
+}
 
-pub fn run(_args: VizArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`fusiondet viz` is not available yet")
+/// Normalises a frame id: digits only, zero-padded to KITTI's six.
+fn frame_id(id: &str) -> anyhow::Result<String> {
+    if id.is_empty() || !id.bytes().all(|b| b.is_ascii_digit()) {
+        bail!("--id `{id}` is not a frame id (digits, e.g. 000001)");
+    }
+    Ok(format!("{id:0>6}"))
+}
+
+pub fn run(args: VizArgs) -> anyhow::Result<()> {
+    let id = frame_id(&args.id)?;
+    if let Some(t) = args.score_threshold
+        && !t.is_finite()
+    {
+        bail!("--score-threshold must be a finite number, got {t}");
+    }
+    for (name, v) in [
+        ("--bev-forward", args.bev_forward),
+        ("--bev-side", args.bev_side),
+    ] {
+        if !(v.is_finite() && v > 0.0 && v <= 500.0) {
+            bail!("{name} must be in (0, 500] metres, got {v}");
+        }
+    }
+    let frames = FrameDir::new(&args.data_dir);
+    let view = load_frame(&frames, &id, args.result_dir.as_deref())
+        .with_context(|| format!("cannot load frame {id} from {}", args.data_dir.display()))?;
+    for note in &view.notes {
+        eprintln!("warning: {note}");
+    }
+    let options = RenderOptions {
+        score_threshold: args.score_threshold,
+        bev_range: BevRange {
+            forward: (0.0, args.bev_forward),
+            lateral: (-args.bev_side, args.bev_side),
+        },
+        dont_care: !args.no_dont_care,
+        ..RenderOptions::default()
+    };
+    let picture = render_frame_with(&view, &options);
+    write_png(&args.out, &picture).context("cannot write the picture")?;
+    println!(
+        "wrote {} ({}x{})",
+        args.out.display(),
+        picture.width(),
+        picture.height()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::frame_id;
+
+    #[test]
+    fn ids_are_padded_and_checked() {
+        assert_eq!(frame_id("1").unwrap(), "000001");
+        assert_eq!(frame_id("000134").unwrap(), "000134");
+        assert!(frame_id("abc").is_err());
+        assert!(frame_id("").is_err());
+        assert!(frame_id("../1").is_err());
+    }
 }
