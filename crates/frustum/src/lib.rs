@@ -1,7 +1,66 @@
 //! Frustum datasets for the frustum detectors (F-ConvNet and its variants):
 //! frustum extraction from 2D boxes, point sampling, sub-frustum slicing,
 //! training targets and batching into flat arrays the networks consume.
+//!
+//! Pipeline: [`Frame`] (LiDAR projected once) → [`extract_frustum`] per 2D box
+//! ([`FrustumPoints`] in the box's [`FrustumFrame`], or a [`SkipReason`]) →
+//! [`build_sample`] (augmentation, 1024-point sampling, sub-frustums of every scale
+//! by the configured [`Slicing`], [`BoxEncoding`] targets) → [`collate`] into a
+//! [`FrustumBatch`]. [`FrustumDataset`] ties these together over a [`FrameSource`]
+//! with seeded, parallel, thread-count-independent epochs. [`decode_box`] turns
+//! network outputs back into KITTI camera-frame boxes.
+//!
+//! Geometry is f64; only the batch arrays handed to the network are f32.
 
 pub mod batch;
+pub mod collate;
+pub mod config;
+pub mod dataset;
+pub mod error;
+pub mod frame;
+pub mod frustum;
+pub mod rng;
+pub mod sample;
+pub mod slicing;
+pub mod targets;
 
 pub use batch::{BatchScale, BatchTargets, FrustumBatch};
+pub use collate::collate;
+pub use config::{AugmentConfig, DepthShift, FrustumConfig};
+pub use dataset::{Batches, FrustumDataset, FrustumSpec, PreparedBatch, jitter_box};
+pub use error::{FrustumError, Result, SkipCounts, SkipReason};
+pub use frame::{DiskFrames, Frame, FrameSource, InMemoryFrames, ProjectedCloud};
+pub use frustum::{FrustumFrame, FrustumPoints, clip_box, extract_frustum};
+pub use sample::{
+    Augmentation, FrustumSample, SampleScale, SampleSource, SampleTarget, build_sample,
+};
+pub use slicing::{
+    ScaleLayout, SliceContext, SliceInterval, SliceStrategy, Slicing, UniformSlicing,
+};
+pub use targets::{
+    BoxEncoding, CLASSES, MEAN_SIZES, NUM_HEADING_BINS, decode_box, decode_encoding, encode_box,
+    position_labels, size_cluster_of,
+};
+
+/// The bundled KITTI sample frames, for tests.
+#[cfg(test)]
+pub(crate) mod test_data {
+    use crate::frame::Frame;
+    use fusiondet_geometry::CameraModel;
+    use fusiondet_kitti::{FrameDir, read_calib};
+    use std::path::Path;
+
+    pub fn sample_dir() -> FrameDir {
+        FrameDir::new(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/kitti-sample/training"),
+        )
+    }
+
+    pub fn sample_frame(id: &str) -> Frame {
+        Frame::load(&sample_dir(), id, true).unwrap()
+    }
+
+    pub fn sample_camera() -> CameraModel {
+        CameraModel::from_calib(&read_calib(&sample_dir().calib("000003")).unwrap()).unwrap()
+    }
+}

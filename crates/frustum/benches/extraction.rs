@@ -1,0 +1,88 @@
+//! Frustum preparation cost per frame: LiDAR projection, extraction of every
+//! detection's frustum, sampling and slicing (no disk I/O in the timed loop).
+//!
+//! `cargo bench -p fusiondet-frustum --bench extraction`
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use fusiondet_frustum::{
+    Augmentation, Frame, FrustumConfig, SampleSource, build_sample, collate, extract_frustum,
+    rng::derive_rng,
+};
+use fusiondet_kitti::{FrameDir, read_calib, read_detections2d, read_velodyne};
+use std::hint::black_box;
+use std::path::Path;
+
+fn bench(c: &mut Criterion) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/kitti-sample");
+    let dir = FrameDir::new(root.join("training"));
+    let id = "000134";
+    let calib = read_calib(&dir.calib(id)).unwrap();
+    let lidar = read_velodyne(&dir.velodyne(id)).unwrap();
+    let dets: Vec<_> = read_detections2d(&root.join("rgb_detections/rgb_detection_val.txt"))
+        .unwrap()
+        .into_iter()
+        .filter(|d| d.frame_id == id)
+        .collect();
+    let config = FrustumConfig {
+        classes: vec![fusiondet_kitti::ObjectClass::Pedestrian],
+        ..FrustumConfig::pedestrian_cyclist()
+    };
+    let image_size = [1242.0, 375.0];
+    eprintln!(
+        "frame {id}: {} LiDAR points, {} detections",
+        lidar.len(),
+        dets.len()
+    );
+
+    c.bench_function("project frame", |b| {
+        b.iter(|| Frame::new(id, &calib, black_box(&lidar), image_size, vec![]).unwrap())
+    });
+
+    let frame = Frame::new(id, &calib, &lidar, image_size, vec![]).unwrap();
+    c.bench_function("extract frustums (all boxes)", |b| {
+        b.iter(|| {
+            dets.iter()
+                .filter_map(|d| {
+                    extract_frustum(&frame, black_box(&d.bbox), config.depth_range, 5.0).ok()
+                })
+                .count()
+        })
+    });
+
+    let frame_pipeline = |frame: &Frame| {
+        let mut rng = derive_rng(1, &[]);
+        let samples: Vec<_> = dets
+            .iter()
+            .filter_map(|d| {
+                let fp = extract_frustum(frame, &d.bbox, config.depth_range, 5.0).ok()?;
+                let source = SampleSource {
+                    frame_id: &frame.id,
+                    class: d.class,
+                    score: Some(d.score),
+                    focal_v: frame.camera.fv(),
+                    object: None,
+                };
+                Some(build_sample(
+                    &source,
+                    &fp,
+                    Augmentation::default(),
+                    &config,
+                    &mut rng,
+                ))
+            })
+            .collect();
+        collate(&samples)
+    };
+    c.bench_function(
+        "frame end to end (project + extract + sample + slice + collate)",
+        |b| {
+            b.iter(|| {
+                let frame = Frame::new(id, &calib, black_box(&lidar), image_size, vec![]).unwrap();
+                frame_pipeline(&frame)
+            })
+        },
+    );
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

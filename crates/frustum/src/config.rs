@@ -1,0 +1,305 @@
+//! The frustum data set's configuration: a serde struct meant to be embedded as a
+//! table (e.g. `[frustum]`) in a model's TOML. Every field has a default (the
+//! published F-ConvNet Car configuration), so a table only lists what it changes.
+
+use crate::error::{FrustumError, Result};
+use crate::slicing::{SliceStrategy, Slicing, UniformSlicing};
+use crate::targets::size_cluster_of;
+use fusiondet_kitti::ObjectClass;
+use serde::{Deserialize, Serialize};
+
+/// How the data set is made and sliced.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FrustumConfig {
+    /// Classes that become frustums, as KITTI spells them (`["Car"]`,
+    /// `["Pedestrian", "Cyclist"]`). Only Car, Pedestrian and Cyclist have a one-hot
+    /// slot and a size cluster.
+    #[serde(with = "class_names")]
+    pub classes: Vec<ObjectClass>,
+    /// Points sampled per frustum (with repetition when the frustum has fewer).
+    pub points_per_frustum: usize,
+    /// [min, max] depth in metres along the frustum axis (the frustum frame's z):
+    /// points outside are not part of the frustum and the sub-frustums tile this range.
+    pub depth_range: [f64; 2],
+    /// How the frustum is cut into sub-frustums along depth.
+    pub slicing: Slicing,
+    /// Index of the scale whose sub-frustum centres are the output positions.
+    pub output_scale: usize,
+    /// Training frustums whose (jittered, clipped) 2D box is shorter are dropped.
+    pub min_box_height_train: f64,
+    /// Detection frustums whose (clipped) 2D box is shorter are dropped.
+    pub min_box_height_test: f64,
+    /// Training frustums with fewer LiDAR points inside the ground-truth 3D box are
+    /// dropped (F-PointNet's rule; 0 keeps every frustum that has any point at all).
+    pub min_object_points: usize,
+    /// Training-time augmentation.
+    pub augment: AugmentConfig,
+}
+
+/// Training-time augmentation. The 2D jitter is drawn once, when the training set is
+/// prepared (as F-PointNet's prepared pickles do); flip, depth shift and the point
+/// sampling are drawn afresh for every epoch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AugmentConfig {
+    /// Frustums per ground-truth object, each from its own jittered 2D box.
+    pub copies: usize,
+    /// Relative 2D box jitter r: centre shifted by up to ±r·(w, h), width and height
+    /// scaled by a factor in [1 − r, 1 + r], all uniform. 0 uses the label box as is.
+    pub box_jitter: f64,
+    /// Mirror x in the frustum frame with probability 1/2.
+    pub flip: bool,
+    /// Random shift of points and ground truth along the frustum axis; `None` disables.
+    pub depth_shift: Option<DepthShift>,
+}
+
+/// F-ConvNet's depth shift: `clip(N(0,1) · sigma · d, ±max · d)` with `d` the
+/// ground truth's bird's-eye diagonal √(l² + w²), then clipped so that the box centre
+/// stays inside the depth range.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DepthShift {
+    pub sigma: f64,
+    pub max: f64,
+}
+
+impl Default for AugmentConfig {
+    fn default() -> Self {
+        AugmentConfig {
+            copies: 5,
+            box_jitter: 0.1,
+            flip: true,
+            depth_shift: Some(DepthShift {
+                sigma: 0.2,
+                max: 0.5,
+            }),
+        }
+    }
+}
+
+impl AugmentConfig {
+    /// No augmentation at all: one frustum per object from its label box.
+    pub fn none() -> Self {
+        AugmentConfig {
+            copies: 1,
+            box_jitter: 0.0,
+            flip: false,
+            depth_shift: None,
+        }
+    }
+}
+
+impl Default for FrustumConfig {
+    fn default() -> Self {
+        FrustumConfig::car()
+    }
+}
+
+impl FrustumConfig {
+    /// The published F-ConvNet Car model: 1024 points, 0–70 m, strides
+    /// 0.25/0.5/1/2 m with lengths twice the stride (280/140/70/35 sub-frustums),
+    /// at most 32/64/64/128 points each, output at the second scale.
+    pub fn car() -> Self {
+        FrustumConfig {
+            classes: vec![ObjectClass::Car],
+            points_per_frustum: 1024,
+            depth_range: [0.0, 70.0],
+            slicing: Slicing::Uniform(UniformSlicing::with_double_lengths(
+                &[0.25, 0.5, 1.0, 2.0],
+                &[32, 64, 64, 128],
+            )),
+            output_scale: 1,
+            min_box_height_train: 25.0,
+            min_box_height_test: 5.0,
+            min_object_points: 1,
+            augment: AugmentConfig::default(),
+        }
+    }
+
+    /// The Pedestrian + Cyclist model: strides 0.1/0.2/0.4/0.8 m with the Car
+    /// model's sub-frustum counts (280/140/70/35), hence a 0–28 m depth range. Widen
+    /// `depth_range` to cover farther people with more sub-frustums per scale.
+    pub fn pedestrian_cyclist() -> Self {
+        FrustumConfig {
+            classes: vec![ObjectClass::Pedestrian, ObjectClass::Cyclist],
+            depth_range: [0.0, 28.0],
+            slicing: Slicing::Uniform(UniformSlicing::with_double_lengths(
+                &[0.1, 0.2, 0.4, 0.8],
+                &[32, 64, 64, 128],
+            )),
+            ..FrustumConfig::car()
+        }
+    }
+
+    /// Checks every field; the error names the field and what is wrong with it.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(FrustumError::Config(m));
+        if self.classes.is_empty() {
+            return bad("`classes` is empty".into());
+        }
+        for c in &self.classes {
+            if size_cluster_of(*c).is_none() {
+                return bad(format!(
+                    "`classes`: {c} has no size cluster; use Car, Pedestrian and/or Cyclist"
+                ));
+            }
+        }
+        if self.points_per_frustum == 0 {
+            return bad("`points_per_frustum` must be positive".into());
+        }
+        let [lo, hi] = self.depth_range;
+        if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi > lo) {
+            return bad(format!(
+                "`depth_range` [{lo}, {hi}] must satisfy 0 <= min < max"
+            ));
+        }
+        self.slicing.validate(self.depth_range)?;
+        let scales = self.slicing.num_scales();
+        if self.output_scale >= scales {
+            return bad(format!(
+                "`output_scale` {} is not one of the {scales} scales",
+                self.output_scale
+            ));
+        }
+        for (name, v) in [
+            ("min_box_height_train", self.min_box_height_train),
+            ("min_box_height_test", self.min_box_height_test),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(format!("`{name}` must be a finite number >= 0, got {v}"));
+            }
+        }
+        let a = &self.augment;
+        if a.copies == 0 {
+            return bad("`augment.copies` must be at least 1".into());
+        }
+        if !(a.box_jitter.is_finite() && (0.0..1.0).contains(&a.box_jitter)) {
+            return bad(format!(
+                "`augment.box_jitter` must be in [0, 1), got {}",
+                a.box_jitter
+            ));
+        }
+        if let Some(s) = a.depth_shift
+            && !(s.sigma.is_finite() && s.max.is_finite() && s.sigma >= 0.0 && s.max >= 0.0)
+        {
+            return bad(format!(
+                "`augment.depth_shift` needs sigma, max >= 0, got {s:?}"
+            ));
+        }
+        Ok(())
+    }
+
+    /// Whether frustums of this class are made.
+    pub fn wants(&self, class: ObjectClass) -> bool {
+        self.classes.contains(&class)
+    }
+}
+
+/// `Vec<ObjectClass>` as a list of KITTI class names.
+mod class_names {
+    use fusiondet_kitti::ObjectClass;
+    use serde::{Deserialize, Deserializer, Serializer, de::Error as _};
+
+    pub fn serialize<S: Serializer>(classes: &[ObjectClass], s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(classes.iter().map(|c| c.as_str()))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<ObjectClass>, D::Error> {
+        Vec::<String>::deserialize(d)?
+            .iter()
+            .map(|name| name.parse::<ObjectClass>().map_err(D::Error::custom))
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_have_the_published_counts() {
+        let car = FrustumConfig::car();
+        car.validate().unwrap();
+        assert_eq!(
+            car.slicing.slices_per_scale(car.depth_range),
+            [280, 140, 70, 35]
+        );
+        let people = FrustumConfig::pedestrian_cyclist();
+        people.validate().unwrap();
+        assert_eq!(
+            people.slicing.slices_per_scale(people.depth_range),
+            [280, 140, 70, 35]
+        );
+    }
+
+    #[test]
+    fn toml_table_overrides_only_what_it_names() {
+        let text = r#"
+classes = ["Pedestrian", "Cyclist"]
+depth_range = [0.0, 28.0]
+[slicing]
+kind = "uniform"
+strides = [0.1, 0.2, 0.4, 0.8]
+lengths = [0.2, 0.4, 0.8, 1.6]
+max_points = [32, 64, 64, 128]
+[augment]
+copies = 2
+depth_shift = { sigma = 0.1, max = 0.3 }
+"#;
+        let c: FrustumConfig = toml::from_str(text).unwrap();
+        c.validate().unwrap();
+        assert_eq!(c.classes, [ObjectClass::Pedestrian, ObjectClass::Cyclist]);
+        assert_eq!(c.points_per_frustum, 1024);
+        assert_eq!(c.augment.copies, 2);
+        assert!(c.augment.flip);
+        assert_eq!(
+            c.augment.depth_shift,
+            Some(DepthShift {
+                sigma: 0.1,
+                max: 0.3
+            })
+        );
+        assert_eq!(c.slicing, FrustumConfig::pedestrian_cyclist().slicing);
+        // And back.
+        let again: FrustumConfig = toml::from_str(&toml::to_string(&c).unwrap()).unwrap();
+        assert_eq!(again, c);
+    }
+
+    #[test]
+    fn bad_configs_are_named() {
+        let err = toml::from_str::<FrustumConfig>("classes = [\"Bus\"]")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("unknown class `Bus`"), "{err}");
+        let err = toml::from_str::<FrustumConfig>("point_per_frustum = 3")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("unknown field"), "{err}");
+        let c = FrustumConfig {
+            classes: vec![ObjectClass::Van],
+            ..FrustumConfig::car()
+        };
+        assert!(c.validate().unwrap_err().to_string().contains("Van"));
+        let c = FrustumConfig {
+            output_scale: 4,
+            ..FrustumConfig::car()
+        };
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("output_scale")
+        );
+        let c = FrustumConfig {
+            depth_range: [10.0, 5.0],
+            ..FrustumConfig::car()
+        };
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("depth_range")
+        );
+    }
+}

@@ -1,0 +1,386 @@
+//! Frustum data sets: which frustums exist (from labels, jittered, or from 2D
+//! detections), and seeded, parallel, thread-count-independent batches of them.
+
+use crate::batch::FrustumBatch;
+use crate::collate::collate;
+use crate::config::FrustumConfig;
+use crate::error::{FrustumError, Result, SkipCounts, SkipReason};
+use crate::frame::{Frame, FrameSource};
+use crate::frustum::extract_frustum;
+use crate::rng::{SampleRng, derive_rng, domain, shuffle, uniform_in};
+use crate::sample::{Augmentation, FrustumSample, SampleSource, build_sample};
+use fusiondet_geometry::count_points_in_box;
+use fusiondet_kitti::{Box2d, Detection2d, ObjectClass};
+use rayon::prelude::*;
+use std::collections::{BTreeMap, HashMap};
+
+/// One frustum of a data set: which frame, which 2D box, and where it came from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrustumSpec {
+    /// Index of the frame in the data set's [`FrameSource`].
+    pub frame: usize,
+    pub class: ObjectClass,
+    /// The 2D box as made (label box after jitter, or detection box), before clipping.
+    pub box2d: Box2d,
+    /// The detection score (detection frustums).
+    pub score: Option<f64>,
+    /// Index of the ground-truth object in the frame's labels (labelled frustums).
+    pub object: Option<usize>,
+    /// Which copy of the object this is (0 for detections).
+    pub copy: usize,
+}
+
+/// A batch with the samples it was made from (their frames, scores and 2D boxes
+/// are what inference needs to write results).
+#[derive(Debug, Clone)]
+pub struct PreparedBatch {
+    pub batch: FrustumBatch,
+    pub samples: Vec<FrustumSample>,
+    /// Index of each sample in [`FrustumDataset::specs`].
+    pub indices: Vec<usize>,
+}
+
+/// A set of frustums over a [`FrameSource`].
+pub struct FrustumDataset<S: FrameSource> {
+    source: S,
+    config: FrustumConfig,
+    specs: Vec<FrustumSpec>,
+    skips: SkipCounts,
+}
+
+/// Stable 64-bit FNV-1a of a frame id, so that jitter depends on the frame, not on
+/// its position in a split.
+fn id_hash(id: &str) -> u64 {
+    id.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// F-PointNet's 2D box jitter: centre moved by up to ±r·(w, h), width and height
+/// scaled by a factor in [1 − r, 1 + r], all uniform.
+pub fn jitter_box(b: &Box2d, r: f64, rng: &mut SampleRng) -> Box2d {
+    if r == 0.0 {
+        return *b;
+    }
+    let (w, h) = (b.width(), b.height());
+    let (cx, cy) = b.center();
+    let cx = cx + w * uniform_in(rng, -r, r);
+    let cy = cy + h * uniform_in(rng, -r, r);
+    let w = w * uniform_in(rng, 1.0 - r, 1.0 + r);
+    let h = h * uniform_in(rng, 1.0 - r, 1.0 + r);
+    Box2d {
+        x1: cx - 0.5 * w,
+        y1: cy - 0.5 * h,
+        x2: cx + 0.5 * w,
+        y2: cy + 0.5 * h,
+    }
+}
+
+/// The training frustums of one frame, and what was skipped.
+fn label_specs(
+    frame_index: usize,
+    frame: &Frame,
+    config: &FrustumConfig,
+    seed: u64,
+) -> (Vec<FrustumSpec>, SkipCounts) {
+    let mut specs = Vec::new();
+    let mut skips = SkipCounts::default();
+    for (oi, obj) in frame.objects.iter().enumerate() {
+        if !config.wants(obj.class) {
+            continue;
+        }
+        for copy in 0..config.augment.copies {
+            let mut rng = derive_rng(
+                seed,
+                &[domain::JITTER, id_hash(&frame.id), oi as u64, copy as u64],
+            );
+            let b = jitter_box(&obj.bbox, config.augment.box_jitter, &mut rng);
+            let fp =
+                match extract_frustum(frame, &b, config.depth_range, config.min_box_height_train) {
+                    Ok(fp) => fp,
+                    Err(reason) => {
+                        skips.add(reason);
+                        continue;
+                    }
+                };
+            if config.min_object_points > 0 {
+                let gt = fp.frame.box_to_frustum(&obj.box3d);
+                if count_points_in_box(&gt, &fp.points) < config.min_object_points {
+                    skips.add(SkipReason::NoObjectPoints);
+                    continue;
+                }
+            }
+            specs.push(FrustumSpec {
+                frame: frame_index,
+                class: obj.class,
+                box2d: b,
+                score: None,
+                object: Some(oi),
+                copy,
+            });
+        }
+    }
+    (specs, skips)
+}
+
+impl<S: FrameSource> FrustumDataset<S> {
+    /// Frustums from the ground-truth 2D boxes of the configured classes, `copies`
+    /// per object, each with its own jitter drawn from `seed` (and the frame id, object
+    /// and copy). Boxes that are outside the image, shorter than
+    /// `min_box_height_train`, without points, or with fewer than `min_object_points`
+    /// inside the ground truth are counted in [`Self::skips`] and left out. Samples get
+    /// the configured flip and depth shift, drawn per epoch. Objects of other classes
+    /// (DontCare, Van, ...) are not counted as skips.
+    pub fn from_labels(source: S, config: FrustumConfig, seed: u64) -> Result<Self> {
+        config.validate()?;
+        let per_frame = (0..source.len())
+            .into_par_iter()
+            .map(|i| Ok(label_specs(i, &*source.frame(i)?, &config, seed)))
+            .collect::<Result<Vec<_>>>()?;
+        let mut specs = Vec::new();
+        let mut skips = SkipCounts::default();
+        for (s, k) in per_frame {
+            specs.extend(s);
+            skips.merge(&k);
+        }
+        Ok(FrustumDataset {
+            source,
+            config,
+            specs,
+            skips,
+        })
+    }
+
+    /// Frustums from 2D detections of the configured classes, in file order. Boxes
+    /// outside the image, shorter than `min_box_height_test`, without points, or in a
+    /// frame the source does not hold are counted in [`Self::skips`] and left out.
+    pub fn from_detections(
+        source: S,
+        detections: &[Detection2d],
+        config: FrustumConfig,
+    ) -> Result<Self> {
+        config.validate()?;
+        let index: HashMap<&str, usize> =
+            (0..source.len()).map(|i| (source.frame_id(i), i)).collect();
+        let mut skips = SkipCounts::default();
+        let mut by_frame: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+        for (di, d) in detections.iter().enumerate() {
+            if !config.wants(d.class) {
+                continue;
+            }
+            match index.get(d.frame_id.as_str()) {
+                Some(&fi) => by_frame.entry(fi).or_default().push(di),
+                None => skips.add(SkipReason::UnknownFrame),
+            }
+        }
+        let groups: Vec<(usize, Vec<usize>)> = by_frame.into_iter().collect();
+        let results = groups
+            .par_iter()
+            .map(|(fi, dets)| {
+                let frame = source.frame(*fi)?;
+                Ok(dets
+                    .iter()
+                    .map(|&di| {
+                        let d = &detections[di];
+                        let r = extract_frustum(
+                            &frame,
+                            &d.bbox,
+                            config.depth_range,
+                            config.min_box_height_test,
+                        );
+                        (
+                            di,
+                            r.map(|_| FrustumSpec {
+                                frame: *fi,
+                                class: d.class,
+                                box2d: d.bbox,
+                                score: Some(d.score),
+                                object: None,
+                                copy: 0,
+                            }),
+                        )
+                    })
+                    .collect::<Vec<_>>())
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut all: Vec<_> = results.into_iter().flatten().collect();
+        all.sort_by_key(|(di, _)| *di);
+        let mut specs = Vec::new();
+        for (_, r) in all {
+            match r {
+                Ok(s) => specs.push(s),
+                Err(reason) => skips.add(reason),
+            }
+        }
+        Ok(FrustumDataset {
+            source,
+            config,
+            specs,
+            skips,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.specs.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.specs.is_empty()
+    }
+
+    pub fn specs(&self) -> &[FrustumSpec] {
+        &self.specs
+    }
+
+    pub fn skips(&self) -> SkipCounts {
+        self.skips
+    }
+
+    pub fn config(&self) -> &FrustumConfig {
+        &self.config
+    }
+
+    pub fn source(&self) -> &S {
+        &self.source
+    }
+
+    /// Sample `index` for `epoch`: its own random stream (from `seed`, `epoch` and
+    /// `index` only) draws the augmentation (labelled frustums) and the point sampling.
+    pub fn sample(&self, index: usize, seed: u64, epoch: u64) -> Result<FrustumSample> {
+        let spec = &self.specs[index];
+        let frame = self.source.frame(spec.frame)?;
+        let stale = |reason| FrustumError::Stale {
+            frame: frame.id.clone(),
+            index,
+            reason,
+        };
+        let fp =
+            extract_frustum(&frame, &spec.box2d, self.config.depth_range, 0.0).map_err(stale)?;
+        let object = match spec.object {
+            Some(o) => Some(
+                &frame
+                    .objects
+                    .get(o)
+                    .ok_or(stale(SkipReason::NoObjectPoints))?
+                    .box3d,
+            ),
+            None => None,
+        };
+        let mut rng = derive_rng(seed, &[domain::SAMPLE, epoch, index as u64]);
+        let augmentation = match object {
+            Some(gt) => Augmentation::draw(
+                &self.config.augment,
+                self.config.depth_range,
+                &fp.frame,
+                gt,
+                &mut rng,
+            ),
+            None => Augmentation::default(),
+        };
+        let source = SampleSource {
+            frame_id: &frame.id,
+            class: spec.class,
+            score: spec.score,
+            focal_v: frame.camera.fv(),
+            object,
+        };
+        Ok(build_sample(
+            &source,
+            &fp,
+            augmentation,
+            &self.config,
+            &mut rng,
+        ))
+    }
+
+    /// The samples at `indices`, prepared in parallel (rayon's current pool), in order.
+    pub fn prepare(&self, indices: &[usize], seed: u64, epoch: u64) -> Result<PreparedBatch> {
+        let samples = indices
+            .par_iter()
+            .map(|&i| self.sample(i, seed, epoch))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(PreparedBatch {
+            batch: collate(&samples),
+            samples,
+            indices: indices.to_vec(),
+        })
+    }
+
+    /// One training epoch: all frustums in an order shuffled from (`seed`, `epoch`),
+    /// in batches of exactly `batch_size` (a last, smaller batch is dropped).
+    pub fn epoch(&self, seed: u64, epoch: u64, batch_size: usize) -> Batches<'_, S> {
+        let mut order: Vec<usize> = (0..self.len()).collect();
+        shuffle(&mut derive_rng(seed, &[domain::ORDER, epoch]), &mut order);
+        Batches::new(self, order, seed, epoch, batch_size, true)
+    }
+
+    /// All frustums in data-set order, in batches of `batch_size` (the last may be
+    /// smaller): for inference. Point sampling still draws from `seed`.
+    pub fn in_order(&self, seed: u64, batch_size: usize) -> Batches<'_, S> {
+        Batches::new(self, (0..self.len()).collect(), seed, 0, batch_size, false)
+    }
+}
+
+/// Iterator over the batches of an epoch; each batch is prepared when asked for.
+pub struct Batches<'a, S: FrameSource> {
+    dataset: &'a FrustumDataset<S>,
+    order: Vec<usize>,
+    seed: u64,
+    epoch: u64,
+    batch_size: usize,
+    next: usize,
+    end: usize,
+}
+
+impl<'a, S: FrameSource> Batches<'a, S> {
+    fn new(
+        dataset: &'a FrustumDataset<S>,
+        order: Vec<usize>,
+        seed: u64,
+        epoch: u64,
+        batch_size: usize,
+        drop_last: bool,
+    ) -> Self {
+        assert!(batch_size > 0, "batch size must be positive");
+        let end = if drop_last {
+            order.len() / batch_size * batch_size
+        } else {
+            order.len()
+        };
+        Batches {
+            dataset,
+            order,
+            seed,
+            epoch,
+            batch_size,
+            next: 0,
+            end,
+        }
+    }
+
+    /// The sample order of the whole epoch.
+    pub fn order(&self) -> &[usize] {
+        &self.order[..self.end]
+    }
+}
+
+impl<S: FrameSource> Iterator for Batches<'_, S> {
+    type Item = Result<PreparedBatch>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.next >= self.end {
+            return None;
+        }
+        let stop = (self.next + self.batch_size).min(self.end);
+        let indices = &self.order[self.next..stop];
+        self.next = stop;
+        Some(self.dataset.prepare(indices, self.seed, self.epoch))
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let n = (self.end - self.next).div_ceil(self.batch_size);
+        (n, Some(n))
+    }
+}
+
+impl<S: FrameSource> ExactSizeIterator for Batches<'_, S> {}

@@ -1,0 +1,453 @@
+//! One network input: a frustum's sampled points, its sub-frustums at every scale with
+//! their ragged point membership, and (for training) its targets. f64 throughout;
+//! [`crate::collate`] converts to the f32 batch arrays.
+
+use crate::config::{AugmentConfig, FrustumConfig};
+use crate::frustum::{FrustumFrame, FrustumPoints};
+use crate::rng::{SampleRng, below, normal, shuffle, uniform};
+use crate::slicing::{SliceContext, SliceInterval, SliceStrategy, depth_order, slice_pairs};
+use crate::targets::{BoxEncoding, encode_box, position_labels, size_cluster_of};
+use fusiondet_geometry::corners;
+use fusiondet_kitti::{Box2d, Box3d, ObjectClass};
+
+/// One scale of sub-frustums of one frustum.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SampleScale {
+    /// Depth intervals along the frustum axis, sorted by centre.
+    pub slices: Vec<SliceInterval>,
+    /// Sub-frustum centres in the frustum frame: the box-centre ray at each
+    /// interval's centre depth ([`FrustumFrame::ray_point`]).
+    pub centers: Vec<[f64; 3]>,
+    /// For each (point, sub-frustum) pair, the point's index in `FrustumSample::points`.
+    pub pair_point: Vec<u32>,
+    /// For each pair, the sub-frustum's index; non-decreasing.
+    pub pair_slice: Vec<u32>,
+    pub max_points_per_slice: usize,
+}
+
+/// Training targets of one frustum.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SampleTarget {
+    /// The ground truth in KITTI's camera frame, as labelled.
+    pub object: Box3d,
+    /// The ground truth in the sample's frustum frame (bottom-centre location,
+    /// frustum-frame heading).
+    pub in_frustum: Box3d,
+    pub encoding: BoxEncoding,
+    /// One label per output position (1 positive, 0 negative, −1 ignored).
+    pub labels: Vec<i64>,
+    /// `geometry::corners` of `in_frustum`, so the model can compute predicted
+    /// corners from its decoded parameters the same way.
+    pub corners: [[f64; 3]; 8],
+}
+
+/// One frustum, ready for batching.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrustumSample {
+    pub frame_id: String,
+    /// The class of the 2D box (ground truth or detection).
+    pub class: ObjectClass,
+    /// The 2D box that made the frustum, clipped to the image.
+    pub box2d: Box2d,
+    /// The 2D detection score (detection frustums only).
+    pub score: Option<f64>,
+    /// Map between the camera frame and this sample's coordinates, augmentation included.
+    pub frame: FrustumFrame,
+    /// Distinct LiDAR points in the frustum before resampling.
+    pub num_frustum_points: usize,
+    /// Sampled points in the frustum frame (`points_per_frustum` of them, repeated
+    /// when the frustum has fewer), in random order.
+    pub points: Vec<[f64; 3]>,
+    /// Sub-frustums, finest scale first.
+    pub scales: Vec<SampleScale>,
+    /// The scale whose sub-frustum centres are the output positions.
+    pub output_scale: usize,
+    pub target: Option<SampleTarget>,
+}
+
+/// Training augmentation of one sample.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Augmentation {
+    pub mirror: bool,
+    pub depth_shift: f64,
+}
+
+impl Augmentation {
+    /// Draws flip and depth shift (F-ConvNet's rule, see [`crate::DepthShift`]) for a
+    /// frustum whose ground truth is `gt` (camera frame), in that order from `rng`.
+    pub fn draw(
+        config: &AugmentConfig,
+        depth_range: [f64; 2],
+        frame: &FrustumFrame,
+        gt: &Box3d,
+        rng: &mut SampleRng,
+    ) -> Self {
+        let mirror = config.flip && uniform(rng) < 0.5;
+        let depth_shift = match config.depth_shift {
+            Some(s) => {
+                let diag = gt.l.hypot(gt.w);
+                let shift = (normal(rng) * s.sigma * diag).clamp(-s.max * diag, s.max * diag);
+                let z = frame.base().to_frustum([gt.x, gt.y, gt.z])[2];
+                (z + shift).clamp(depth_range[0], depth_range[1]) - z
+            }
+            None => 0.0,
+        };
+        Augmentation {
+            mirror,
+            depth_shift,
+        }
+    }
+}
+
+/// Indices of `n` points to take from `available`: all of them plus random repeats
+/// when there are fewer, a random subset otherwise; in random order.
+pub fn sample_indices(available: usize, n: usize, rng: &mut SampleRng) -> Vec<usize> {
+    assert!(available > 0, "cannot sample from an empty frustum");
+    let mut idx: Vec<usize> = (0..available).collect();
+    if available >= n {
+        // Partial Fisher–Yates: a uniform random n-subset in random order.
+        for i in 0..n {
+            let j = i + below(rng, available - i);
+            idx.swap(i, j);
+        }
+        idx.truncate(n);
+    } else {
+        idx.extend((available..n).map(|_| below(rng, available)));
+        shuffle(rng, &mut idx);
+    }
+    idx
+}
+
+/// Identity of a sample apart from its points.
+#[derive(Debug, Clone)]
+pub struct SampleSource<'a> {
+    pub frame_id: &'a str,
+    pub class: ObjectClass,
+    pub score: Option<f64>,
+    /// Vertical focal length of P2 (for slicing strategies that use it).
+    pub focal_v: f64,
+    /// The ground truth (camera frame) for training samples.
+    pub object: Option<&'a Box3d>,
+}
+
+/// Builds a sample from an extracted frustum: augmentation applied to the points,
+/// `points_per_frustum` points sampled from `rng`, sub-frustums laid out by the
+/// config's slicing, and targets when `source.object` is given.
+pub fn build_sample(
+    source: &SampleSource<'_>,
+    frustum: &FrustumPoints,
+    augmentation: Augmentation,
+    config: &FrustumConfig,
+    rng: &mut SampleRng,
+) -> FrustumSample {
+    let frame = frustum
+        .frame
+        .with_augmentation(augmentation.mirror, augmentation.depth_shift);
+    let chosen = sample_indices(frustum.points.len(), config.points_per_frustum, rng);
+    let points: Vec<[f64; 3]> = chosen
+        .iter()
+        .map(|&i| frame.augment(frustum.points[i]))
+        .collect();
+    let layout = config.slicing.layout(&SliceContext {
+        depth_range: config.depth_range,
+        class: source.class,
+        box2d: &frustum.box2d,
+        focal_v: source.focal_v,
+    });
+    let depths: Vec<f64> = points.iter().map(|p| p[2]).collect();
+    let order = depth_order(&depths);
+    let scales = layout
+        .into_iter()
+        .map(|scale| {
+            let (pair_point, pair_slice) =
+                slice_pairs(&depths, &order, &scale.slices, scale.max_points);
+            SampleScale {
+                centers: scale
+                    .slices
+                    .iter()
+                    .map(|s| frame.ray_point(s.center))
+                    .collect(),
+                slices: scale.slices,
+                pair_point,
+                pair_slice,
+                max_points_per_slice: scale.max_points,
+            }
+        })
+        .collect();
+    let mut sample = FrustumSample {
+        frame_id: source.frame_id.to_string(),
+        class: source.class,
+        box2d: frustum.box2d,
+        score: source.score,
+        frame,
+        num_frustum_points: frustum.points.len(),
+        points,
+        scales,
+        output_scale: config.output_scale,
+        target: None,
+    };
+    if let Some(object) = source.object {
+        sample.target = Some(make_target(
+            object,
+            sample.class,
+            &sample.frame,
+            sample.positions(),
+        ));
+    }
+    sample
+}
+
+fn make_target(
+    object: &Box3d,
+    class: ObjectClass,
+    frame: &FrustumFrame,
+    positions: &[[f64; 3]],
+) -> SampleTarget {
+    let cluster =
+        size_cluster_of(class).expect("the config only admits classes with a size cluster");
+    let in_frustum = frame.box_to_frustum(object);
+    SampleTarget {
+        object: *object,
+        in_frustum,
+        encoding: encode_box(object, cluster, frame),
+        labels: position_labels(positions, &in_frustum),
+        corners: corners(&in_frustum),
+    }
+}
+
+impl FrustumSample {
+    /// Centres of the output positions.
+    pub fn positions(&self) -> &[[f64; 3]] {
+        &self.scales[self.output_scale].centers
+    }
+
+    /// The sample mirrored about the frustum axis (x → −x, heading → π − heading), the
+    /// frame's mirror flag toggled and the targets recomputed through it. Membership is
+    /// unchanged (depths are), so flipping twice returns the original exactly.
+    pub fn flipped(&self) -> FrustumSample {
+        let frame = self
+            .frame
+            .with_augmentation(!self.frame.mirrored, self.frame.depth_shift);
+        let mut out = FrustumSample {
+            frame,
+            points: self.points.iter().map(|p| [-p[0], p[1], p[2]]).collect(),
+            target: None,
+            ..self.clone()
+        };
+        for s in &mut out.scales {
+            for c in &mut s.centers {
+                c[0] = -c[0];
+            }
+        }
+        if let Some(t) = &self.target {
+            out.target = Some(make_target(
+                &t.object,
+                out.class,
+                &out.frame,
+                out.positions(),
+            ));
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::error::SkipReason;
+    use crate::frustum::extract_frustum;
+    use crate::rng::derive_rng;
+    use crate::targets::LABEL_POSITIVE;
+    use crate::test_data::sample_frame;
+    use fusiondet_geometry::points_in_box;
+
+    fn car_sample(aug: Augmentation, seed: u64) -> FrustumSample {
+        let frame = sample_frame("000003");
+        let config = FrustumConfig::car();
+        let obj = &frame.objects[0];
+        let fp = extract_frustum(&frame, &obj.bbox, config.depth_range, 25.0).unwrap();
+        let source = SampleSource {
+            frame_id: &frame.id,
+            class: obj.class,
+            score: None,
+            focal_v: frame.camera.fv(),
+            object: Some(&obj.box3d),
+        };
+        build_sample(&source, &fp, aug, &config, &mut derive_rng(seed, &[]))
+    }
+
+    #[test]
+    fn sampling_repeats_only_when_needed() {
+        let mut rng = derive_rng(5, &[]);
+        let few = sample_indices(10, 1024, &mut rng);
+        assert_eq!(few.len(), 1024);
+        for i in 0..10 {
+            assert!(few.contains(&i), "every real point is kept");
+        }
+        let many = sample_indices(5000, 1024, &mut rng);
+        let mut sorted = many.clone();
+        sorted.sort();
+        sorted.dedup();
+        assert_eq!(
+            sorted.len(),
+            1024,
+            "no repeats when there are enough points"
+        );
+        assert!(many.iter().all(|&i| i < 5000));
+    }
+
+    #[test]
+    fn real_frame_000003_car() {
+        let s = car_sample(Augmentation::default(), 1);
+        assert!(s.num_frustum_points > 300, "{}", s.num_frustum_points);
+        assert_eq!(s.points.len(), 1024);
+        let counts: Vec<usize> = s.scales.iter().map(|sc| sc.centers.len()).collect();
+        assert_eq!(counts, [280, 140, 70, 35]);
+        let t = s.target.as_ref().unwrap();
+        let positives: Vec<f64> = s
+            .positions()
+            .iter()
+            .zip(&t.labels)
+            .filter(|(_, l)| **l == LABEL_POSITIVE)
+            .map(|(p, _)| p[2])
+            .collect();
+        assert!(!positives.is_empty());
+        // The car is at z 13.22 m, x 1.0 m: about 13.3 m along its frustum, and the
+        // positives are no more than half the (shrunk) length away.
+        assert!(
+            positives.iter().all(|z| (z - 13.3).abs() < 1.2),
+            "{positives:?}"
+        );
+        assert!(
+            positives.iter().any(|z| (z - 13.3).abs() < 0.5),
+            "{positives:?}"
+        );
+        // Many of the sampled points hit the car.
+        let hit = points_in_box(&t.in_frustum, &s.points)
+            .iter()
+            .filter(|&&b| b)
+            .count();
+        assert!(hit > 300, "{hit}");
+    }
+
+    #[test]
+    fn every_pair_is_real_within_its_interval_and_capped() {
+        let s = car_sample(
+            Augmentation {
+                mirror: true,
+                depth_shift: 1.3,
+            },
+            2,
+        );
+        for sc in &s.scales {
+            assert_eq!(sc.pair_point.len(), sc.pair_slice.len());
+            assert!(sc.pair_slice.windows(2).all(|w| w[0] <= w[1]));
+            let mut per_slice = vec![0usize; sc.slices.len()];
+            for (&p, &k) in sc.pair_point.iter().zip(&sc.pair_slice) {
+                let z = s.points[p as usize][2];
+                let iv = sc.slices[k as usize];
+                assert!(iv.contains(z), "point depth {z} outside {iv:?}");
+                per_slice[k as usize] += 1;
+            }
+            assert!(per_slice.iter().all(|&n| n <= sc.max_points_per_slice));
+            // Slices not at their cap hold every point of their interval.
+            for (k, iv) in sc.slices.iter().enumerate() {
+                let inside = s.points.iter().filter(|p| iv.contains(p[2])).count();
+                assert_eq!(
+                    per_slice[k],
+                    inside.min(sc.max_points_per_slice),
+                    "slice {k}"
+                );
+            }
+            assert!(
+                per_slice.contains(&sc.max_points_per_slice),
+                "the car fills some slice to its cap"
+            );
+        }
+        assert_eq!(
+            s.scales
+                .iter()
+                .map(|sc| sc.max_points_per_slice)
+                .collect::<Vec<_>>(),
+            [32, 64, 64, 128]
+        );
+    }
+
+    #[test]
+    fn flipping_twice_is_the_identity_and_flip_is_consistent() {
+        let s = car_sample(
+            Augmentation {
+                mirror: false,
+                depth_shift: 0.7,
+            },
+            3,
+        );
+        let f = s.flipped();
+        assert_ne!(f, s);
+        assert_eq!(f.flipped(), s);
+        // The flipped target decodes to the same camera box, and the same points are inside it.
+        let t = s.target.as_ref().unwrap();
+        let ft = f.target.as_ref().unwrap();
+        let back = crate::targets::decode_encoding(&ft.encoding, &f.frame);
+        for (a, b) in [
+            (back.x, t.object.x),
+            (back.z, t.object.z),
+            (back.y, t.object.y),
+        ] {
+            assert!((a - b).abs() < 1e-9);
+        }
+        assert!(fusiondet_geometry::normalize_angle(back.ry - t.object.ry).abs() < 1e-9);
+        assert_eq!(
+            points_in_box(&t.in_frustum, &s.points),
+            points_in_box(&ft.in_frustum, &f.points)
+        );
+        assert_eq!(t.labels, ft.labels);
+        assert!((ft.in_frustum.x + t.in_frustum.x).abs() < 1e-12);
+        // And building with the mirror on gives the flipped sample.
+        let built = car_sample(
+            Augmentation {
+                mirror: true,
+                depth_shift: 0.7,
+            },
+            3,
+        );
+        assert_eq!(built, f);
+    }
+
+    #[test]
+    fn depth_shift_moves_points_and_ground_truth_together() {
+        let a = car_sample(Augmentation::default(), 4);
+        let b = car_sample(
+            Augmentation {
+                mirror: false,
+                depth_shift: 2.5,
+            },
+            4,
+        );
+        for (p, q) in a.points.iter().zip(&b.points) {
+            assert_eq!((p[0], p[1]), (q[0], q[1]));
+            assert!((q[2] - p[2] - 2.5).abs() < 1e-12);
+        }
+        let (ta, tb) = (a.target.unwrap(), b.target.unwrap());
+        assert!((tb.encoding.center[2] - ta.encoding.center[2] - 2.5).abs() < 1e-12);
+        assert_eq!(tb.object, ta.object);
+        // The positive positions follow the shifted object.
+        let first_pos = |s: &[i64]| s.iter().position(|&l| l == 1).unwrap();
+        assert_eq!(first_pos(&tb.labels), first_pos(&ta.labels) + 5);
+    }
+
+    #[test]
+    fn skip_reason_is_typed() {
+        let frame = sample_frame("000003");
+        let b = Box2d {
+            x1: 2000.0,
+            y1: 0.0,
+            x2: 2100.0,
+            y2: 50.0,
+        };
+        assert_eq!(
+            extract_frustum(&frame, &b, [0.0, 70.0], 0.0).err(),
+            Some(SkipReason::OutsideImage)
+        );
+    }
+}
