@@ -1,14 +1,77 @@
-pub fn add(left: u64, right: u64) -> u64 {
-    left + right
+//! The official KITTI object evaluation (bbox, BEV, 3D and AOS; AP11 and AP_R40), to
+//! reproduce the devkit's `evaluate_object.cpp` (41 recall samples) number for number,
+//! about two orders of magnitude faster, as a library the training loop can call.
+//!
+//! * [`evaluate`] works on in-memory frames ([`FrameGt`], [`FrameDet`]) and returns an
+//!   [`EvalReport`] with the AP rows and, per class × metric × difficulty, the
+//!   precision/recall arrays ([`PrCurve`]) for plots.
+//! * [`evaluate_dirs`] / [`load_dirs`] read a `label_2`-style directory and a result
+//!   directory (a missing result file is a frame without detections).
+//! * [`evaluate_breakdown`] reports AP_R40 by distance, occlusion and LiDAR point count
+//!   (our own extension; its filtering rule is documented in [`breakdown`]).
+//!
+//! Overlaps come from `fusiondet-geometry`; the protocol constants are in [`protocol`];
+//! the devkit's matching rules, including its quirks, are in the (private) engine.
+//!
+//! Known, deliberate departures from the devkit: a missing result file is not fatal; a
+//! class without detections is still evaluated (AP 0 rather than left out); where a
+//! threshold has neither true nor false positives the devkit divides 0 by 0, we use 0.
+
+pub mod breakdown;
+#[cfg(test)]
+mod edge_cases;
+mod engine;
+pub mod error;
+mod evaluate;
+pub mod frames;
+pub mod load;
+pub mod protocol;
+pub mod report;
+pub mod synthetic;
+
+pub use breakdown::{
+    BreakdownAxis, BreakdownRow, FramePoints, box_centre_range, breakdown_table,
+    count_lidar_points, evaluate_breakdown,
+};
+pub use error::EvalError;
+pub use evaluate::{EvalConfig, evaluate};
+pub use frames::{FrameDet, FrameGt};
+pub use load::{LoadedFrames, evaluate_dirs, frame_ids, load_dirs, read_result_file};
+pub use protocol::{Difficulty, Metric, N_SAMPLE_PTS, OverlapSetting, parse_classes};
+pub use report::{EvalReport, MetricResult, PrCurve};
+
+use serde::Serialize;
+use std::path::Path;
+
+#[derive(Serialize)]
+struct JsonDoc {
+    results: Vec<report::JsonRow>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    breakdown: Option<Vec<breakdown::JsonBreakdownRow>>,
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+/// The JSON document: `{"results": [{"class", "metric", "min_overlap", "ap11", "ap40"}, ...]}`
+/// with AP in percent, plus a `"breakdown"` array when one is given.
+pub fn to_json(report: &EvalReport, breakdown: Option<&[BreakdownRow]>) -> String {
+    let doc = JsonDoc {
+        results: report.results.iter().map(Into::into).collect(),
+        breakdown: breakdown.map(|rows| rows.iter().map(Into::into).collect()),
+    };
+    let mut text = serde_json::to_string_pretty(&doc).expect("plain data serialises");
+    text.push('\n');
+    text
+}
 
-    #[test]
-    fn it_works() {
-        let result = add(2, 2);
-        assert_eq!(result, 4);
-    }
+/// Writes [`to_json`] to `path` atomically (a reader never sees half a file).
+pub fn write_json(
+    path: &Path,
+    report: &EvalReport,
+    breakdown: Option<&[BreakdownRow]>,
+) -> Result<(), EvalError> {
+    fusiondet_kitti::write_atomic(path, to_json(report, breakdown).as_bytes()).map_err(|e| {
+        EvalError::Dir {
+            path: path.to_path_buf(),
+            message: format!("cannot write the JSON output: {e}"),
+        }
+    })
 }
