@@ -1,0 +1,90 @@
+//! F-ConvNet Car benchmarks on the flex CPU backend:
+//! inference for one frame (8 frustums) and its parts, and a training step for batch 32.
+//!
+//! `cargo bench -p fusiondet-models --bench fconvnet`
+
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::prelude::*;
+use criterion::{Criterion, criterion_group, criterion_main};
+use fusiondet_models::synthetic::{SyntheticSpec, synthetic_batch};
+use fusiondet_models::*;
+use std::hint::black_box;
+use std::time::Duration;
+
+/// Reads a tensor back so lazily executed work is finished inside the timing.
+fn sync<const D: usize>(t: &Tensor<D>) -> f32 {
+    t.try_to_vec_as::<f32>().unwrap()[0]
+}
+
+fn inference(c: &mut Criterion) {
+    let config = FConvNetConfig::car();
+    let device = Device::flex();
+    let model = FConvNet::new(&config.model, &device).unwrap().valid();
+    let batch = synthetic_batch(&SyntheticSpec::car(8), 42);
+    for (k, s) in batch.scales.iter().enumerate() {
+        eprintln!(
+            "scale {k}: {} slices × 8, {} pairs ({:.0} per frustum)",
+            s.slices_per_frustum,
+            s.pair_point.len(),
+            s.pair_point.len() as f64 / 8.0
+        );
+    }
+    let inputs = model.inputs(&batch, &device).unwrap();
+
+    let mut g = c.benchmark_group("car_inference_b8");
+    g.sample_size(20).measurement_time(Duration::from_secs(8));
+    g.bench_function("frame_total (inputs + forward + decode)", |b| {
+        b.iter(|| {
+            let inputs = model.inputs(black_box(&batch), &device).unwrap();
+            let out = model.forward_inputs(&inputs);
+            decode(&out, &inputs, &config.model).unwrap()
+        })
+    });
+    g.bench_function("inputs (host preprocessing)", |b| {
+        b.iter(|| model.inputs(black_box(&batch), &device).unwrap())
+    });
+    g.bench_function("forward", |b| {
+        b.iter(|| sync(&model.forward_inputs(&inputs).regression))
+    });
+    for k in 0..4 {
+        g.bench_function(format!("pointnet scale {}", k + 1), |b| {
+            b.iter(|| sync(&model.encoders[k].forward(&inputs.scales[k])))
+        });
+    }
+    g.finish();
+}
+
+fn train_step(c: &mut Criterion) {
+    let config = FConvNetConfig::car();
+    let device = Device::flex().autodiff();
+    let batch = synthetic_batch(&SyntheticSpec::car(32), 7);
+    let mut model = Some(FConvNet::new(&config.model, &device).unwrap());
+    let inputs = model.as_ref().unwrap().inputs(&batch, &device).unwrap();
+    let targets = LossTargets::new(&batch, &config.model, &config.loss, &device).unwrap();
+    let mut optim = AdamConfig::new().init();
+
+    let mut g = c.benchmark_group("car_train_b32");
+    g.sample_size(10).measurement_time(Duration::from_secs(30));
+    g.bench_function("train_step (forward + loss + backward + adam)", |b| {
+        b.iter(|| {
+            let m = model.take().unwrap();
+            let loss = fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss).unwrap();
+            let grads = GradientsParams::from_grads(loss.total.backward(), &m);
+            model = Some(optim.step(1e-3, m, grads));
+            loss.components.total
+        })
+    });
+    g.bench_function("forward + loss (autodiff graph)", |b| {
+        b.iter(|| {
+            let m = model.as_ref().unwrap();
+            fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss)
+                .unwrap()
+                .components
+                .total
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, inference, train_step);
+criterion_main!(benches);

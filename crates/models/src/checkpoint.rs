@@ -1,0 +1,132 @@
+//! Checkpoints: burn's burnpack format with the model configuration stored in the file's
+//! metadata (`fusiondet.model_config`, JSON), checked on load.
+//!
+//! Writing is atomic: burn-pack writes a scratch file beside the destination, fsyncs it and
+//! renames it into place (`burn_pack::Writer::write_to_file`), so a crash leaves either the
+//! old checkpoint or the new one, never a truncated file.
+
+use crate::config::ModelConfig;
+use crate::error::ModelError;
+use crate::model::FConvNet;
+use burn::prelude::*;
+use burn::store::burn_pack::Reader;
+use burn::store::{BurnpackStore, ModuleSnapshot};
+use std::path::Path;
+
+const KIND_KEY: &str = "fusiondet.model";
+const KIND: &str = "fconvnet";
+const CONFIG_KEY: &str = "fusiondet.model_config";
+
+fn ckpt_err(path: &Path, message: impl Into<String>) -> ModelError {
+    ModelError::Checkpoint {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+/// Saves the weights and batch-norm statistics of `model` to `path` (exactly that path; no
+/// extension is added), replacing any file there atomically.
+pub fn save_checkpoint(model: &FConvNet, path: &Path) -> Result<(), ModelError> {
+    let config = serde_json::to_string(model.config()).expect("the model configuration serialises");
+    let mut store = BurnpackStore::from_file(path)
+        .auto_extension(false)
+        .overwrite(true)
+        .metadata(KIND_KEY, KIND)
+        .metadata(CONFIG_KEY, config);
+    // `valid()` first folds the batch-norm running statistics that training threads hold
+    // apart (burn keeps them per thread until synchronised) into the stored values.
+    model
+        .valid()
+        .save_into(&mut store)
+        .map_err(|e| ckpt_err(path, format!("cannot write: {e}")))
+}
+
+/// The model configuration stored in a checkpoint.
+pub fn read_checkpoint_config(path: &Path) -> Result<ModelConfig, ModelError> {
+    let reader =
+        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
+    let meta = reader.metadata();
+    if meta.get(KIND_KEY).map(String::as_str) != Some(KIND) {
+        return Err(ckpt_err(
+            path,
+            "not an F-ConvNet checkpoint (no fusiondet model metadata)",
+        ));
+    }
+    let json = meta
+        .get(CONFIG_KEY)
+        .ok_or_else(|| ckpt_err(path, "no model configuration in the metadata"))?;
+    serde_json::from_str(json)
+        .map_err(|e| ckpt_err(path, format!("unreadable model configuration: {e}")))
+}
+
+/// The fields in which two configurations differ, for error messages.
+pub fn config_differences(expected: &ModelConfig, found: &ModelConfig) -> Vec<String> {
+    // Destructured so that a new field cannot be forgotten here.
+    let ModelConfig {
+        num_classes,
+        slice_encoder,
+        pointnet_widths,
+        fcn_channels,
+        deconv_channels,
+        num_heading_bins,
+        size_clusters,
+        bias_before_norm,
+        batch_norm_momentum,
+        batch_norm_epsilon,
+    } = expected;
+    let mut out = Vec::new();
+    macro_rules! compare {
+        ($($field:ident),*) => {$(
+            if *$field != found.$field {
+                out.push(format!(
+                    "{}: expected {:?}, checkpoint has {:?}",
+                    stringify!($field),
+                    $field,
+                    found.$field
+                ));
+            }
+        )*};
+    }
+    compare!(
+        num_classes,
+        slice_encoder,
+        pointnet_widths,
+        fcn_channels,
+        deconv_channels,
+        num_heading_bins,
+        size_clusters,
+        bias_before_norm,
+        batch_norm_momentum,
+        batch_norm_epsilon
+    );
+    out
+}
+
+/// Loads a checkpoint into a network built from `config` on `device`; fails with
+/// [`ModelError::ConfigMismatch`] when the checkpoint was written for another configuration.
+pub fn load_checkpoint(
+    config: &ModelConfig,
+    path: &Path,
+    device: &Device,
+) -> Result<FConvNet, ModelError> {
+    let stored = read_checkpoint_config(path)?;
+    let differences = config_differences(config, &stored);
+    if !differences.is_empty() {
+        return Err(ModelError::ConfigMismatch {
+            path: path.to_path_buf(),
+            differences: differences.join("; "),
+        });
+    }
+    let mut model = FConvNet::new(config, device)?;
+    let mut store = BurnpackStore::from_file(path).auto_extension(false);
+    let result = model
+        .load_from(&mut store)
+        .map_err(|e| ckpt_err(path, format!("cannot load the weights: {e}")))?;
+    if !result.unused.is_empty() {
+        return Err(ckpt_err(
+            path,
+            format!("tensors the network does not have: {:?}", result.unused),
+        ));
+    }
+    Ok(model)
+}

@@ -1,0 +1,181 @@
+//! Per-slice encoders: a shared PointNet over each scale's (point, sub-frustum) pairs,
+//! max-pooled into one feature vector per sub-frustum.
+//!
+//! The ragged form runs the MLP on exactly the real pairs ([pairs, C]), then max-pools
+//! through a gather index (see [`ScaleInputs::pool_index`]); batch-norm statistics are over
+//! the real pairs. The padded form (every slice padded to the cap, masked) computes the
+//! same function with far more work and exists to check the ragged one.
+
+use crate::config::{ModelConfig, SliceEncoderKind};
+use crate::inputs::{PaddedScaleInputs, ScaleInputs};
+use burn::nn::{BatchNorm, BatchNormConfig, Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+/// Linear + BatchNorm + ReLU on [rows, channels].
+#[derive(Module, Debug)]
+pub struct MlpLayer {
+    pub linear: Linear,
+    pub norm: BatchNorm,
+}
+
+impl MlpLayer {
+    pub fn new(d_in: usize, d_out: usize, config: &ModelConfig, device: &Device) -> Self {
+        Self {
+            linear: LinearConfig::new(d_in, d_out)
+                .with_bias(config.bias_before_norm)
+                .init(device),
+            norm: batch_norm(d_out, config, device),
+        }
+    }
+
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        relu(self.norm.forward(self.linear.forward(x)))
+    }
+
+    /// Like [`forward`](Self::forward), with batch-norm statistics over the rows where
+    /// `valid` is 1 (in training mode; inference uses the running statistics either way).
+    pub fn forward_masked(&self, x: Tensor<2>, valid: &Tensor<2>, count: usize) -> Tensor<2> {
+        let x = self.linear.forward(x);
+        relu(masked_batch_norm(&self.norm, x, valid, count))
+    }
+}
+
+pub(crate) fn batch_norm(channels: usize, config: &ModelConfig, device: &Device) -> BatchNorm {
+    BatchNormConfig::new(channels)
+        .with_momentum(config.batch_norm_momentum)
+        .with_epsilon(config.batch_norm_epsilon)
+        .init(device)
+}
+
+/// Batch norm over [rows, C] whose statistics use only the rows where `valid` ([rows, 1]) is 1.
+/// Mirrors `BatchNorm::forward`: batch statistics (biased variance) and a running-statistics
+/// update when training on an autodiff device, the running statistics otherwise.
+fn masked_batch_norm(bn: &BatchNorm, x: Tensor<2>, valid: &Tensor<2>, count: usize) -> Tensor<2> {
+    if !(x.device().is_autodiff() && bn.training.is_enabled()) {
+        return bn.forward(x);
+    }
+    let [channels] = bn.gamma.shape().dims();
+    let n = count.max(1) as f64;
+    let mean = (x.clone() * valid.clone()).sum_dim(0).div_scalar(n); // [1, C]
+    let centered = x - mean.clone();
+    let var = (centered.clone().square() * valid.clone())
+        .sum_dim(0)
+        .div_scalar(n);
+    let out = centered / var.clone().add_scalar(bn.epsilon).sqrt()
+        * bn.gamma.val().reshape([1, channels])
+        + bn.beta.val().reshape([1, channels]);
+    let momentum = bn.momentum;
+    let update = |state: &burn::module::RunningState<Tensor<1>>, batch: Tensor<2>| {
+        let device = batch.device();
+        let old = state.value_sync().to_device(&device);
+        let new = old
+            .mul_scalar(1.0 - momentum)
+            .add(batch.detach().reshape([channels]).mul_scalar(momentum));
+        state.update(new.detach());
+    };
+    update(&bn.running_mean, mean);
+    update(&bn.running_var, var);
+    out
+}
+
+/// The plain PointNet of F-ConvNet: a shared MLP on pair coordinates relative to the slice
+/// centre, max-pooled per slice (empty slices give zeros).
+#[derive(Module, Debug)]
+pub struct PointNet {
+    pub layers: Vec<MlpLayer>,
+}
+
+impl PointNet {
+    pub fn new(widths: &[usize], config: &ModelConfig, device: &Device) -> Self {
+        let mut d_in = 3;
+        let layers = widths
+            .iter()
+            .map(|&w| {
+                let layer = MlpLayer::new(d_in, w, config, device);
+                d_in = w;
+                layer
+            })
+            .collect();
+        Self { layers }
+    }
+
+    pub fn out_channels(&self) -> usize {
+        self.layers
+            .last()
+            .map(|l| l.norm.gamma.shape().dims::<1>()[0])
+            .unwrap_or(3)
+    }
+
+    /// Ragged form: [num_slices, C].
+    pub fn forward(&self, scale: &ScaleInputs) -> Tensor<2> {
+        let device = scale.rel_coords.device();
+        let c = self.out_channels();
+        if scale.num_pairs == 0 {
+            return Tensor::zeros([scale.num_slices, c], &device);
+        }
+        let mut x = scale.rel_coords.clone();
+        for layer in &self.layers {
+            x = layer.forward(x);
+        }
+        let x = Tensor::cat(vec![x, Tensor::zeros([1, c], &device)], 0);
+        x.select(0, scale.pool_index.clone())
+            .reshape([scale.num_slices, scale.pool_width, c])
+            .max_dim(1)
+            .reshape([scale.num_slices, c])
+    }
+
+    /// Padded form: the same function computed on every slice padded to the cap.
+    pub fn forward_padded(&self, scale: &PaddedScaleInputs) -> Tensor<2> {
+        let c = self.out_channels();
+        let mut x = scale.coords.clone();
+        for layer in &self.layers {
+            x = layer.forward_masked(x, &scale.valid, scale.num_pairs);
+        }
+        let x = x
+            .mask_fill(
+                scale
+                    .padding
+                    .clone()
+                    .expand([scale.num_slices * scale.cap, c]),
+                f32::NEG_INFINITY,
+            )
+            .reshape([scale.num_slices, scale.cap, c])
+            .max_dim(1)
+            .reshape([scale.num_slices, c]);
+        x.mask_fill(scale.empty.clone().expand([scale.num_slices, c]), 0.0)
+    }
+}
+
+/// The swappable per-slice encoder of one scale (see [`SliceEncoderKind`]).
+#[derive(Module, Debug)]
+pub enum SliceEncoder {
+    PointNet(PointNet),
+}
+
+impl SliceEncoder {
+    pub fn new(widths: &[usize], config: &ModelConfig, device: &Device) -> Self {
+        match config.slice_encoder {
+            SliceEncoderKind::PointNet => Self::PointNet(PointNet::new(widths, config, device)),
+        }
+    }
+
+    /// Per-slice features, [num_slices, C].
+    pub fn forward(&self, scale: &ScaleInputs) -> Tensor<2> {
+        match self {
+            Self::PointNet(p) => p.forward(scale),
+        }
+    }
+
+    pub fn forward_padded(&self, scale: &PaddedScaleInputs) -> Tensor<2> {
+        match self {
+            Self::PointNet(p) => p.forward_padded(scale),
+        }
+    }
+
+    pub fn out_channels(&self) -> usize {
+        match self {
+            Self::PointNet(p) => p.out_channels(),
+        }
+    }
+}
