@@ -49,6 +49,32 @@ fn bench(c: &mut Criterion) {
         })
     });
 
+    let biggest = dets
+        .iter()
+        .filter_map(|d| extract_frustum(&frame, &d.bbox, config.depth_range, 5.0).ok())
+        .max_by_key(|f| f.points.len())
+        .unwrap();
+    eprintln!("largest frustum: {} points", biggest.points.len());
+    c.bench_function("build one sample (sample 1024, slice 4 scales)", |b| {
+        let source = SampleSource {
+            frame_id: &frame.id,
+            class: fusiondet_kitti::ObjectClass::Pedestrian,
+            score: Some(1.0),
+            focal_v: frame.camera.fv(),
+            object: None,
+        };
+        let mut rng = derive_rng(2, &[]);
+        b.iter(|| {
+            build_sample(
+                &source,
+                black_box(&biggest),
+                Augmentation::default(),
+                &config,
+                &mut rng,
+            )
+        })
+    });
+
     let frame_pipeline = |frame: &Frame| {
         let mut rng = derive_rng(1, &[]);
         let samples: Vec<_> = dets

@@ -4,6 +4,12 @@
 //! Frames: every coordinate is in the *frustum frame* — the rectified camera frame
 //! rotated about its y axis so that the 2D box centre's ray has x = 0 (x right,
 //! y down, z = depth along the frustum).
+//!
+//! Precisely (see `crate::frustum`): before the rotation the origin is moved
+//! horizontally to P2's optical centre (≈ 6 cm from the rectified origin in KITTI), so
+//! the ray is x = 0 exactly at every depth; y is the rectified y unchanged. Training
+//! samples may additionally be mirrored (x → −x) and shifted in depth; the sample's
+//! `FrustumFrame` records both, and `decode_box` undoes them.
 
 /// One scale of sub-frustums for the whole batch, with ragged point membership: only
 /// the real (point, sub-frustum) pairs are listed, so a PointNet runs on exactly those.

@@ -29,23 +29,20 @@ impl ProjectedCloud {
     /// Transforms every point once; keeps those with rectified depth above
     /// [`NEAR_DEPTH`] that project into the `width`×`height` image.
     pub fn new(lidar: &[LidarPoint], camera: &CameraModel, image_size: [f64; 2]) -> Self {
-        let t = &camera.velo_to_rect;
-        let p = &camera.p2;
+        // Plain arrays: nalgebra's checked indexing in this loop costs more than the maths.
+        let t: [[f64; 4]; 3] =
+            std::array::from_fn(|r| std::array::from_fn(|c| camera.velo_to_rect[(r, c)]));
+        let p: [[f64; 4]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| camera.p2[(r, c)]));
         let (w, h) = (image_size[0], image_size[1]);
         let mut rect = Vec::with_capacity(lidar.len() / 4);
         let mut uv = Vec::with_capacity(lidar.len() / 4);
         for q in lidar {
             let (x, y, z) = (q[0] as f64, q[1] as f64, q[2] as f64);
-            let r = [
-                t[(0, 0)] * x + t[(0, 1)] * y + t[(0, 2)] * z + t[(0, 3)],
-                t[(1, 0)] * x + t[(1, 1)] * y + t[(1, 2)] * z + t[(1, 3)],
-                t[(2, 0)] * x + t[(2, 1)] * y + t[(2, 2)] * z + t[(2, 3)],
-            ];
+            let r = t.map(|row| row[0] * x + row[1] * y + row[2] * z + row[3]);
             if r[2] <= NEAR_DEPTH {
                 continue;
             }
-            let hom = [0, 1, 2]
-                .map(|i| p[(i, 0)] * r[0] + p[(i, 1)] * r[1] + p[(i, 2)] * r[2] + p[(i, 3)]);
+            let hom = p.map(|row| row[0] * r[0] + row[1] * r[1] + row[2] * r[2] + row[3]);
             if hom[2] <= 0.0 {
                 continue;
             }

@@ -5,7 +5,7 @@
 //! Pipeline: [`Frame`] (LiDAR projected once) → [`extract_frustum`] per 2D box
 //! ([`FrustumPoints`] in the box's [`FrustumFrame`], or a [`SkipReason`]) →
 //! [`build_sample`] (augmentation, 1024-point sampling, sub-frustums of every scale
-//! by the configured [`Slicing`], [`BoxEncoding`] targets) → [`collate`] into a
+//! by the configured [`Slicing`], [`BoxEncoding`] targets) → [`collate()`] into a
 //! [`FrustumBatch`]. [`FrustumDataset`] ties these together over a [`FrameSource`]
 //! with seeded, parallel, thread-count-independent epochs. [`decode_box`] turns
 //! network outputs back into KITTI camera-frame boxes.

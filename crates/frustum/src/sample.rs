@@ -1,6 +1,6 @@
 //! One network input: a frustum's sampled points, its sub-frustums at every scale with
 //! their ragged point membership, and (for training) its targets. f64 throughout;
-//! [`crate::collate`] converts to the f32 batch arrays.
+//! [`crate::collate()`] converts to the f32 batch arrays.
 
 use crate::config::{AugmentConfig, FrustumConfig};
 use crate::frustum::{FrustumFrame, FrustumPoints};

@@ -203,13 +203,18 @@ impl SliceStrategy for UniformSlicing {
 
 /// Point indices sorted by depth (ties by index), shared by all scales of a frustum.
 pub fn depth_order(depths: &[f64]) -> Vec<u32> {
-    let mut order: Vec<u32> = (0..depths.len() as u32).collect();
-    order.sort_by(|&a, &b| {
-        depths[a as usize]
-            .total_cmp(&depths[b as usize])
-            .then(a.cmp(&b))
-    });
-    order
+    // Sorts (key, index) pairs where the key orders like `f64::total_cmp` (the same
+    // bit trick): no indirect comparator, ties by index.
+    let mut keyed: Vec<(i64, u32)> = depths
+        .iter()
+        .enumerate()
+        .map(|(i, d)| {
+            let bits = d.to_bits() as i64;
+            (bits ^ ((((bits >> 63) as u64) >> 1) as i64), i as u32)
+        })
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
 }
 
 /// The (point, sub-frustum) pairs of one scale: every point whose depth lies within
@@ -325,6 +330,16 @@ mod tests {
                 assert_eq!(got, expect, "slice {k} cap {cap}");
             }
         }
+    }
+
+    #[test]
+    fn depth_order_sorts_by_depth_then_index() {
+        let d = [3.0, -1.0, 0.0, -0.0, 3.0, 1e-300, -2.5, 70.0];
+        let order = depth_order(&d);
+        let mut expect: Vec<u32> = (0..d.len() as u32).collect();
+        expect.sort_by(|&a, &b| d[a as usize].total_cmp(&d[b as usize]).then(a.cmp(&b)));
+        assert_eq!(order, expect);
+        assert_eq!(order, [6, 1, 3, 2, 5, 0, 4, 7]);
     }
 
     #[test]
