@@ -7,8 +7,8 @@ use crate::frustum::{FrustumFrame, FrustumPoints};
 use crate::rng::{SampleRng, below, normal, shuffle, uniform};
 use crate::slicing::{SliceContext, SliceInterval, SliceStrategy, depth_order, slice_pairs};
 use crate::targets::{BoxEncoding, encode_box, position_labels, size_cluster_of};
-use fusiondet_geometry::corners;
-use fusiondet_kitti::{Box2d, Box3d, ObjectClass};
+use fusiondet_geometry::{alpha_from_ry, corners};
+use fusiondet_kitti::{Box2d, Box3d, Object, ObjectClass};
 
 /// One scale of sub-frustums of one frustum.
 #[derive(Debug, Clone, PartialEq)]
@@ -219,6 +219,21 @@ impl FrustumSample {
     /// Centres of the output positions.
     pub fn positions(&self) -> &[[f64; 3]] {
         &self.scales[self.output_scale].centers
+    }
+
+    /// A KITTI result line for a camera-frame box decoded from this sample (see
+    /// [`crate::decode_box`]): the frustum's class and (clipped) 2D box, alpha from the
+    /// box, truncation and occlusion −1 (results carry none), and `score`.
+    pub fn to_kitti_object(&self, box3d: Box3d, score: f64) -> Object {
+        Object {
+            class: self.class,
+            truncation: -1.0,
+            occlusion: -1,
+            alpha: alpha_from_ry(box3d.ry, box3d.x, box3d.z),
+            bbox: self.box2d,
+            box3d,
+            score: Some(score),
+        }
     }
 
     /// The sample mirrored about the frustum axis (x → −x, heading → π − heading), the
@@ -434,6 +449,35 @@ mod tests {
         // The positive positions follow the shifted object.
         let first_pos = |s: &[i64]| s.iter().position(|&l| l == 1).unwrap();
         assert_eq!(first_pos(&tb.labels), first_pos(&ta.labels) + 5);
+    }
+
+    #[test]
+    fn ground_truth_target_decodes_to_a_kitti_line_like_the_label() {
+        let frame = sample_frame("000003");
+        let label = &frame.objects[0];
+        let s = car_sample(
+            Augmentation {
+                mirror: true,
+                depth_shift: -0.4,
+            },
+            6,
+        );
+        let t = s.target.as_ref().unwrap();
+        let o = s.to_kitti_object(crate::targets::decode_encoding(&t.encoding, &s.frame), 0.9);
+        assert_eq!(
+            (o.class, o.bbox, o.score),
+            (label.class, label.bbox, Some(0.9))
+        );
+        // The label's alpha is reproduced from the decoded box to its two decimals
+        // (1.62 − atan2(1.00, 13.22) = 1.5445 against the labelled 1.55).
+        assert!(
+            (o.alpha - label.alpha).abs() < 0.006,
+            "{} vs {}",
+            o.alpha,
+            label.alpha
+        );
+        let text = fusiondet_kitti::label::format_objects(&[o]);
+        assert!(text.starts_with("Car -1.00 -1 1.54 614.24 181.78 727.31 284.77 1.57 1.73 4.15 1.00 1.75 13.22 1.62 0.9000"), "{text}");
     }
 
     #[test]
