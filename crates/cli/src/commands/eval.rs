@@ -1,8 +1,137 @@
-//! `fusiondet eval` (being written).
+//! `fusiondet eval`: the official KITTI object evaluation on a label directory and a
+//! result directory, printed as the familiar devkit/OpenPCDet table and optionally
+//! written as JSON. The work lives in `fusiondet-eval`.
+
+use anyhow::bail;
+use fusiondet_eval::{
+    EvalConfig, breakdown_table, count_lidar_points, evaluate, evaluate_breakdown, frame_ids,
+    load_dirs, parse_classes, write_json,
+};
+use std::path::PathBuf;
+use std::time::Instant;
+
+const AFTER_HELP: &str = "\
+Protocol: the official devkit (evaluate_object.cpp, 41 recall samples): difficulties
+easy/moderate/hard (min box height 40/25/25 px, max occlusion 0/1/2, max truncation
+0.15/0.30/0.50), Van ignored for Car and Person_sitting for Pedestrian, DontCare regions
+suppress false positives. Every row is reported for the official minimum overlaps (Car
+0.7, Pedestrian/Cyclist 0.5 for bbox, bev and 3d) and the looser ones (Car 0.7/0.5/0.5,
+Pedestrian/Cyclist 0.5/0.25/0.25). AP in percent; AP11 averages 11 recall points, AP_R40
+40. A class without ground truth gets AP 0.
+
+--json OUT writes {\"results\": [{\"class\", \"metric\" (bbox|bev|3d|aos), \"min_overlap\",
+\"ap11\": [easy, moderate, hard], \"ap40\": [...]}, ...]}, plus a \"breakdown\" array with
+--breakdown ({\"class\", \"metric\", \"min_overlap\", \"by\", \"bin\", \"n_gt\", \"ap40\"}, null
+where a bin has no ground truth).
+
+--breakdown reports AP_R40 (bev and 3d, easy/moderate/hard) per bin of:
+  distance      0-20m, 20-40m, 40m+: range of the 3D box centre in the rectified camera
+                frame, sqrt(x^2 + (y - h/2)^2 + z^2), with (x, y, z) the label's
+                bottom-face centre;
+  occlusion     0, 1, 2: the label's occlusion level (3, unknown, is in no bin);
+  lidar_points  <100, 100-200 (inclusive), >200: LiDAR points inside the 3D box, from
+                --velodyne-dir (NNNNNN.bin) and --calib-dir (NNNNNN.txt), both required.
+Filtering rule, per bin: ground truth outside the bin is treated like the devkit's
+ignored ground truth (neither a miss nor a hit; a detection matched to it is dropped).
+A detection matched to an in-bin box is a true positive wherever the detection lies.
+An unmatched detection (a would-be false positive) is charged to the bin of the
+ground-truth box (class or neighbour class) it overlaps most in the measure evaluated
+(overlap > 0); if it overlaps none, by its own box: its centre range for distance, the
+LiDAR points inside it for lidar_points, and to every bin for occlusion (detections have
+no occlusion level). In other bins it is not counted. Thus every ground-truth box and
+every false positive belongs to exactly one bin (false positives overlapping nothing:
+every occlusion bin).";
 
 #[derive(clap::Args)]
-pub struct EvalArgs {}
+#[command(after_long_help = AFTER_HELP)]
+pub struct EvalArgs {
+    /// Ground-truth directory in KITTI label_2 format (NNNNNN.txt).
+    #[arg(long, value_name = "DIR")]
+    label_dir: PathBuf,
+    /// Detection results: NNNNNN.txt per frame, label format plus a 16th column (score).
+    /// A missing file is a frame without detections (the count is reported).
+    #[arg(long, value_name = "DIR")]
+    result_dir: PathBuf,
+    /// Frame ids to evaluate, one per line (e.g. ImageSets/val.txt); default: every
+    /// label file in --label-dir.
+    #[arg(long, value_name = "IDS_FILE")]
+    split: Option<PathBuf>,
+    /// Classes to evaluate, comma-separated, KITTI spelling.
+    #[arg(long, value_name = "LIST", default_value = "Car,Pedestrian,Cyclist")]
+    classes: String,
+    /// Also write the results as JSON to this file (atomically).
+    #[arg(long, value_name = "OUT")]
+    json: Option<PathBuf>,
+    /// Also report AP_R40 by distance, occlusion and LiDAR point count (needs
+    /// --velodyne-dir and --calib-dir; the rule is in --help).
+    #[arg(long)]
+    breakdown: bool,
+    /// LiDAR scans (NNNNNN.bin) for --breakdown.
+    #[arg(long, value_name = "DIR")]
+    velodyne_dir: Option<PathBuf>,
+    /// Calibration files (NNNNNN.txt) for --breakdown.
+    #[arg(long, value_name = "DIR")]
+    calib_dir: Option<PathBuf>,
+}
 
-pub fn run(_args: EvalArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`fusiondet eval` is not available yet")
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    let classes = parse_classes(&args.classes).map_err(|m| anyhow::anyhow!("--classes: {m}"))?;
+    let cfg = EvalConfig {
+        classes,
+        ..EvalConfig::default()
+    };
+    let lidar = match (args.breakdown, &args.velodyne_dir, &args.calib_dir) {
+        (true, Some(v), Some(c)) => Some((v.clone(), c.clone())),
+        (true, _, _) => bail!(
+            "--breakdown needs both --velodyne-dir and --calib-dir (the LiDAR points inside each box are counted from them)"
+        ),
+        (false, v, c) => {
+            if v.is_some() || c.is_some() {
+                eprintln!("warning: --velodyne-dir and --calib-dir are only used with --breakdown");
+            }
+            None
+        }
+    };
+
+    let start = Instant::now();
+    let ids = frame_ids(&args.label_dir, args.split.as_deref())?;
+    let frames = load_dirs(&args.label_dir, &args.result_dir, &ids)?;
+    let missing = &frames.missing_results;
+    if !missing.is_empty() {
+        let shown: Vec<&str> = missing.iter().take(5).map(String::as_str).collect();
+        eprintln!(
+            "warning: {} of {} frames have no result file in {} (evaluated as frames without detections): {}{}",
+            missing.len(),
+            ids.len(),
+            args.result_dir.display(),
+            shown.join(", "),
+            if missing.len() > shown.len() {
+                ", ..."
+            } else {
+                ""
+            }
+        );
+    }
+    let report = evaluate(&frames.gt, &frames.det, &cfg)?;
+    print!("{}", report.table());
+
+    let breakdown = match lidar {
+        Some((velodyne_dir, calib_dir)) => {
+            let points = count_lidar_points(&frames.gt, &frames.det, &velodyne_dir, &calib_dir)?;
+            let rows = evaluate_breakdown(&frames.gt, &frames.det, &cfg, Some(&points))?;
+            print!("{}", breakdown_table(&rows));
+            Some(rows)
+        }
+        None => None,
+    };
+    if let Some(out) = &args.json {
+        write_json(out, &report, breakdown.as_deref())?;
+        eprintln!("wrote {}", out.display());
+    }
+    eprintln!(
+        "evaluated {} frames in {:.3} s",
+        report.frames,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
 }

@@ -1,0 +1,273 @@
+//! End-to-end tests of `fusiondet eval`: the devkit numbers of the mixed case through the
+//! binary and its JSON, the breakdown on the bundled KITTI frames, and bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_fusiondet"))
+}
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn mixed() -> PathBuf {
+    root().join("crates/eval/tests/data/mixed")
+}
+
+fn run(args: &[&str]) -> Output {
+    bin()
+        .arg("eval")
+        .args(args)
+        .output()
+        .expect("run fusiondet")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A writable copy of the mixed case.
+fn copy_mixed(dir: &Path) -> (PathBuf, PathBuf) {
+    let (gt, det) = (dir.join("gt"), dir.join("det"));
+    for (from, to) in [(mixed().join("gt"), &gt), (mixed().join("det"), &det)] {
+        std::fs::create_dir_all(to).unwrap();
+        for entry in std::fs::read_dir(from).unwrap() {
+            let path = entry.unwrap().path();
+            std::fs::copy(&path, to.join(path.file_name().unwrap())).unwrap();
+        }
+    }
+    (gt, det)
+}
+
+#[test]
+fn mixed_case_through_the_binary_matches_the_devkit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("out/eval.json");
+    std::fs::create_dir_all(json.parent().unwrap()).unwrap();
+    let m = mixed();
+    let out = run(&[
+        "--label-dir",
+        s(&m.join("gt")),
+        "--result-dir",
+        s(&m.join("det")),
+        "--split",
+        s(&m.join("ids.txt")),
+        "--json",
+        s(&json),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("Car AP_R40@0.70, 0.70, 0.70:"), "{stdout}");
+    assert!(
+        stdout.contains("Pedestrian AP@0.50, 0.25, 0.25:"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("bbox AP:83.8387, 75.0528, 69.1702"),
+        "{stdout}"
+    );
+
+    let got: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let obj = got.as_object().unwrap();
+    assert_eq!(obj.keys().collect::<Vec<_>>(), ["results"]);
+    let rows = got["results"].as_array().unwrap();
+    // 3 classes × 2 overlap settings × (bbox, bev, 3d, aos).
+    assert_eq!(rows.len(), 24);
+    for row in rows {
+        let keys: Vec<_> = row.as_object().unwrap().keys().cloned().collect();
+        // (serde_json's map sorts keys.)
+        assert_eq!(keys, ["ap11", "ap40", "class", "metric", "min_overlap"]);
+    }
+    let loose_ped_bev = rows
+        .iter()
+        .find(|r| r["class"] == "Pedestrian" && r["metric"] == "bev" && r["min_overlap"] == 0.25)
+        .expect("looser setting reported");
+    assert_eq!(loose_ped_bev["ap40"].as_array().unwrap().len(), 3);
+
+    let expected: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(m.join("expected.json")).unwrap()).unwrap();
+    let mut worst = 0.0f64;
+    for want in expected["results"].as_array().unwrap() {
+        let ours = rows
+            .iter()
+            .find(|r| {
+                r["class"] == want["class"]
+                    && r["metric"] == want["metric"]
+                    && r["min_overlap"] == want["min_overlap"]
+            })
+            .unwrap_or_else(|| panic!("no row for {want}"));
+        for key in ["ap11", "ap40"] {
+            for d in 0..3 {
+                let diff = (ours[key][d].as_f64().unwrap() - want[key][d].as_f64().unwrap()).abs();
+                worst = worst.max(diff);
+            }
+        }
+    }
+    println!("largest |AP difference| through the binary: {worst:.6}");
+    assert!(worst < 0.01, "{worst}");
+}
+
+#[test]
+fn breakdown_on_the_bundled_kitti_frames() {
+    let tmp = tempfile::tempdir().unwrap();
+    let split = tmp.path().join("real.txt");
+    std::fs::write(
+        &split,
+        "000000\n000001\n000002\n000003\n000004\n000005\n000134\n",
+    )
+    .unwrap();
+    let json = tmp.path().join("b.json");
+    let m = mixed();
+    let sample = root().join("data/kitti-sample/training");
+    let out = run(&[
+        "--label-dir",
+        s(&m.join("gt")),
+        "--result-dir",
+        s(&m.join("det")),
+        "--split",
+        s(&split),
+        "--breakdown",
+        "--velodyne-dir",
+        s(&sample.join("velodyne")),
+        "--calib-dir",
+        s(&sample.join("calib")),
+        "--json",
+        s(&json),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stdout).contains("lidar_points"));
+    let got: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(got["results"].as_array().unwrap().len(), 24);
+    let rows = got["breakdown"].as_array().unwrap();
+    // 3 classes × 2 settings × (bev, 3d) × 9 bins.
+    assert_eq!(rows.len(), 108);
+    // Every hard Car box of these frames lies in exactly one distance and one point bin.
+    let hard_cars = |by: &str| -> u64 {
+        rows.iter()
+            .filter(|r| {
+                r["class"] == "Car"
+                    && r["metric"] == "3d"
+                    && r["min_overlap"] == 0.7
+                    && r["by"] == by
+            })
+            .map(|r| r["n_gt"][2].as_u64().unwrap())
+            .sum()
+    };
+    assert!(hard_cars("distance") > 0);
+    assert_eq!(hard_cars("distance"), hard_cars("lidar_points"));
+    assert_eq!(hard_cars("distance"), hard_cars("occlusion"));
+}
+
+#[test]
+fn missing_result_files_are_counted_and_reported() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (gt, det) = copy_mixed(tmp.path());
+    std::fs::remove_file(det.join("000001.txt")).unwrap();
+    std::fs::remove_file(det.join("100010.txt")).unwrap();
+    let out = run(&["--label-dir", s(&gt), "--result-dir", s(&det)]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.contains("2 of 307 frames have no result file"), "{err}");
+    assert!(err.contains("000001, 100010"), "{err}");
+
+    // An empty result directory: everything missing, every AP 0, still success.
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = run(&["--label-dir", s(&gt), "--result-dir", s(&empty)]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stderr).contains("307 of 307 frames have no result file"));
+    assert!(text(&out.stdout).contains("3d   AP:0.0000, 0.0000, 0.0000"));
+}
+
+#[test]
+fn malformed_result_line_names_file_line_and_field() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (gt, det) = copy_mixed(tmp.path());
+    let path = det.join("000003.txt");
+    let body = std::fs::read_to_string(&path).unwrap();
+    let mut lines: Vec<String> = body.lines().map(String::from).collect();
+    let mut cols: Vec<&str> = lines[1].split(' ').collect();
+    cols[5] = "12,5";
+    lines[1] = cols.join(" ");
+    std::fs::write(&path, lines.join("\n")).unwrap();
+    let out = run(&["--label-dir", s(&gt), "--result-dir", s(&det)]);
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(err.contains("000003.txt:2: field `bbox_top`"), "{err}");
+    assert!(err.contains("results"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn result_line_without_score_and_bad_ground_truth_are_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (gt, det) = copy_mixed(tmp.path());
+    // Drop the score of the first detection of 000004.
+    let path = det.join("000004.txt");
+    let body = std::fs::read_to_string(&path).unwrap();
+    let first = body.lines().next().unwrap();
+    let without = first.rsplit_once(' ').unwrap().0;
+    std::fs::write(&path, body.replacen(first, without, 1)).unwrap();
+    let out = run(&["--label-dir", s(&gt), "--result-dir", s(&det)]);
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(err.contains("000004.txt:1: field `score`"), "{err}");
+
+    // A ground-truth line cut short.
+    std::fs::copy(mixed().join("det/000004.txt"), &path).unwrap();
+    std::fs::write(gt.join("000002.txt"), "Car 0.00 0 1.0 1 2 3\n").unwrap();
+    let out = run(&["--label-dir", s(&gt), "--result-dir", s(&det)]);
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("ground truth") && err.contains("000002.txt:1"),
+        "{err}"
+    );
+}
+
+#[test]
+fn bad_options_are_clear_errors() {
+    let m = mixed();
+    let (gt, det) = (m.join("gt"), m.join("det"));
+    let dirs = ["--label-dir", s(&gt), "--result-dir"];
+    let with = |extra: &[&str]| run(&[&dirs[..], extra].concat());
+    let out = with(&[s(&det), "--classes", "Car,Bus"]);
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("unknown class `Bus`"),
+        "{}",
+        text(&out.stderr)
+    );
+
+    let out = with(&[s(&det), "--breakdown"]);
+    assert!(!out.status.success());
+    assert!(text(&out.stderr).contains("--breakdown needs both --velodyne-dir and --calib-dir"));
+
+    let out = with(&["/no/such/results"]);
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("/no/such/results"),
+        "{}",
+        text(&out.stderr)
+    );
+
+    let out = with(&[s(&det), "--split", "/no/such/split.txt"]);
+    assert!(!out.status.success());
+    assert!(text(&out.stderr).contains("/no/such/split.txt"));
+
+    // The breakdown rule is documented in --help.
+    let out = bin().args(["eval", "--help"]).output().unwrap();
+    let help = text(&out.stdout);
+    assert!(
+        help.contains("Filtering rule") && help.contains("sqrt(x^2 + (y - h/2)^2 + z^2)"),
+        "{help}"
+    );
+}
