@@ -75,10 +75,11 @@ fn bench(c: &mut Criterion) {
         })
     });
 
-    let frame_pipeline = |frame: &Frame| {
+    let frame_pipeline = |frame: &Frame, boxes: usize| {
         let mut rng = derive_rng(1, &[]);
         let samples: Vec<_> = dets
             .iter()
+            .take(boxes)
             .filter_map(|d| {
                 let fp = extract_frustum(frame, &d.bbox, config.depth_range, 5.0).ok()?;
                 let source = SampleSource {
@@ -99,14 +100,22 @@ fn bench(c: &mut Criterion) {
             .collect();
         collate(&samples)
     };
-    c.bench_function(
-        "frame end to end (project + extract + sample + slice + collate)",
-        |b| {
+    for boxes in [8, dets.len()] {
+        let kept = frame_pipeline(&frame, boxes).batch_size;
+        eprintln!("first {boxes} detections: {kept} frustums");
+        let name = format!(
+            "frame end to end, {boxes} boxes (project + extract + sample + slice + collate)"
+        );
+        c.bench_function(&name, |b| {
             b.iter(|| {
                 let frame = Frame::new(id, &calib, black_box(&lidar), image_size, vec![]).unwrap();
-                frame_pipeline(&frame)
+                frame_pipeline(&frame, boxes)
             })
-        },
+        });
+    }
+    c.bench_function(
+        "load frame from disk (read calib + velodyne, project)",
+        |b| b.iter(|| Frame::load(&dir, black_box(id), false).unwrap()),
     );
 }
 

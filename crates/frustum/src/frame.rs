@@ -34,8 +34,8 @@ impl ProjectedCloud {
             std::array::from_fn(|r| std::array::from_fn(|c| camera.velo_to_rect[(r, c)]));
         let p: [[f64; 4]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| camera.p2[(r, c)]));
         let (w, h) = (image_size[0], image_size[1]);
-        let mut rect = Vec::with_capacity(lidar.len() / 4);
-        let mut uv = Vec::with_capacity(lidar.len() / 4);
+        let mut rect = Vec::with_capacity(lidar.len());
+        let mut uv = Vec::with_capacity(lidar.len());
         for q in lidar {
             let (x, y, z) = (q[0] as f64, q[1] as f64, q[2] as f64);
             let r = t.map(|row| row[0] * x + row[1] * y + row[2] * z + row[3]);
@@ -52,6 +52,9 @@ impl ProjectedCloud {
                 uv.push([u, v]);
             }
         }
+        // A full scan keeps about a sixth of its points: hand the rest back.
+        rect.shrink_to_fit();
+        uv.shrink_to_fit();
         ProjectedCloud { rect, uv }
     }
 
