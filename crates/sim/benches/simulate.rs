@@ -1,0 +1,41 @@
+//! Frames per second of the simulator on this machine: a full frame (scene, LiDAR,
+//! camera, labels, 2D detections), its parts, and encoding/writing its files.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use fusiondet_sim::{SimConfig, simulate_frame};
+use std::hint::black_box;
+
+fn bench(c: &mut Criterion) {
+    let cfg = SimConfig::default();
+    let mut g = c.benchmark_group("sim");
+    g.sample_size(20);
+    // Different frames (worlds) per iteration, so the median covers scene variety.
+    let mut i = 0usize;
+    g.bench_function("simulate_frame", |b| {
+        b.iter(|| {
+            i += 1;
+            black_box(simulate_frame(7, i % 50, &cfg))
+        })
+    });
+    let frame = simulate_frame(7, 3, &cfg);
+    g.bench_function("png_encode", |b| {
+        b.iter(|| {
+            let mut bytes = Vec::new();
+            frame
+                .image
+                .write_to(
+                    &mut std::io::Cursor::new(&mut bytes),
+                    image::ImageFormat::Png,
+                )
+                .unwrap();
+            black_box(bytes)
+        })
+    });
+    g.bench_function("velodyne_encode", |b| {
+        b.iter(|| black_box(fusiondet_kitti::velodyne::encode_velodyne(&frame.points)))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,268 @@
+//! Writing a dataset: argument checks, the output directory, frames in parallel
+//! (each file atomic, the label last), then the split lists, the 2D detection files
+//! and the statistics — so an interrupted run never leaves a dataset whose index
+//! files claim frames that are not all there.
+
+use crate::stats::{DatasetStats, FrameStats};
+use crate::{SimConfig, Split, simulate_frame};
+use fusiondet_kitti::{
+    DatasetDir, Detection2d, FormatError, write_calib, write_detections2d, write_objects,
+    write_split, write_velodyne,
+};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// The image path prefix F-PointNet's detection files use.
+pub const IMAGE_PREFIX: &str = "dataset/KITTI/object/training/image_2/";
+/// Name of the statistics file written next to `training/`.
+pub const STATS_FILE: &str = "sim_stats.json";
+/// KITTI frame ids have six digits.
+pub const MAX_FRAMES: usize = 1_000_000;
+
+/// Why a dataset could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("{0}")]
+    InvalidArgument(String),
+    #[error(
+        "{}: the output directory exists and is not empty; pass --force to overwrite the dataset in it, or choose another directory",
+        .0.display()
+    )]
+    NotEmpty(PathBuf),
+    #[error("{}: cannot create or use the output directory: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Format(#[from] FormatError),
+}
+
+/// What to write.
+#[derive(Debug, Clone)]
+pub struct DatasetOptions {
+    pub out: PathBuf,
+    pub frames: usize,
+    pub seed: u64,
+    /// Overwrite a non-empty output directory (only the simulator's own files are removed).
+    pub force: bool,
+    pub config: SimConfig,
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SimError + '_ {
+    move |source| SimError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Checks the arguments before any work is done.
+pub fn validate(opts: &DatasetOptions) -> Result<(), SimError> {
+    if opts.frames == 0 {
+        return Err(SimError::InvalidArgument(
+            "--frames must be at least 1".to_string(),
+        ));
+    }
+    if opts.frames > MAX_FRAMES {
+        return Err(SimError::InvalidArgument(format!(
+            "--frames must be at most {MAX_FRAMES} (KITTI frame ids have six digits)"
+        )));
+    }
+    let f = opts.config.val_fraction;
+    if !(0.0..=1.0).contains(&f) {
+        return Err(SimError::InvalidArgument(format!(
+            "--val-fraction must be between 0 and 1, got {f}"
+        )));
+    }
+    Ok(())
+}
+
+/// Is `name` one of the files this simulator writes into `dir` (a subfolder name)?
+fn is_ours(dir: &str, name: &str) -> bool {
+    let (stem, ext) = name.rsplit_once('.').unwrap_or((name, ""));
+    let frame = stem.len() == 6 && stem.bytes().all(|b| b.is_ascii_digit());
+    let temp = name.starts_with('.') && name.contains(".tmp");
+    match dir {
+        "velodyne" => temp || (frame && ext == "bin"),
+        "calib" | "label_2" => temp || (frame && ext == "txt"),
+        "image_2" => temp || (frame && ext == "png"),
+        "ImageSets" => temp || matches!(name, "train.txt" | "val.txt" | "trainval.txt"),
+        "rgb_detections" => {
+            temp || matches!(name, "rgb_detection_train.txt" | "rgb_detection_val.txt")
+        }
+        _ => temp || name == STATS_FILE,
+    }
+}
+
+/// Prepares the output directory: refuses a non-empty one unless `force`, in which
+/// case the simulator's own files from an earlier run are removed (nothing else).
+fn prepare_dir(opts: &DatasetOptions) -> Result<DatasetDir, SimError> {
+    let root = &opts.out;
+    if root.exists() {
+        if !root.is_dir() {
+            return Err(SimError::InvalidArgument(format!(
+                "{}: the output path exists and is not a directory",
+                root.display()
+            )));
+        }
+        let non_empty = std::fs::read_dir(root)
+            .map_err(io_err(root))?
+            .next()
+            .is_some();
+        if non_empty && !opts.force {
+            return Err(SimError::NotEmpty(root.clone()));
+        }
+        if non_empty {
+            let dirs = [
+                ("training/velodyne", "velodyne"),
+                ("training/calib", "calib"),
+                ("training/label_2", "label_2"),
+                ("training/image_2", "image_2"),
+                ("ImageSets", "ImageSets"),
+                ("rgb_detections", "rgb_detections"),
+                ("", ""),
+            ];
+            for (sub, kind) in dirs {
+                let dir = root.join(sub);
+                let Ok(entries) = std::fs::read_dir(&dir) else {
+                    continue;
+                };
+                for entry in entries {
+                    let entry = entry.map_err(io_err(&dir))?;
+                    let path = entry.path();
+                    if path.is_file() && is_ours(kind, &entry.file_name().to_string_lossy()) {
+                        std::fs::remove_file(&path).map_err(io_err(&path))?;
+                    }
+                }
+            }
+        }
+    }
+    let ds = DatasetDir::new(root);
+    let training = ds.training();
+    for sub in ["velodyne", "calib", "label_2", "image_2"] {
+        let dir = training.root.join(sub);
+        std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    }
+    for dir in [root.join("ImageSets"), root.join("rgb_detections")] {
+        std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    }
+    Ok(ds)
+}
+
+/// Writes one simulated frame's four files (the label last).
+pub fn write_frame(ds: &DatasetDir, f: &crate::SimFrame) -> Result<(), SimError> {
+    let t = ds.training();
+    write_velodyne(&t.velodyne(&f.id), &f.points)?;
+    write_calib(&t.calib(&f.id), &f.calib)?;
+    fusiondet_kitti::image::write_png(&t.image(&f.id), &f.image)?;
+    write_objects(&t.label(&f.id), &f.objects)?;
+    Ok(())
+}
+
+/// Simulates and writes a dataset; `progress(done, total)` is called after each frame.
+/// Returns the realism statistics (also written to `sim_stats.json`).
+pub fn write_dataset(
+    opts: &DatasetOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<DatasetStats, SimError> {
+    validate(opts)?;
+    let ds = prepare_dir(opts)?;
+    let done = AtomicUsize::new(0);
+    let results: Vec<(FrameStats, Vec<Detection2d>, Split, String)> = (0..opts.frames)
+        .into_par_iter()
+        .map(|i| {
+            let f = simulate_frame(opts.seed, i, &opts.config);
+            write_frame(&ds, &f)?;
+            progress(done.fetch_add(1, Ordering::Relaxed) + 1, opts.frames);
+            Ok((FrameStats::from_frame(&f), f.detections, f.split, f.id))
+        })
+        .collect::<Result<_, SimError>>()?;
+    // Index files last: they only ever list frames that are complete on disk.
+    let ids = |split: Option<Split>| -> Vec<String> {
+        results
+            .iter()
+            .filter(|r| split.is_none_or(|s| r.2 == s))
+            .map(|r| r.3.clone())
+            .collect()
+    };
+    write_split(&ds.split("train"), &ids(Some(Split::Train)))?;
+    write_split(&ds.split("val"), &ids(Some(Split::Val)))?;
+    write_split(&ds.split("trainval"), &ids(None))?;
+    for (split, name) in [(Split::Train, "train"), (Split::Val, "val")] {
+        let dets: Vec<Detection2d> = results
+            .iter()
+            .filter(|r| r.2 == split)
+            .flat_map(|r| r.1.iter().cloned())
+            .collect();
+        write_detections2d(&ds.rgb_detections(name), &dets, IMAGE_PREFIX)?;
+    }
+    let frame_stats: Vec<FrameStats> = results.into_iter().map(|r| r.0).collect();
+    let stats = DatasetStats::from_frames(&frame_stats);
+    fusiondet_kitti::write_atomic(&opts.out.join(STATS_FILE), stats.to_json().as_bytes())?;
+    Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn opts(out: &Path, frames: usize) -> DatasetOptions {
+        DatasetOptions {
+            out: out.to_path_buf(),
+            frames,
+            seed: 1,
+            force: false,
+            config: SimConfig::default(),
+        }
+    }
+
+    #[test]
+    fn bad_arguments_are_refused_before_any_work() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = write_dataset(&opts(dir.path(), 0), &|_, _| {}).unwrap_err();
+        assert!(
+            err.to_string().contains("--frames must be at least 1"),
+            "{err}"
+        );
+        let mut o = opts(dir.path(), 1);
+        o.config.val_fraction = 1.5;
+        assert!(
+            write_dataset(&o, &|_, _| {})
+                .unwrap_err()
+                .to_string()
+                .contains("--val-fraction")
+        );
+        std::fs::write(dir.path().join("keep.txt"), "x").unwrap();
+        let err = write_dataset(&opts(dir.path(), 1), &|_, _| {}).unwrap_err();
+        assert!(matches!(err, SimError::NotEmpty(_)), "{err}");
+        assert!(err.to_string().contains("--force"));
+    }
+
+    #[test]
+    fn force_removes_only_our_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        std::fs::create_dir_all(root.join("training/velodyne")).unwrap();
+        std::fs::write(root.join("training/velodyne/000007.bin"), b"").unwrap();
+        std::fs::write(root.join("training/velodyne/notes.txt"), b"mine").unwrap();
+        std::fs::write(root.join("keep.txt"), b"mine").unwrap();
+        let mut o = opts(root, 1);
+        o.force = true;
+        prepare_dir(&o).unwrap();
+        assert!(!root.join("training/velodyne/000007.bin").exists());
+        assert!(root.join("training/velodyne/notes.txt").exists());
+        assert!(root.join("keep.txt").exists());
+        assert!(root.join("training/image_2").is_dir());
+    }
+
+    #[test]
+    fn our_file_names() {
+        assert!(is_ours("velodyne", "000001.bin"));
+        assert!(!is_ours("velodyne", "000001.txt"));
+        assert!(is_ours("image_2", ".000001.png.tmp123"));
+        assert!(is_ours("", "sim_stats.json"));
+        assert!(!is_ours("", "README.md"));
+    }
+}
