@@ -364,3 +364,139 @@ impl From<&BreakdownRow> for JsonBreakdownRow {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frames::tests_support::{det, gt};
+    use crate::{Difficulty, evaluate, synthetic};
+    use fusiondet_kitti::ObjectClass::Car;
+
+    /// A 4 m × 1.6 m car at (x, z), 100 px high in the image at column `u`.
+    fn at(mut o: Object, x: f64, z: f64) -> Object {
+        o.box3d.x = x;
+        o.box3d.z = z;
+        o
+    }
+
+    fn frame() -> (FrameGt, FrameDet) {
+        let bbox = |u: f64| [u, 100.0, u + 80.0, 200.0];
+        let near = at(gt(Car, bbox(100.0)), 0.0, 10.0);
+        let mut far = at(gt(Car, bbox(300.0)), 0.0, 30.0);
+        far.occlusion = 1;
+        let dets = vec![
+            at(det(Car, bbox(100.0), 0.9), 0.0, 10.0),    // hits `near`
+            at(det(Car, bbox(300.0), 0.8), 0.0, 30.0),    // hits `far`
+            at(det(Car, bbox(500.0), 0.99), 2.5, 10.0), // BEV IoU 0.23 with `near`: a near false positive
+            at(det(Car, bbox(700.0), 0.95), -15.0, 30.0), // overlaps nothing, 33.5 m away
+        ];
+        (
+            FrameGt::new("000000", vec![near, far]),
+            FrameDet::new("000000", dets),
+        )
+    }
+
+    fn row<'a>(rows: &'a [BreakdownRow], axis: BreakdownAxis, bin: &str) -> &'a BreakdownRow {
+        rows.iter()
+            .find(|r| r.axis == axis && r.bin == bin && r.metric == Metric::Bev && r.setting == 0)
+            .unwrap()
+    }
+
+    /// (tp, fp) at the last threshold, hard difficulty.
+    fn tp_fp(r: &BreakdownRow) -> (u64, u64) {
+        let c = &r.curves[Difficulty::Hard.index()];
+        let last = c.thresholds.len() - 1;
+        (c.tp[last], c.fp[last])
+    }
+
+    #[test]
+    fn false_positives_are_charged_to_one_bin() {
+        let (g, d) = frame();
+        let cfg = EvalConfig {
+            classes: vec![Car],
+            ..EvalConfig::default()
+        };
+        let points = [FramePoints {
+            gt: vec![50, 150],
+            det: vec![50, 150, 40, 300],
+        }];
+        let rows = evaluate_breakdown(&[g], &[d], &cfg, Some(&points)).unwrap();
+        // Distance: the badly placed detection goes with the car it overlaps, the stray
+        // one by its own range (33.5 m).
+        assert_eq!(tp_fp(row(&rows, BreakdownAxis::Distance, "0-20m")), (1, 1));
+        assert_eq!(tp_fp(row(&rows, BreakdownAxis::Distance, "20-40m")), (1, 1));
+        let empty = row(&rows, BreakdownAxis::Distance, "40m+");
+        assert_eq!((empty.n_gt, empty.ap40), ([0; 3], [None; 3]));
+        // Occlusion: the far car (level 1) exists from moderate on; the stray detection
+        // has no level and counts in every bin.
+        let occ0 = row(&rows, BreakdownAxis::Occlusion, "0");
+        let occ1 = row(&rows, BreakdownAxis::Occlusion, "1");
+        assert_eq!((occ0.n_gt, occ1.n_gt), ([1, 1, 1], [0, 1, 1]));
+        assert_eq!(tp_fp(occ0), (1, 2));
+        assert_eq!(tp_fp(occ1), (1, 1));
+        // LiDAR points: the stray detection has 300 points of its own: bin >200, which has
+        // no ground truth; the two cars' bins see only the overlapping false positive.
+        assert_eq!(
+            tp_fp(row(&rows, BreakdownAxis::LidarPoints, "<100")),
+            (1, 1)
+        );
+        assert_eq!(
+            tp_fp(row(&rows, BreakdownAxis::LidarPoints, "100-200")),
+            (1, 0)
+        );
+        assert_eq!(row(&rows, BreakdownAxis::LidarPoints, ">200").n_gt, [0; 3]);
+    }
+
+    #[test]
+    fn every_ground_truth_box_is_in_exactly_one_bin() {
+        let (g, d) = synthetic::generate(300, 3);
+        let cfg = EvalConfig::default();
+        let report = evaluate(&g, &d, &cfg).unwrap();
+        let rows = evaluate_breakdown(&g, &d, &cfg, None).unwrap();
+        assert!(rows.iter().all(|r| r.axis != BreakdownAxis::LidarPoints));
+        for &class in &cfg.classes {
+            for axis in [BreakdownAxis::Distance, BreakdownAxis::Occlusion] {
+                let mut sum = [0; 3];
+                for r in rows.iter().filter(|r| {
+                    r.class == class
+                        && r.axis == axis
+                        && r.metric == Metric::ThreeD
+                        && r.setting == 1
+                }) {
+                    for (acc, n) in sum.iter_mut().zip(r.n_gt) {
+                        *acc += n;
+                    }
+                }
+                assert_eq!(sum, report.n_gt(class), "{class} {axis:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn range_and_bins() {
+        let b = Box3d {
+            h: 2.0,
+            w: 1.0,
+            l: 1.0,
+            x: 3.0,
+            y: 1.0,
+            z: 4.0,
+            ry: 0.0,
+        };
+        // Centre (3, 0, 4).
+        assert!((box_centre_range(&b) - 5.0).abs() < 1e-12);
+        assert_eq!(
+            [distance_bin(19.99), distance_bin(20.0), distance_bin(40.0)],
+            [0, 1, 2]
+        );
+        assert_eq!(
+            [
+                points_bin(99),
+                points_bin(100),
+                points_bin(200),
+                points_bin(201)
+            ],
+            [0, 1, 1, 2]
+        );
+    }
+}

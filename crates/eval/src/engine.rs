@@ -10,9 +10,13 @@
 //!   score threshold. DontCare regions reduce to one number per detection and measure
 //!   (its largest overlap over the detection's own area), because the devkit only asks
 //!   whether *some* region exceeds the minimum overlap.
+//! * Per frame and task, only the (ground truth, detection) pairs with overlap above the
+//!   minimum are kept as candidates: no devkit branch can select any other pair, so a
+//!   detection without candidates is a false positive (or not) on its own and never
+//!   changes the matching.
 //! * The second pass runs, per frame, once per distinct set of above-threshold
-//!   detections rather than once per threshold: a frame's matching only changes when a
-//!   threshold crosses one of its own scores.
+//!   candidate detections rather than once per threshold: a frame's matching only
+//!   changes when a threshold crosses one of their scores.
 //! * Frames are processed in parallel (rayon fold/reduce); scratch buffers live in the
 //!   fold accumulator, so the inner loops do not allocate.
 //!
@@ -57,8 +61,6 @@ pub(crate) struct ClassFrame {
     pub ov: [Vec<f64>; 3],
     /// Per measure: the detection's largest overlap with a DontCare region, over its own area.
     pub dc: [Vec<f64>; 3],
-    /// The kept detections' scores, descending.
-    pub sorted_scores: Vec<f64>,
 }
 
 impl ClassFrame {
@@ -158,7 +160,6 @@ fn prepare_class(
         det_alpha: Vec::new(),
         ov: Default::default(),
         dc: Default::default(),
-        sorted_scores: Vec::new(),
     };
     for (i, o) in gt.iter().enumerate() {
         let exact = o.class == class;
@@ -224,8 +225,6 @@ fn prepare_class(
                 .fold(0.0, f64::max);
         }
     }
-    cf.sorted_scores = cf.det_score.clone();
-    cf.sorted_scores.sort_by(|a, b| b.total_cmp(a));
     cf
 }
 
@@ -265,33 +264,115 @@ fn count_valid_gt(cf: &ClassFrame, d: usize, mask: Option<&BinMask>) -> usize {
         .count()
 }
 
-/// First pass (`compute_fp = false`): each ground-truth box takes the highest-scoring
-/// unassigned detection with overlap > min; pushes the scores of valid pairs.
-fn pass1(
+/// Per-frame, per-task working memory, reused across frames so the loops do not allocate.
+#[derive(Default)]
+struct Scratch {
+    assigned: Vec<bool>,
+    /// (detection, overlap) pairs with overlap > min, grouped by ground-truth box in
+    /// detection order: the only pairs any devkit branch can select.
+    cand: Vec<(u32, f64)>,
+    /// Ground-truth box g's candidates are `cand[cand_start[g]..cand_start[g + 1]]`.
+    cand_start: Vec<u32>,
+    is_cand: Vec<bool>,
+    /// Detections that are a candidate of some box, ascending.
+    cand_dets: Vec<u32>,
+    /// Their scores, descending: the matching only changes when a threshold crosses one.
+    cand_scores: Vec<f64>,
+    /// Scores (descending) of the other detections that count as false positives
+    /// whenever they are above the threshold.
+    lone_fp_scores: Vec<f64>,
+}
+
+impl Scratch {
+    /// Collects the candidate pairs of one task. A detection that overlaps no box by more
+    /// than the minimum is never selected by any of the devkit's branches, so it cannot
+    /// influence the matching: it is simply a false positive (or not) on its own.
+    fn build(&mut self, cf: &ClassFrame, task: &Task) {
+        let nd = cf.n_det();
+        let ov = &cf.ov[task.overlap];
+        self.cand.clear();
+        self.cand_start.clear();
+        self.is_cand.clear();
+        self.is_cand.resize(nd, false);
+        for g in 0..cf.n_gt() {
+            self.cand_start.push(self.cand.len() as u32);
+            for (j, &o) in ov[g * nd..(g + 1) * nd].iter().enumerate() {
+                if o > task.min_overlap {
+                    self.cand.push((j as u32, o));
+                    self.is_cand[j] = true;
+                }
+            }
+        }
+        self.cand_start.push(self.cand.len() as u32);
+        self.cand_dets.clear();
+        self.cand_scores.clear();
+        for j in 0..nd {
+            if self.is_cand[j] {
+                self.cand_dets.push(j as u32);
+                self.cand_scores.push(cf.det_score[j]);
+            }
+        }
+        self.cand_scores.sort_by(|a, b| b.total_cmp(a));
+    }
+
+    /// Fills `lone_fp_scores` for difficulty `d` (after `build`).
+    fn lone_false_positives(
+        &mut self,
+        cf: &ClassFrame,
+        d: usize,
+        task: &Task,
+        mask: Option<&BinMask>,
+    ) {
+        let dc = &cf.dc[task.overlap];
+        let exempt = mask.map(|m| &m.det_exempt[task.overlap]);
+        self.lone_fp_scores.clear();
+        for j in 0..cf.n_det() {
+            if !self.is_cand[j] && counts_as_fp(cf, d, j, dc, exempt, task.min_overlap) {
+                self.lone_fp_scores.push(cf.det_score[j]);
+            }
+        }
+        self.lone_fp_scores.sort_by(|a, b| b.total_cmp(a));
+    }
+
+    fn candidates(&self, g: usize) -> &[(u32, f64)] {
+        &self.cand[self.cand_start[g] as usize..self.cand_start[g + 1] as usize]
+    }
+}
+
+/// Whether an unassigned above-threshold detection is a false positive: a valid
+/// detection, not inside a DontCare region ("stuff") and, in a breakdown bin, not
+/// charged to another bin.
+#[inline]
+fn counts_as_fp(
     cf: &ClassFrame,
     d: usize,
-    task: &Task,
-    mask: Option<&BinMask>,
-    assigned: &mut Vec<bool>,
-    v: &mut Vec<f64>,
-) {
-    let nd = cf.n_det();
-    if nd == 0 {
+    j: usize,
+    dc: &[f64],
+    exempt: Option<&Vec<bool>>,
+    min: f64,
+) -> bool {
+    cf.det_ig[d][j] == DET_VALID && !exempt.is_some_and(|e| e[j]) && dc[j] <= min
+}
+
+/// First pass (`compute_fp = false`): each ground-truth box takes the highest-scoring
+/// unassigned candidate (ignored detections included); pushes the scores of the
+/// valid box–valid detection pairs. Needs `s.build` for this task.
+fn pass1(cf: &ClassFrame, d: usize, mask: Option<&BinMask>, s: &mut Scratch, v: &mut Vec<f64>) {
+    if s.cand.is_empty() {
         return;
     }
-    assigned.clear();
-    assigned.resize(nd, false);
-    let ov = &cf.ov[task.overlap];
+    s.assigned.clear();
+    s.assigned.resize(cf.n_det(), false);
     let det_ig = &cf.det_ig[d];
     for g in 0..cf.n_gt() {
-        let row = &ov[g * nd..(g + 1) * nd];
         let mut det_idx = usize::MAX;
         let mut best = NO_DETECTION;
-        for j in 0..nd {
-            if det_ig[j] == DET_OTHER || assigned[j] {
+        for &(j, _) in s.candidates(g) {
+            let j = j as usize;
+            if det_ig[j] == DET_OTHER || s.assigned[j] {
                 continue;
             }
-            if row[j] > task.min_overlap && cf.det_score[j] > best {
+            if cf.det_score[j] > best {
                 det_idx = j;
                 best = cf.det_score[j];
             }
@@ -299,17 +380,18 @@ fn pass1(
         if det_idx == usize::MAX {
             continue;
         }
-        assigned[det_idx] = true;
+        s.assigned[det_idx] = true;
         if effective_gt_ig(cf, d, g, mask) == GT_VALID && det_ig[det_idx] == DET_VALID {
             v.push(cf.det_score[det_idx]);
         }
     }
 }
 
-/// Second pass (`compute_fp = true`) at score threshold `thresh`: each ground-truth box
-/// takes the unassigned above-threshold detection of greatest overlap, preferring valid
-/// detections over ignored ones exactly as the devkit's three-branch rule does.
-#[allow(clippy::too_many_arguments)]
+/// Second pass (`compute_fp = true`) at score threshold `thresh`, over the candidate
+/// pairs: each ground-truth box takes the unassigned above-threshold candidate of
+/// greatest overlap, preferring valid detections over ignored ones exactly as the
+/// devkit's three-branch rule does. False positives are counted among the candidate
+/// detections only (the others are counted by the caller). Needs `s.build`.
 fn pass2(
     cf: &ClassFrame,
     d: usize,
@@ -317,31 +399,28 @@ fn pass2(
     thresh: f64,
     mask: Option<&BinMask>,
     aos: bool,
-    assigned: &mut Vec<bool>,
+    s: &mut Scratch,
 ) -> Acc {
-    let nd = cf.n_det();
-    let min = task.min_overlap;
-    let ov = &cf.ov[task.overlap];
     let det_ig = &cf.det_ig[d];
     let mut acc = Acc::default();
-    assigned.clear();
-    assigned.resize(nd, false);
+    s.assigned.clear();
+    s.assigned.resize(cf.n_det(), false);
     for g in 0..cf.n_gt() {
-        let row = &ov[g * nd..(g + 1) * nd];
         let mut det_idx = usize::MAX;
         let mut max_iou = 0.0;
         let mut assigned_ignored_det = false;
-        for j in 0..nd {
+        for &(j, o) in s.candidates(g) {
+            let j = j as usize;
             let ig = det_ig[j];
-            if ig == DET_OTHER || assigned[j] || cf.det_score[j] < thresh {
+            if ig == DET_OTHER || s.assigned[j] || cf.det_score[j] < thresh {
                 continue;
             }
-            let o = row[j];
-            if o > min && (o > max_iou || assigned_ignored_det) && ig == DET_VALID {
+            // Every candidate has o > min.
+            if (o > max_iou || assigned_ignored_det) && ig == DET_VALID {
                 max_iou = o;
                 det_idx = j;
                 assigned_ignored_det = false;
-            } else if o > min && det_idx == usize::MAX && ig == DET_IGNORED {
+            } else if det_idx == usize::MAX && ig == DET_IGNORED {
                 det_idx = j;
                 assigned_ignored_det = true;
             }
@@ -352,27 +431,25 @@ fn pass2(
                 acc.fn_ += 1;
             }
         } else if gt_ig == GT_IGNORED || det_ig[det_idx] == DET_IGNORED {
-            assigned[det_idx] = true;
+            s.assigned[det_idx] = true;
         } else {
             acc.tp += 1;
             if aos {
                 acc.sim += (1.0 + (cf.gt_alpha[g] - cf.det_alpha[det_idx]).cos()) / 2.0;
             }
-            assigned[det_idx] = true;
+            s.assigned[det_idx] = true;
         }
     }
-    // False positives: unassigned valid detections above the threshold, except those
-    // inside a DontCare region ("stuff") and, in a breakdown bin, those charged elsewhere.
     let dc = &cf.dc[task.overlap];
     let exempt = mask.map(|m| &m.det_exempt[task.overlap]);
-    for j in 0..nd {
-        if assigned[j] || det_ig[j] != DET_VALID || cf.det_score[j] < thresh {
-            continue;
+    for &j in &s.cand_dets {
+        let j = j as usize;
+        if !s.assigned[j]
+            && cf.det_score[j] >= thresh
+            && counts_as_fp(cf, d, j, dc, exempt, task.min_overlap)
+        {
+            acc.fp += 1;
         }
-        if exempt.is_some_and(|e| e[j]) || dc[j] > min {
-            continue;
-        }
-        acc.fp += 1;
     }
     acc
 }
@@ -400,6 +477,9 @@ pub(crate) fn get_thresholds(v: &mut [f64], n_gt: usize) -> Vec<f64> {
 
 /// Runs both passes for every task at every difficulty. `masks[frame][class]` applies a
 /// breakdown bin; `aos` adds orientation similarity to the bbox tasks.
+///
+/// Frames are split into fixed chunks processed in parallel and summed in frame order,
+/// so the floating-point similarity sums are identical from run to run.
 pub(crate) fn run(
     prep: &Prepared,
     tasks: &[Task],
@@ -410,37 +490,38 @@ pub(crate) fn run(
     let mask_of = |fi: usize, ci: usize| masks.map(|m| &m[fi][ci]);
 
     // Pass 1: true-positive scores and ground-truth counts.
-    let (mut scores, n_gt) = prep
+    let partial: Vec<(Vec<Vec<f64>>, Vec<usize>)> = prep
         .frames
-        .par_iter()
+        .par_chunks(CHUNK)
         .enumerate()
-        .fold(
-            || (vec![Vec::new(); slots], vec![0usize; slots], Vec::new()),
-            |(mut v, mut n, mut scratch), (fi, classes)| {
+        .map(|(c, chunk)| {
+            let mut v = vec![Vec::new(); slots];
+            let mut n = vec![0usize; slots];
+            let mut s = Scratch::default();
+            for (k, classes) in chunk.iter().enumerate() {
                 for (ti, task) in tasks.iter().enumerate() {
                     let cf = &classes[task.class_idx];
-                    let mask = mask_of(fi, task.class_idx);
+                    let mask = mask_of(c * CHUNK + k, task.class_idx);
+                    s.build(cf, task);
                     for d in 0..3 {
                         n[ti * 3 + d] += count_valid_gt(cf, d, mask);
-                        pass1(cf, d, task, mask, &mut scratch, &mut v[ti * 3 + d]);
+                        pass1(cf, d, mask, &mut s, &mut v[ti * 3 + d]);
                     }
                 }
-                (v, n, scratch)
-            },
-        )
-        .map(|(v, n, _)| (v, n))
-        .reduce(
-            || (vec![Vec::new(); slots], vec![0usize; slots]),
-            |(mut va, mut na), (vb, nb)| {
-                for (a, b) in va.iter_mut().zip(vb) {
-                    a.extend(b);
-                }
-                for (a, b) in na.iter_mut().zip(nb) {
-                    *a += b;
-                }
-                (va, na)
-            },
-        );
+            }
+            (v, n)
+        })
+        .collect();
+    let mut scores = vec![Vec::new(); slots];
+    let mut n_gt = vec![0usize; slots];
+    for (v, n) in partial {
+        for (a, b) in scores.iter_mut().zip(v) {
+            a.extend(b);
+        }
+        for (a, b) in n_gt.iter_mut().zip(n) {
+            *a += b;
+        }
+    }
 
     let thresholds: Vec<Vec<f64>> = scores
         .iter_mut()
@@ -454,47 +535,56 @@ pub(crate) fn run(
     }
     let total = *offsets.last().unwrap();
 
-    // Pass 2: counts at every threshold. Fixed chunks summed in frame order keep the
-    // floating-point similarity sums identical from run to run, whatever the threads do.
+    // Pass 2: counts at every threshold. A frame's matching only changes when a
+    // threshold crosses one of its candidate detections' scores, so it is recomputed
+    // only then; lone false positives are added by counting scores.
     let partial: Vec<Vec<Acc>> = prep
         .frames
         .par_chunks(CHUNK)
         .enumerate()
         .map(|(c, chunk)| {
             let mut acc = vec![Acc::default(); total];
-            let mut scratch = Vec::new();
+            let mut s = Scratch::default();
             for (k, classes) in chunk.iter().enumerate() {
-                let fi = c * CHUNK + k;
                 for (ti, task) in tasks.iter().enumerate() {
+                    if (0..3).all(|d| thresholds[ti * 3 + d].is_empty()) {
+                        continue;
+                    }
                     let cf = &classes[task.class_idx];
-                    let mask = mask_of(fi, task.class_idx);
+                    let mask = mask_of(c * CHUNK + k, task.class_idx);
                     let with_aos = aos && task.overlap == 0;
+                    s.build(cf, task);
                     for d in 0..3 {
                         let slot = ti * 3 + d;
                         let th = &thresholds[slot];
                         if th.is_empty() {
                             continue;
                         }
+                        s.lone_false_positives(cf, d, task, mask);
                         let out = &mut acc[offsets[slot]..offsets[slot + 1]];
                         let mut level = usize::MAX;
                         let mut stat = Acc::default();
-                        let mut k = 0;
+                        let (mut kc, mut kf) = (0, 0);
                         for (i, &t) in th.iter().enumerate() {
-                            while k < cf.sorted_scores.len() && cf.sorted_scores[k] >= t {
-                                k += 1;
+                            while kc < s.cand_scores.len() && s.cand_scores[kc] >= t {
+                                kc += 1;
                             }
-                            if k != level {
-                                level = k;
-                                stat = if k == 0 {
+                            while kf < s.lone_fp_scores.len() && s.lone_fp_scores[kf] >= t {
+                                kf += 1;
+                            }
+                            if kc != level {
+                                level = kc;
+                                stat = if kc == 0 {
                                     Acc {
                                         fn_: count_valid_gt(cf, d, mask) as u64,
                                         ..Acc::default()
                                     }
                                 } else {
-                                    pass2(cf, d, task, t, mask, with_aos, &mut scratch)
+                                    pass2(cf, d, task, t, mask, with_aos, &mut s)
                                 };
                             }
                             out[i] += stat;
+                            out[i].fp += kf as u64;
                         }
                     }
                 }

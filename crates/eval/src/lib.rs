@@ -26,6 +26,8 @@ mod evaluate;
 pub mod frames;
 pub mod load;
 pub mod protocol;
+#[cfg(test)]
+mod reference;
 pub mod report;
 pub mod synthetic;
 

@@ -32,6 +32,17 @@ impl Rng {
     }
 }
 
+/// KITTI's DontCare 3D fields: sizes −1 at −1000 m.
+const DONTCARE_3D: Box3d = Box3d {
+    h: -1.0,
+    w: -1.0,
+    l: -1.0,
+    x: -1000.0,
+    y: -1000.0,
+    z: -1000.0,
+    ry: -10.0,
+};
+
 const IMAGE_W: f64 = 1242.0;
 const IMAGE_H: f64 = 375.0;
 const FOCAL: f64 = 721.5377;
@@ -166,22 +177,13 @@ pub fn generate(n_frames: usize, seed: u64) -> (Vec<FrameGt>, Vec<FrameDet>) {
                 x2: x1 + rng.range(10.0, 80.0),
                 y2: y1 + rng.range(8.0, 40.0),
             };
-            let b = Box3d {
-                h: -1.0,
-                w: -1.0,
-                l: -1.0,
-                x: -1000.0,
-                y: -1000.0,
-                z: -1000.0,
-                ry: -10.0,
-            };
             gt.push(Object {
                 class: ObjectClass::DontCare,
                 truncation: -1.0,
                 occlusion: -1,
                 alpha: -10.0,
                 bbox,
-                box3d: b,
+                box3d: DONTCARE_3D,
                 score: None,
             });
         }
@@ -239,6 +241,26 @@ pub fn generate(n_frames: usize, seed: u64) -> (Vec<FrameGt>, Vec<FrameDet>) {
             if let Some((bbox, _)) = image_box(&b) {
                 let score = (rng.unit() * 0.6 * 1e4).round() / 1e4;
                 det.push(object(class, b, bbox, -1.0, -1, Some(score)));
+                // Detectors fire on unlabelled objects, which KITTI marks DontCare: a
+                // region around (or partly over) some false positives.
+                if rng.unit() < 0.4 {
+                    let grow = rng.range(-0.3, 0.3);
+                    let (w, h) = (bbox.width(), bbox.height());
+                    gt.push(Object {
+                        class: ObjectClass::DontCare,
+                        truncation: -1.0,
+                        occlusion: -1,
+                        alpha: -10.0,
+                        bbox: Box2d {
+                            x1: bbox.x1 - grow * w,
+                            y1: bbox.y1 - 0.1 * h,
+                            x2: bbox.x2 + 0.1 * w,
+                            y2: bbox.y2 + 0.1 * h,
+                        },
+                        box3d: DONTCARE_3D,
+                        score: None,
+                    });
+                }
             }
         }
         gts.push(FrameGt::new(id.clone(), gt));
