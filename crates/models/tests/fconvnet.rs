@@ -563,3 +563,12 @@ fn configuration_reads_from_toml() {
     assert!(FConvNetConfig::from_toml_str("[model]\nwidths = 3\n").is_err());
     assert!(FConvNetConfig::from_toml_str("[model]\nfcn_channels = [1, 2]\n").is_err());
 }
+
+#[test]
+fn bundled_configuration_files_match_the_presets() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+    let car = FConvNetConfig::from_toml_file(&dir.join("fconvnet_car.toml")).unwrap();
+    assert_eq!(car, FConvNetConfig::car());
+    let tiny = FConvNetConfig::from_toml_file(&dir.join("fconvnet_tiny.toml")).unwrap();
+    assert_eq!(tiny, FConvNetConfig::tiny());
+}
