@@ -26,15 +26,107 @@ pub struct ScaleInputs {
     pub cap: usize,
     /// Pair coordinates relative to their slice centre, [num_pairs, 3].
     pub rel_coords: Tensor<2>,
-    /// Pairs in the fullest slice (at least 1): the pooling window of the ragged form.
-    pub pool_width: usize,
-    /// [num_slices · pool_width] rows into the pair features with a zero row appended
-    /// (row `num_pairs`): slice s's window repeats its own pairs (duplicates do not change
-    /// a max); an empty slice points only at the zero row.
-    pub pool_index: Tensor<1, Int>,
+    /// How the ragged form max-pools the pair features into slices.
+    pub pool: SlicePool,
     /// Host copies, for building the padded form on demand.
     rel_host: Vec<f32>,
     slice_start: Vec<usize>,
+}
+
+/// Max-pooling of ragged pair rows into slices, by gather.
+///
+/// The pair features get a zero row appended (row `num_pairs`). Slices are grouped into
+/// buckets by their pair count rounded up to a power of two; a bucket of width w gathers
+/// [slices · w] rows — each slice's window repeats its own pairs (duplicates do not change
+/// a max), an empty slice points at the zero row — and takes the max over the window.
+/// Buckets keep the gathered volume under twice the pairs plus the slices, where one
+/// window as wide as the fullest slice would gather slices × cap rows. `restore` puts the
+/// bucket-ordered slices back in slice order.
+#[derive(Debug, Clone)]
+pub struct SlicePool {
+    pub buckets: Vec<PoolBucket>,
+    /// [num_slices]: row of each slice in the concatenated bucket outputs; `None` when
+    /// that is already slice order.
+    pub restore: Option<Tensor<1, Int>>,
+}
+
+#[derive(Debug, Clone)]
+pub struct PoolBucket {
+    pub width: usize,
+    pub num_slices: usize,
+    /// [num_slices · width] rows into the pair features (with the zero row).
+    pub index: Tensor<1, Int>,
+}
+
+impl SlicePool {
+    /// `counts[s]` pairs per slice, slice s's pairs starting at row `starts[s]`.
+    fn new(counts: &[usize], starts: &[usize], num_pairs: usize, device: &Device) -> Self {
+        let width = |c: usize| c.max(1).next_power_of_two();
+        let mut by_width: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+        for (s, &c) in counts.iter().enumerate() {
+            by_width.entry(width(c)).or_default().push(s);
+        }
+        let mut restore = vec![0i64; counts.len()];
+        let mut next = 0;
+        let buckets = by_width
+            .into_iter()
+            .map(|(w, slices)| {
+                let mut index = Vec::with_capacity(slices.len() * w);
+                for &s in &slices {
+                    restore[s] = next;
+                    next += 1;
+                    let (start, n) = (starts[s], counts[s]);
+                    index.extend(
+                        (0..w).map(|j| if n == 0 { num_pairs } else { start + j % n } as i64),
+                    );
+                }
+                PoolBucket {
+                    width: w,
+                    num_slices: slices.len(),
+                    index: Tensor::from_data(TensorData::new(index, [slices.len() * w]), device),
+                }
+            })
+            .collect::<Vec<_>>();
+        let in_order = restore.iter().enumerate().all(|(i, &r)| r == i as i64);
+        let n = restore.len();
+        Self {
+            buckets,
+            restore: (!in_order).then(|| Tensor::from_data(TensorData::new(restore, [n]), device)),
+        }
+    }
+
+    /// Rows gathered in total (for diagnostics).
+    pub fn gathered_rows(&self) -> usize {
+        self.buckets.iter().map(|b| b.width * b.num_slices).sum()
+    }
+
+    /// Per-slice max of `features` ([num_pairs + 1, C], the last row zero) → [num_slices, C].
+    pub fn max_pool(&self, features: Tensor<2>) -> Tensor<2> {
+        let c = features.dims()[1];
+        let parts: Vec<Tensor<2>> = self
+            .buckets
+            .iter()
+            .map(|b| {
+                let rows = features.clone().select(0, b.index.clone());
+                if b.width == 1 {
+                    rows
+                } else {
+                    rows.reshape([b.num_slices, b.width, c])
+                        .max_dim(1)
+                        .reshape([b.num_slices, c])
+                }
+            })
+            .collect();
+        let pooled = if parts.len() == 1 {
+            parts.into_iter().next().unwrap()
+        } else {
+            Tensor::cat(parts, 0)
+        };
+        match &self.restore {
+            Some(r) => pooled.select(0, r.clone()),
+            None => pooled,
+        }
+    }
 }
 
 /// The padded form of one scale: every slice padded to the cap, with masks.
@@ -206,25 +298,14 @@ impl ScaleInputs {
         for c in &counts {
             slice_start.push(slice_start.last().unwrap() + c);
         }
-        let pool_width = fullest.max(1);
-        let mut index = Vec::with_capacity(num_slices * pool_width);
-        for sl in 0..num_slices {
-            let (start, n) = (slice_start[sl], counts[sl]);
-            for j in 0..pool_width {
-                index.push(if n == 0 { num_pairs } else { start + j % n } as i64);
-            }
-        }
+        let pool = SlicePool::new(&counts, &slice_start, num_pairs, device);
         Ok(Self {
             num_slices,
             slices_per_frustum: s.slices_per_frustum,
             num_pairs,
             cap: s.max_points_per_slice.max(1),
             rel_coords: Tensor::from_data(TensorData::new(rel.clone(), [num_pairs, 3]), device),
-            pool_width,
-            pool_index: Tensor::from_data(
-                TensorData::new(index, [num_slices * pool_width]),
-                device,
-            ),
+            pool,
             rel_host: rel,
             slice_start,
         })

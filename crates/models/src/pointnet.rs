@@ -2,8 +2,9 @@
 //! max-pooled into one feature vector per sub-frustum.
 //!
 //! The ragged form runs the MLP on exactly the real pairs ([pairs, C]), then max-pools
-//! through a gather index (see [`ScaleInputs::pool_index`]); batch-norm statistics are over
-//! the real pairs. The padded form (every slice padded to the cap, masked) computes the
+//! through gather indices (see [`SlicePool`](crate::inputs::SlicePool)); batch-norm
+//! statistics are over the real pairs. The last ReLU is applied after the pool
+//! (max and ReLU commute, gradients included), on slices instead of pairs. The padded form (every slice padded to the cap, masked) computes the
 //! same function with far more work and exists to check the ragged one.
 
 use crate::config::{ModelConfig, SliceEncoderKind};
@@ -30,7 +31,12 @@ impl MlpLayer {
     }
 
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
-        relu(self.norm.forward(self.linear.forward(x)))
+        relu(self.forward_pre_activation(x))
+    }
+
+    /// Linear + BatchNorm, without the ReLU.
+    pub fn forward_pre_activation(&self, x: Tensor<2>) -> Tensor<2> {
+        self.norm.forward(self.linear.forward(x))
     }
 
     /// Like [`forward`](Self::forward), with batch-norm statistics over the rows where
@@ -114,15 +120,14 @@ impl PointNet {
         if scale.num_pairs == 0 {
             return Tensor::zeros([scale.num_slices, c], &device);
         }
+        let (last, rest) = self.layers.split_last().expect("at least one layer");
         let mut x = scale.rel_coords.clone();
-        for layer in &self.layers {
+        for layer in rest {
             x = layer.forward(x);
         }
+        let x = last.forward_pre_activation(x);
         let x = Tensor::cat(vec![x, Tensor::zeros([1, c], &device)], 0);
-        x.select(0, scale.pool_index.clone())
-            .reshape([scale.num_slices, scale.pool_width, c])
-            .max_dim(1)
-            .reshape([scale.num_slices, c])
+        relu(scale.pool.max_pool(x))
     }
 
     /// Padded form: the same function computed on every slice padded to the cap.

@@ -61,6 +61,8 @@ fn ragged_and_padded_pointnets_agree_in_outputs_and_gradients() {
     let batch = batch_with_empty_slices(&SyntheticSpec::tiny(3), 7);
     let inputs = model.inputs(&batch, &device).unwrap();
     assert!(inputs.scales.iter().all(|s| s.num_pairs > 0));
+    // Several pooling buckets, out of slice order, are exercised.
+    assert!(inputs.scales.iter().any(|s| s.pool.buckets.len() > 2 && s.pool.restore.is_some()));
 
     // Per-scale slice features, training mode (batch statistics over the real pairs).
     for (k, (enc, scale)) in model.encoders.iter().zip(&inputs.scales).enumerate() {
