@@ -62,7 +62,12 @@ fn ragged_and_padded_pointnets_agree_in_outputs_and_gradients() {
     let inputs = model.inputs(&batch, &device).unwrap();
     assert!(inputs.scales.iter().all(|s| s.num_pairs > 0));
     // Several pooling buckets, out of slice order, are exercised.
-    assert!(inputs.scales.iter().any(|s| s.pool.buckets.len() > 2 && s.pool.restore.is_some()));
+    assert!(
+        inputs
+            .scales
+            .iter()
+            .any(|s| s.pool.buckets.len() > 2 && s.pool.restore.is_some())
+    );
 
     // Per-scale slice features, training mode (batch statistics over the real pairs).
     for (k, (enc, scale)) in model.encoders.iter().zip(&inputs.scales).enumerate() {
@@ -573,4 +578,16 @@ fn bundled_configuration_files_match_the_presets() {
     assert_eq!(car, FConvNetConfig::car());
     let tiny = FConvNetConfig::from_toml_file(&dir.join("fconvnet_tiny.toml")).unwrap();
     assert_eq!(tiny, FConvNetConfig::tiny());
+}
+
+#[test]
+fn batch_tensors_and_the_model_can_move_between_threads() {
+    fn send<T: Send + 'static>() {}
+    send::<BatchInputs>();
+    send::<LossTargets>();
+    send::<FConvNet>();
+    fn sync<T: Sync>() {}
+    sync::<FConvNet>();
+    sync::<BatchInputs>();
+    send::<FConvNetOutput>();
 }
