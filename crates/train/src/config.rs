@@ -1,0 +1,188 @@
+//! The experiment configuration: one TOML file with the frustum data set
+//! (`[frustum]`), the network (`[model]`), its loss (`[loss]`), training (`[train]`)
+//! and detection (`[detect]`) settings. Every key has the published F-ConvNet Car
+//! value as default; unknown keys are errors, so a typo never goes unnoticed.
+
+use crate::error::{Result, TrainError};
+use crate::schedule::StepDecay;
+use fusiondet_frustum::FrustumConfig;
+use fusiondet_models::{FConvNetConfig, LossConfig, ModelConfig};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ExperimentConfig {
+    /// A name for logs and result headers.
+    pub name: String,
+    pub frustum: FrustumConfig,
+    pub model: ModelConfig,
+    pub loss: LossConfig,
+    pub train: TrainConfig,
+    pub detect: DetectConfig,
+}
+
+/// Training as published for F-ConvNet: Adam, lr 1e-3, weight decay 1e-4, batch 32,
+/// lr × 0.1 at epoch 20 of 50.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Seeds weight initialisation, 2D-box jitter, sampling, augmentation and order.
+    pub seed: u64,
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub lr: StepDecay,
+    pub weight_decay: f64,
+    /// The split (an `ImageSets/*.txt` name) to train on.
+    pub split: String,
+    /// Use at most this many frames of the split (in split order); 0 uses all.
+    pub max_frames: usize,
+}
+
+/// Test-time settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DetectConfig {
+    /// 3D NMS IoU threshold across a frame's frustums (F-ConvNet: 0.1).
+    pub nms_iou: f64,
+    /// Frustums per forward pass.
+    pub batch_size: usize,
+    /// Seeds the point sampling of test frustums.
+    pub seed: u64,
+}
+
+impl Default for ExperimentConfig {
+    fn default() -> Self {
+        ExperimentConfig {
+            name: "fconvnet-car".into(),
+            frustum: FrustumConfig::car(),
+            model: ModelConfig::car(),
+            loss: LossConfig::default(),
+            train: TrainConfig::default(),
+            detect: DetectConfig::default(),
+        }
+    }
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig {
+            seed: 1,
+            epochs: 50,
+            batch_size: 32,
+            lr: StepDecay {
+                base_lr: 1e-3,
+                factor: 0.1,
+                milestones: vec![20],
+                every: None,
+            },
+            weight_decay: 1e-4,
+            split: "train".into(),
+            max_frames: 0,
+        }
+    }
+}
+
+impl Default for DetectConfig {
+    fn default() -> Self {
+        DetectConfig {
+            nms_iou: 0.1,
+            batch_size: 32,
+            seed: 7,
+        }
+    }
+}
+
+impl ExperimentConfig {
+    pub fn from_toml_str(text: &str, path: &Path) -> Result<Self> {
+        let config: ExperimentConfig = toml::from_str(text).map_err(|e| TrainError::Config {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| TrainError::Config {
+            path: path.to_path_buf(),
+            message: format!("cannot read: {e}"),
+        })?;
+        Self::from_toml_str(&text, path)
+    }
+
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string_pretty(self).expect("the experiment configuration serialises")
+    }
+
+    /// The network + loss part, as the models crate takes it.
+    pub fn network(&self) -> FConvNetConfig {
+        FConvNetConfig {
+            model: self.model.clone(),
+            loss: self.loss.clone(),
+        }
+    }
+
+    fn validate(&self, path: &Path) -> Result<()> {
+        let bad = |message: String| {
+            Err(TrainError::Config {
+                path: path.to_path_buf(),
+                message,
+            })
+        };
+        self.frustum.validate().map_err(|e| TrainError::Config {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        self.model.validate().map_err(|e| TrainError::Config {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        if self.train.batch_size == 0 {
+            return bad("train.batch_size must be at least 1".into());
+        }
+        if self.detect.batch_size == 0 {
+            return bad("detect.batch_size must be at least 1".into());
+        }
+        if self.train.lr.base_lr.is_nan() || self.train.lr.base_lr <= 0.0 {
+            return bad("train.lr.base_lr must be positive".into());
+        }
+        if !(0.0..1.0).contains(&self.detect.nms_iou) {
+            return bad("detect.nms_iou must be in [0, 1)".into());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_file_is_the_published_car_configuration() {
+        let c = ExperimentConfig::from_toml_str("", Path::new("x.toml")).unwrap();
+        assert_eq!(c, ExperimentConfig::default());
+        assert_eq!(c.train.batch_size, 32);
+        assert_eq!(c.detect.nms_iou, 0.1);
+    }
+
+    #[test]
+    fn round_trips_through_toml() {
+        let c = ExperimentConfig::default();
+        let back =
+            ExperimentConfig::from_toml_str(&c.to_toml_string(), Path::new("x.toml")).unwrap();
+        assert_eq!(back, c);
+    }
+
+    #[test]
+    fn typos_and_bad_values_are_named() {
+        let err = ExperimentConfig::from_toml_str("[train]\nepochz = 3\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("c.toml") && err.contains("epochz"), "{err}");
+        let err = ExperimentConfig::from_toml_str("[train]\nbatch_size = 0\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("batch_size"), "{err}");
+    }
+}

@@ -1,0 +1,148 @@
+//! Detection: 2D detections → frustums → network → one 3D box per frustum → per-frame
+//! 3D NMS → KITTI result files. Score = 3D object probability + 2D detection score,
+//! as F-ConvNet reports it.
+
+use crate::config::ExperimentConfig;
+use crate::error::{Result, TrainError};
+use crate::trainer::load_split;
+use burn::prelude::*;
+use fusiondet_frustum::{FrameSource, FrustumDataset, SkipCounts, decode_box};
+use fusiondet_geometry::nms_3d;
+use fusiondet_kitti::{DatasetDir, Detection2d, Object, read_detections2d, write_objects};
+use fusiondet_models::{FConvNet, decode};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// What `fusiondet detect` was asked to do.
+#[derive(Debug, Clone)]
+pub struct DetectOptions {
+    pub config: ExperimentConfig,
+    pub checkpoint: PathBuf,
+    pub data_dir: PathBuf,
+    pub split: String,
+    pub out_dir: PathBuf,
+    /// 2D detections; `None` reads `DATA/rgb_detections/rgb_detection_<split>.txt`.
+    pub detections: Option<PathBuf>,
+}
+
+/// What a detection run did, with its time per stage.
+#[derive(Debug, Clone, Default)]
+pub struct DetectSummary {
+    pub frames: usize,
+    pub detections_2d: usize,
+    pub frustums: usize,
+    pub skipped: SkipCounts,
+    pub boxes_written: usize,
+    pub timing: StageTimes,
+}
+
+/// Wall time per stage of detection.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StageTimes {
+    pub load: Duration,
+    pub frustums: Duration,
+    pub network: Duration,
+    pub decode_nms: Duration,
+}
+
+/// Runs detection on in-memory frames and returns each frame's result objects
+/// (frames without detections map to an empty list). `model` must live on `device`.
+pub fn detect_frames<S: FrameSource>(
+    model: &FConvNet,
+    device: &Device,
+    config: &ExperimentConfig,
+    frames: S,
+    detections: &[Detection2d],
+    timing: &mut StageTimes,
+) -> Result<(BTreeMap<String, Vec<Object>>, SkipCounts, usize)> {
+    let ids: Vec<String> = (0..frames.len())
+        .map(|i| frames.frame_id(i).to_string())
+        .collect();
+    let t = Instant::now();
+    let dataset = FrustumDataset::from_detections(frames, detections, config.frustum.clone())?;
+    timing.frustums += t.elapsed();
+    let mut candidates: BTreeMap<String, Vec<Object>> =
+        ids.into_iter().map(|id| (id, Vec::new())).collect();
+    for prepared in dataset.in_order(config.detect.seed, config.detect.batch_size) {
+        let t = Instant::now();
+        let prepared = prepared?;
+        timing.frustums += t.elapsed();
+        let t = Instant::now();
+        let inputs = model.inputs(&prepared.batch, device)?;
+        let output = model.forward_inputs(&inputs);
+        let predictions = decode(&output, &inputs, &config.model)?;
+        timing.network += t.elapsed();
+        let t = Instant::now();
+        for (sample, p) in prepared.samples.iter().zip(&predictions) {
+            let box3d = decode_box(
+                [0.0; 3],
+                p.center.map(f64::from),
+                p.heading_bin,
+                p.heading_residual as f64,
+                p.size_cluster,
+                p.size_residual.map(f64::from),
+                &sample.frame,
+            );
+            let score = p.score as f64 + sample.score.unwrap_or(0.0);
+            candidates
+                .entry(sample.frame_id.clone())
+                .or_default()
+                .push(sample.to_kitti_object(box3d, score));
+        }
+        timing.decode_nms += t.elapsed();
+    }
+    let t = Instant::now();
+    let results = candidates
+        .into_iter()
+        .map(|(id, objects)| {
+            let boxes: Vec<_> = objects.iter().map(|o| o.box3d).collect();
+            let scores: Vec<f64> = objects.iter().map(|o| o.score.unwrap_or(0.0)).collect();
+            let keep = nms_3d(&boxes, &scores, config.detect.nms_iou);
+            (id, keep.into_iter().map(|k| objects[k].clone()).collect())
+        })
+        .collect();
+    timing.decode_nms += t.elapsed();
+    Ok((results, dataset.skips(), dataset.len()))
+}
+
+/// Loads the split, runs detection and writes one KITTI result file per frame of the
+/// split (empty when nothing was detected), atomically.
+pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
+    let cfg = &options.config;
+    let mut timing = StageTimes::default();
+    let t = Instant::now();
+    let device = Device::flex();
+    let model = fusiondet_models::load_checkpoint(&cfg.model, &options.checkpoint, &device)?;
+    let frames = load_split(&options.data_dir, &options.split, 0, false)?;
+    let det_path = options
+        .detections
+        .clone()
+        .unwrap_or_else(|| DatasetDir::new(&options.data_dir).rgb_detections(&options.split));
+    let detections = read_detections2d(&det_path)?;
+    timing.load += t.elapsed();
+    let num_frames = frames.len();
+    let (results, skipped, frustums) =
+        detect_frames(&model, &device, cfg, frames, &detections, &mut timing)?;
+    write_results(&options.out_dir, &results)?;
+    Ok(DetectSummary {
+        frames: num_frames,
+        detections_2d: detections.len(),
+        frustums,
+        skipped,
+        boxes_written: results.values().map(Vec::len).sum(),
+        timing,
+    })
+}
+
+/// Writes `OUT/<id>.txt` for every frame.
+pub fn write_results(out_dir: &Path, results: &BTreeMap<String, Vec<Object>>) -> Result<()> {
+    std::fs::create_dir_all(out_dir).map_err(|e| TrainError::RunDir {
+        path: out_dir.to_path_buf(),
+        message: format!("cannot create the result directory: {e}"),
+    })?;
+    for (id, objects) in results {
+        write_objects(&out_dir.join(format!("{id}.txt")), objects)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,21 @@
+//! Errors of training and detection; each says what to do next.
+
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Format(#[from] fusiondet_kitti::FormatError),
+    #[error(transparent)]
+    Frustum(#[from] fusiondet_frustum::FrustumError),
+    #[error(transparent)]
+    Model(#[from] fusiondet_models::ModelError),
+    #[error("{}: {message}", path.display())]
+    Config { path: PathBuf, message: String },
+    #[error("{}: {message}", path.display())]
+    RunDir { path: PathBuf, message: String },
+    #[error("{0}")]
+    Data(String),
+}
+
+pub type Result<T> = std::result::Result<T, TrainError>;

@@ -1,0 +1,199 @@
+//! Train → resume → detect → evaluate on a small simulated dataset with the tiny network.
+
+use burn::prelude::*;
+use fusiondet_frustum::{FrustumConfig, InMemoryFrames};
+use fusiondet_kitti::{DatasetDir, read_detections2d, read_split};
+use fusiondet_models::{ModelConfig, load_checkpoint};
+use fusiondet_train::{
+    DetectOptions, ExperimentConfig, TrainOptions, detect, detect_frames, train,
+};
+use std::path::Path;
+use std::sync::OnceLock;
+
+/// A 12-frame simulated dataset shared by the tests of this file.
+fn dataset() -> &'static Path {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let opts = fusiondet_sim::DatasetOptions {
+            out: dir.path().join("sim"),
+            frames: 12,
+            seed: 5,
+            force: false,
+            config: fusiondet_sim::SimConfig::default(),
+        };
+        fusiondet_sim::write_dataset(&opts, &|_, _| {}).unwrap();
+        dir
+    })
+    .path()
+    .join("sim")
+    .leak()
+}
+
+/// Bit-for-bit reproducibility holds for one training per process: two trainings
+/// sharing rayon's pool change how its parallel float reductions split. The tests of
+/// this file therefore take turns.
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn tiny(epochs: usize) -> ExperimentConfig {
+    let mut c = ExperimentConfig {
+        name: "tiny".into(),
+        model: ModelConfig::tiny(),
+        ..Default::default()
+    };
+    c.frustum = FrustumConfig {
+        points_per_frustum: 256,
+        ..FrustumConfig::car()
+    };
+    c.frustum.augment.copies = 2;
+    c.train.epochs = epochs;
+    c.train.batch_size = 4;
+    c.train.split = "trainval".into();
+    c.detect.batch_size = 8;
+    c
+}
+
+fn train_run(dir: &Path, epochs: usize, resume: bool) -> fusiondet_train::TrainSummary {
+    train(&TrainOptions {
+        config: tiny(epochs),
+        data_dir: dataset().to_path_buf(),
+        run_dir: dir.to_path_buf(),
+        resume,
+        progress: false,
+    })
+    .unwrap()
+}
+
+/// The network's outputs on the same val frames, as a fingerprint of the weights.
+fn fingerprint(model_path: &Path) -> Vec<f64> {
+    let cfg = tiny(1);
+    let device = Device::flex();
+    let model = load_checkpoint(&cfg.model, model_path, &device).unwrap();
+    let ds = DatasetDir::new(dataset());
+    let ids = read_split(&ds.split("val")).unwrap();
+    let frames = InMemoryFrames::load(&ds.training(), &ids, false).unwrap();
+    let dets = read_detections2d(&ds.rgb_detections("val")).unwrap();
+    let mut timing = Default::default();
+    let (results, _, _) = detect_frames(&model, &device, &cfg, frames, &dets, &mut timing).unwrap();
+    results
+        .values()
+        .flatten()
+        .flat_map(|o| {
+            [
+                o.box3d.x,
+                o.box3d.z,
+                o.box3d.l,
+                o.box3d.ry,
+                o.score.unwrap(),
+            ]
+        })
+        .collect()
+}
+
+#[test]
+fn resume_after_an_epoch_gives_the_same_weights_as_an_uninterrupted_run() {
+    let _turn = one_at_a_time();
+    let straight = tempfile::tempdir().unwrap();
+    let s = train_run(straight.path(), 2, false);
+    assert_eq!(s.epochs_run, 2);
+    assert!(s.frustums >= 8, "{s:?}");
+    let metrics = std::fs::read_to_string(straight.path().join("metrics.jsonl")).unwrap();
+    assert_eq!(metrics.lines().count(), 2);
+    assert!(metrics.contains("\"loss_total\""), "{metrics}");
+
+    let interrupted = tempfile::tempdir().unwrap();
+    train_run(interrupted.path(), 1, false);
+    let r = train_run(interrupted.path(), 2, true);
+    assert_eq!(r.epochs_run, 1);
+    let metrics = std::fs::read_to_string(interrupted.path().join("metrics.jsonl")).unwrap();
+    assert_eq!(metrics.lines().count(), 2);
+
+    let a = fingerprint(&straight.path().join("model.bpk"));
+    let b = fingerprint(&interrupted.path().join("model.bpk"));
+    assert!(!a.is_empty());
+    assert_eq!(a, b, "resumed training diverged from the uninterrupted run");
+}
+
+#[test]
+fn a_run_directory_in_use_needs_resume_and_the_same_config() {
+    let _turn = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    train_run(dir.path(), 1, false);
+    let err = train(&TrainOptions {
+        config: tiny(1),
+        data_dir: dataset().to_path_buf(),
+        run_dir: dir.path().to_path_buf(),
+        resume: false,
+        progress: false,
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("--resume"), "{err}");
+    let mut other = tiny(1);
+    other.train.seed = 99;
+    let err = train(&TrainOptions {
+        config: other,
+        data_dir: dataset().to_path_buf(),
+        run_dir: dir.path().to_path_buf(),
+        resume: true,
+        progress: false,
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("another configuration"), "{err}");
+}
+
+#[test]
+fn detect_writes_a_result_file_per_frame_that_the_evaluation_reads() {
+    let _turn = one_at_a_time();
+    let run = tempfile::tempdir().unwrap();
+    train_run(run.path(), 1, false);
+    let out = run.path().join("results");
+    let summary = detect(&DetectOptions {
+        config: tiny(1),
+        checkpoint: run.path().join("model.bpk"),
+        data_dir: dataset().to_path_buf(),
+        split: "val".into(),
+        out_dir: out.clone(),
+        detections: None,
+    })
+    .unwrap();
+    let ids = read_split(&DatasetDir::new(dataset()).split("val")).unwrap();
+    assert_eq!(summary.frames, ids.len());
+    for id in &ids {
+        assert!(
+            out.join(format!("{id}.txt")).is_file(),
+            "no result for {id}"
+        );
+    }
+    assert!(summary.boxes_written > 0 && summary.boxes_written <= summary.frustums);
+    let label_dir = dataset().join("training/label_2");
+    let split = DatasetDir::new(dataset()).split("val");
+    let (report, loaded) =
+        fusiondet_eval::evaluate_dirs(&label_dir, &out, Some(&split), &Default::default()).unwrap();
+    assert!(loaded.missing_results.is_empty());
+    assert_eq!(report.frames, ids.len());
+}
+
+#[test]
+fn a_checkpoint_from_another_config_is_refused() {
+    let _turn = one_at_a_time();
+    let run = tempfile::tempdir().unwrap();
+    train_run(run.path(), 1, false);
+    let mut other = tiny(1);
+    other.model = ModelConfig::car();
+    let err = detect(&DetectOptions {
+        config: other,
+        checkpoint: run.path().join("model.bpk"),
+        data_dir: dataset().to_path_buf(),
+        split: "val".into(),
+        out_dir: run.path().join("r"),
+        detections: None,
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("another model configuration"), "{err}");
+}
