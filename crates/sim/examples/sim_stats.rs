@@ -25,6 +25,14 @@ fn main() {
         })
         .collect();
     let secs = t.elapsed().as_secs_f64();
+    if let Ok(path) = std::env::var("SIM_RECORDS") {
+        // One JSON line per frame, for offline analysis.
+        let lines: Vec<String> = stats
+            .iter()
+            .map(|f| serde_json::to_string(f).unwrap())
+            .collect();
+        std::fs::write(path, lines.join("\n")).unwrap();
+    }
     println!("{}", DatasetStats::from_frames(&stats).report());
     println!("{n} frames in {secs:.2} s: {:.2} frames/s", n as f64 / secs);
 }

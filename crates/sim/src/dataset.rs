@@ -30,14 +30,20 @@ pub enum SimError {
         .0.display()
     )]
     NotEmpty(PathBuf),
-    #[error("{}: cannot create or use the output directory: {source}", path.display())]
+    #[error("{}: cannot create or use the output directory: {cause}", path.display())]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        cause: std::io::Error,
     },
-    #[error(transparent)]
-    Format(#[from] FormatError),
+    /// A file could not be written (the message names it).
+    #[error("{0}")]
+    Format(FormatError),
+}
+
+impl From<FormatError> for SimError {
+    fn from(e: FormatError) -> Self {
+        SimError::Format(e)
+    }
 }
 
 /// What to write.
@@ -52,9 +58,9 @@ pub struct DatasetOptions {
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SimError + '_ {
-    move |source| SimError::Io {
+    move |cause| SimError::Io {
         path: path.to_path_buf(),
-        source,
+        cause,
     }
 }
 
@@ -161,8 +167,17 @@ pub fn write_frame(ds: &DatasetDir, f: &crate::SimFrame) -> Result<(), SimError>
     Ok(())
 }
 
-/// Simulates and writes a dataset; `progress(done, total)` is called after each frame.
-/// Returns the realism statistics (also written to `sim_stats.json`).
+/// Frames in flight between the simulating threads and the writers.
+const QUEUE: usize = 6;
+/// Writer threads: each file is fsynced, so writes wait on the disk rather than the CPU.
+const WRITERS: usize = 4;
+
+/// Simulates and writes a dataset; `progress(done, total)` is called after each frame
+/// is on disk. Returns the realism statistics (also written to `sim_stats.json`).
+///
+/// Frames are simulated in parallel (rayon) and handed to a few writer threads, so
+/// that waiting for the disk (every file is written atomically and fsynced) overlaps
+/// with simulating the next frames.
 pub fn write_dataset(
     opts: &DatasetOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
@@ -170,15 +185,60 @@ pub fn write_dataset(
     validate(opts)?;
     let ds = prepare_dir(opts)?;
     let done = AtomicUsize::new(0);
-    let results: Vec<(FrameStats, Vec<Detection2d>, Split, String)> = (0..opts.frames)
-        .into_par_iter()
-        .map(|i| {
-            let f = simulate_frame(opts.seed, i, &opts.config);
-            write_frame(&ds, &f)?;
-            progress(done.fetch_add(1, Ordering::Relaxed) + 1, opts.frames);
-            Ok((FrameStats::from_frame(&f), f.detections, f.split, f.id))
-        })
-        .collect::<Result<_, SimError>>()?;
+    let failed = std::sync::atomic::AtomicBool::new(false);
+    let (tx, rx) = std::sync::mpsc::sync_channel::<crate::SimFrame>(QUEUE);
+    let rx = std::sync::Mutex::new(rx);
+    type Summary = (FrameStats, Vec<Detection2d>, Split, String);
+    let (summaries, write_result) = std::thread::scope(|scope| {
+        let writers: Vec<_> = (0..WRITERS)
+            .map(|_| {
+                scope.spawn(|| -> Result<(), SimError> {
+                    loop {
+                        let next = rx.lock().expect("writer queue").recv();
+                        let Ok(frame) = next else {
+                            return Ok(());
+                        };
+                        if let Err(e) = write_frame(&ds, &frame) {
+                            failed.store(true, Ordering::Relaxed);
+                            return Err(e);
+                        }
+                        progress(done.fetch_add(1, Ordering::Relaxed) + 1, opts.frames);
+                    }
+                })
+            })
+            .collect();
+        let summaries: Vec<Option<Summary>> = (0..opts.frames)
+            .into_par_iter()
+            .map_with(tx, |tx, i| {
+                if failed.load(Ordering::Relaxed) {
+                    return None;
+                }
+                let f = simulate_frame(opts.seed, i, &opts.config);
+                let summary = (
+                    FrameStats::from_frame(&f),
+                    f.detections.clone(),
+                    f.split,
+                    f.id.clone(),
+                );
+                tx.send(f).ok()?;
+                Some(summary)
+            })
+            .collect();
+        // All senders are dropped here (map_with's clones end with the iterator).
+        let mut result = Ok(());
+        for w in writers {
+            let r = w.join().expect("writer thread panicked");
+            if result.is_ok() {
+                result = r;
+            }
+        }
+        (summaries, result)
+    });
+    write_result?;
+    let results: Vec<Summary> = summaries
+        .into_iter()
+        .collect::<Option<Vec<_>>>()
+        .ok_or_else(|| SimError::InvalidArgument("writing frames failed".to_string()))?;
     // Index files last: they only ever list frames that are complete on disk.
     let ids = |split: Option<Split>| -> Vec<String> {
         results

@@ -12,7 +12,8 @@
 //! * Objects annotators could not see (fewer than [`MIN_VISIBLE_PX`] visible pixels)
 //!   are left out, as in KITTI. Objects farther than [`MAX_LABEL_DEPTH`] or whose 2D
 //!   box is lower than [`MIN_LABEL_HEIGHT_PX`] become DontCare regions (their
-//!   visible pixel box), like KITTI's far, tiny objects.
+//!   visible pixel box), like KITTI's far, tiny objects, if at least
+//!   [`MIN_DONTCARE_PX`] of them show and they are within [`MAX_DONTCARE_DEPTH`].
 
 use crate::camera::{PixelRays, Render};
 use crate::math::{V3, atan2};
@@ -21,11 +22,14 @@ use fusiondet_geometry::{CameraModel, alpha_from_ry, clip_to_image, projected_bo
 use fusiondet_kitti::{Box2d, Box3d, Object, ObjectClass};
 
 pub const OCC_PARTLY: f64 = 0.10;
-pub const OCC_LARGELY: f64 = 0.40;
-pub const OCC_UNKNOWN: f64 = 0.80;
+pub const OCC_LARGELY: f64 = 0.60;
+pub const OCC_UNKNOWN: f64 = 0.90;
 pub const MIN_VISIBLE_PX: f64 = 30.0;
 pub const MAX_LABEL_DEPTH: f64 = 80.0;
 pub const MIN_LABEL_HEIGHT_PX: f64 = 18.0;
+/// DontCare regions need a little more to see, and nothing beyond this is annotated.
+pub const MIN_DONTCARE_PX: f64 = 60.0;
+pub const MAX_DONTCARE_DEPTH: f64 = 110.0;
 
 /// How one actor appears in the image, labelled or not.
 #[derive(Debug, Clone, PartialEq)]
@@ -188,7 +192,9 @@ pub fn label_frame(scene: &Scene, cam: &CameraModel, render: &Render) -> Vec<Act
         if visible_px >= MIN_VISIBLE_PX {
             let too_small = clipped.y2 - clipped.y1 < MIN_LABEL_HEIGHT_PX;
             if box3d.z > MAX_LABEL_DEPTH || too_small {
-                view.label = visible_bbox.map(dontcare);
+                if visible_px >= MIN_DONTCARE_PX && box3d.z <= MAX_DONTCARE_DEPTH {
+                    view.label = visible_bbox.map(dontcare);
+                }
             } else {
                 view.label = Some(Object {
                     class: actor.class,
@@ -236,7 +242,8 @@ mod tests {
         assert_eq!(occlusion_level(0.0), 0);
         assert_eq!(occlusion_level(0.09), 0);
         assert_eq!(occlusion_level(0.1), 1);
-        assert_eq!(occlusion_level(0.5), 2);
+        assert_eq!(occlusion_level(0.5), 1);
+        assert_eq!(occlusion_level(0.7), 2);
         assert_eq!(occlusion_level(0.95), 3);
     }
 

@@ -49,7 +49,7 @@ pub struct LayoutConfig {
 impl Default for LayoutConfig {
     fn default() -> Self {
         LayoutConfig {
-            kind_weights: [0.42, 0.3, 0.18, 0.1],
+            kind_weights: [0.35, 0.3, 0.2, 0.15],
             mount_height: 1.73,
             traffic_scale: 1.0,
         }
@@ -90,17 +90,17 @@ fn params(kind: SceneKind) -> KindParams {
     match kind {
         SceneKind::City => KindParams {
             lanes: &[(1, 1), (1, 1), (2, 2), (2, 1)],
-            parking_prob: 0.85,
+            parking_prob: 0.7,
             sidewalk: (2.5, 5.0),
             yard: (0.0, 1.5),
             building_h: (10.0, 22.0),
             tree_prob: 0.45,
             tree_spacing: (9.0, 18.0),
-            occupancy: (0.65, 0.95),
-            headway: 28.0,
-            ped_groups: 1.6,
-            group_extra: 0.5,
-            cyclists: 0.35,
+            occupancy: (0.25, 0.75),
+            headway: 35.0,
+            ped_groups: 2.4,
+            group_extra: 0.6,
+            cyclists: 1.2,
             buildings_prob: 0.95,
             lot_prob: 0.08,
             cross_prob: 0.4,
@@ -108,17 +108,17 @@ fn params(kind: SceneKind) -> KindParams {
         },
         SceneKind::Residential => KindParams {
             lanes: &[(1, 1)],
-            parking_prob: 0.8,
+            parking_prob: 0.65,
             sidewalk: (1.5, 3.0),
             yard: (2.0, 8.0),
             building_h: (6.0, 12.0),
             tree_prob: 0.85,
             tree_spacing: (8.0, 14.0),
-            occupancy: (0.5, 0.9),
+            occupancy: (0.2, 0.65),
             headway: 50.0,
-            ped_groups: 0.6,
+            ped_groups: 1.2,
             group_extra: 0.4,
-            cyclists: 0.25,
+            cyclists: 0.8,
             buildings_prob: 0.9,
             lot_prob: 0.05,
             cross_prob: 0.35,
@@ -132,11 +132,11 @@ fn params(kind: SceneKind) -> KindParams {
             building_h: (6.0, 16.0),
             tree_prob: 0.8,
             tree_spacing: (8.0, 20.0),
-            occupancy: (0.4, 0.85),
-            headway: 20.0,
-            ped_groups: 0.4,
+            occupancy: (0.2, 0.6),
+            headway: 35.0,
+            ped_groups: 0.8,
             group_extra: 0.3,
-            cyclists: 0.2,
+            cyclists: 0.8,
             buildings_prob: 0.6,
             lot_prob: 0.15,
             cross_prob: 0.25,
@@ -144,17 +144,17 @@ fn params(kind: SceneKind) -> KindParams {
         },
         SceneKind::Campus => KindParams {
             lanes: &[(1, 1), (2, 2)],
-            parking_prob: 0.5,
+            parking_prob: 0.4,
             sidewalk: (4.0, 8.0),
             yard: (2.0, 10.0),
             building_h: (8.0, 20.0),
             tree_prob: 0.9,
             tree_spacing: (6.0, 12.0),
-            occupancy: (0.5, 0.9),
+            occupancy: (0.3, 0.7),
             headway: 45.0,
-            ped_groups: 4.0,
+            ped_groups: 5.0,
             group_extra: 0.9,
-            cyclists: 1.6,
+            cyclists: 3.0,
             buildings_prob: 0.8,
             lot_prob: 0.05,
             cross_prob: 0.5,
@@ -299,12 +299,12 @@ fn palette(b: &mut SceneBuilder, s: &mut Sampler) -> Palette {
     let asphalt = s.range(0.28, 0.4);
     Palette {
         road: b.material(
-            Material::solid([asphalt, asphalt, asphalt * 1.03], s.range(0.25, 0.32))
+            Material::solid([asphalt, asphalt, asphalt * 1.03], s.range(0.3, 0.38))
                 .with_pattern(Pattern::Speckle { amount: 0.08 }),
         ),
         marking: b.material(Material::solid([0.9, 0.9, 0.88], s.range(0.6, 0.85))),
         sidewalk: b.material(
-            Material::solid([0.58, 0.55, 0.52], s.range(0.25, 0.35))
+            Material::solid([0.58, 0.55, 0.52], s.range(0.3, 0.4))
                 .with_pattern(Pattern::Pavers { size: 0.6 }),
         ),
         curb: b.material(Material::solid([0.65, 0.64, 0.62], 0.3)),
@@ -1170,7 +1170,7 @@ fn people(b: &mut SceneBuilder, s: &mut Sampler, st: &mut Street, scale: f64) {
     for _ in 0..groups {
         let side = if s.chance(0.5) { 1.0 } else { -1.0 };
         let crossing = s.chance(0.12);
-        let x = s.range(-25.0, 60.0);
+        let x = s.range(-15.0, 50.0);
         let (gx, gy, heading, z) = if crossing {
             let xz = st.cross.map_or(x, |(xc, wc)| xc - wc / 2.0 - 2.5);
             (
@@ -1207,7 +1207,7 @@ fn people(b: &mut SceneBuilder, s: &mut Sampler, st: &mut Street, scale: f64) {
     for _ in 0..cyclists {
         let on_road = s.chance(0.75);
         let dir_right = s.chance(0.6);
-        let x = s.range(-30.0, 70.0);
+        let x = s.range(-10.0, 60.0);
         let (y, heading, z) = if on_road {
             if dir_right {
                 (

@@ -9,7 +9,7 @@
 //! range (`1 / (1 + (r / r50)^k)`, `r50 ∝ √(reflectance · cos θ)`), which is what
 //! makes dark cars fade faster with distance than the plain 1/r² of beam geometry,
 //! as in KITTI; range noise is Gaussian; the reflectance channel is the surface's
-//! reflectance shaded by the incidence angle, plus noise, on KITTI's 0.01 grid.
+//! reflectance, weakly shaded by the incidence angle, plus noise, on KITTI's 0.01 grid.
 
 use crate::math::{V3, cos, ipow, ln, rad, sin, v3};
 use crate::rng::{hash_normal, hash_unit};
@@ -148,7 +148,8 @@ fn beam(
         }
         let range = t + spec.range_noise * hash_normal(key, ray, SALT_NOISE);
         let p = d * range;
-        let refl = surface.reflectance * (0.35 + 0.65 * cos_i)
+        // KITTI's ground reads ≈ 0.29 even at grazing incidence: a weak angle dependence.
+        let refl = surface.reflectance * (0.75 + 0.25 * cos_i)
             + spec.reflectance_noise * hash_normal(key, ray, SALT_REFL);
         let refl = (refl.clamp(0.0, 1.0) * 100.0).round() / 100.0;
         return Some((

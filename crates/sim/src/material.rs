@@ -89,7 +89,7 @@ fn scale(rgb: [f64; 3], s: f64) -> [f64; 3] {
 }
 
 /// Glass: dark, specular, and most beams do not come back.
-const GLASS_REFLECTANCE: f64 = 0.05;
+const GLASS_REFLECTANCE: f64 = 0.01;
 const GLASS_RETURN: f64 = 0.35;
 
 impl Material {

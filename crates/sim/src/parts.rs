@@ -168,7 +168,7 @@ pub fn car(
     let top = v3(lc / 2.0, w * 0.43, (h - belt + 0.03) / 2.0);
     p.add(
         Shape::RoundedBox {
-            radii: v3(top.x * 1.3, top.y * 1.2, top.z * 1.9),
+            radii: v3(top.x * 1.08, top.y * 1.4, top.z * 1.7),
         },
         v3(xc, 0.0, belt - 0.03 + top.z),
         M3::IDENTITY,

@@ -220,10 +220,14 @@ impl Primitive {
         n
     }
 
-    /// The outward normal in the local frame at a local surface point.
+    /// The outward normal in the local frame at a local surface point. Where two
+    /// surfaces meet (box face vs rounding ellipsoid, cylinder side vs cap) the point
+    /// belongs to the one it lies closer to, so the choice does not flicker with
+    /// rounding noise.
     pub fn local_normal(&self, l: V3) -> V3 {
+        let q = l.mul_elem(self.inv_half).abs();
+        let box_measure = q.x.max(q.y).max(q.z);
         let box_normal = || {
-            let q = l.mul_elem(self.inv_half).abs();
             if q.x >= q.y && q.x >= q.z {
                 V3::X * l.x.signum()
             } else if q.y >= q.z {
@@ -236,16 +240,21 @@ impl Primitive {
             Shape::Box => box_normal(),
             Shape::Ellipsoid => l.mul_elem(self.inv_half).mul_elem(self.inv_half),
             Shape::Cylinder => {
-                let side = v3(l.x * self.inv_half.x, l.y * self.inv_half.y, 0.0);
-                if (l.z * self.inv_half.z).abs() > 1.0 - 1e-7 && side.dot(side) < 1.0 - 1e-7 {
+                let side = (q.x * q.x + q.y * q.y).sqrt();
+                if (1.0 - q.z).abs() < (1.0 - side).abs() {
                     V3::Z * l.z.signum()
                 } else {
-                    v3(side.x * self.inv_half.x, side.y * self.inv_half.y, 0.0)
+                    v3(
+                        l.x * self.inv_half.x * self.inv_half.x,
+                        l.y * self.inv_half.y * self.inv_half.y,
+                        0.0,
+                    )
                 }
             }
             Shape::RoundedBox { .. } => {
-                let q = l.mul_elem(self.inv_radii);
-                if q.dot(q) > 1.0 - 1e-7 {
+                let e = l.mul_elem(self.inv_radii);
+                let ell_measure = e.dot(e).sqrt();
+                if (1.0 - ell_measure).abs() < (1.0 - box_measure).abs() {
                     l.mul_elem(self.inv_radii).mul_elem(self.inv_radii)
                 } else {
                     box_normal()

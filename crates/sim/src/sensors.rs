@@ -39,7 +39,7 @@ pub const HDL64_ELEVATIONS_DEG: [f64; 64] = [
 
 /// Azimuth sectors (first ring affected, from°, to°) where KITTI's scans have no
 /// points because the ego car's roof rack and body block the beams (measured).
-pub const EGO_MASK: [(usize, f64, f64); 10] = [
+pub const EGO_MASK: [(usize, f64, f64); 17] = [
     (42, 156.0, 166.0),
     (42, 196.0, 206.0),
     (47, 282.0, 298.0),
@@ -49,7 +49,14 @@ pub const EGO_MASK: [(usize, f64, f64); 10] = [
     (57, 152.0, 208.0),
     (57, 350.0, 360.0),
     (57, 0.0, 10.0),
-    (60, 342.0, 360.0),
+    (59, 0.0, 16.0),
+    (59, 344.0, 360.0),
+    (61, 0.0, 20.0),
+    (61, 340.0, 360.0),
+    (61, 126.0, 142.0),
+    (61, 146.0, 212.0),
+    (61, 216.0, 234.0),
+    (61, 320.0, 332.0),
 ];
 
 /// The LiDAR model.
@@ -94,7 +101,7 @@ impl Default for LidarSpec {
             reference_range: 140.0,
             reference_reflectance: 0.3,
             falloff_exponent: 4,
-            reflectance_floor: 0.03,
+            reflectance_floor: 0.05,
             ego_mask: EGO_MASK.to_vec(),
         }
     }

@@ -22,21 +22,24 @@ use std::fmt::Write as _;
 pub const KITTI_CAR_POINTS: [(f64, f64); 4] =
     [(13.0, 680.0), (36.0, 70.0), (51.0, 26.0), (58.0, 9.0)];
 
-/// KITTI's curve at `depth`: power-law interpolation between the measured cars,
-/// extended with the end slopes.
+/// KITTI's curve at `depth`: power-law interpolation between the measured cars.
+/// Beyond them it is extended with the slope of the whole 36–58 m stretch (the last
+/// segment alone, one car at 58 m, is too steep to extrapolate), and below 13 m with
+/// the 13–36 m slope. Bins outside 13–58 m compare against an extrapolation.
 pub fn kitti_car_points(depth: f64) -> f64 {
     let k = &KITTI_CAR_POINTS;
-    let seg = if depth <= k[1].0 {
-        0
-    } else if depth <= k[2].0 {
-        1
+    let slope = |(d0, n0): (f64, f64), (d1, n1): (f64, f64)| (ln(n1) - ln(n0)) / (ln(d1) - ln(d0));
+    let d = depth.max(1.0);
+    let (anchor, s) = if d <= k[1].0 {
+        (k[0], slope(k[0], k[1]))
+    } else if d <= k[2].0 {
+        (k[1], slope(k[1], k[2]))
+    } else if d <= k[3].0 {
+        (k[2], slope(k[2], k[3]))
     } else {
-        2
+        (k[3], slope(k[1], k[3]))
     };
-    let (d0, n0) = k[seg];
-    let (d1, n1) = k[seg + 1];
-    let slope = (ln(n1) - ln(n0)) / (ln(d1) - ln(d0));
-    exp(ln(n0) + slope * (ln(depth.max(1.0)) - ln(d0)))
+    exp(ln(anchor.1) + s * (ln(d) - ln(anchor.0)))
 }
 
 /// KITTI difficulty of a labelled object (None: ignored by the benchmark).
@@ -447,6 +450,9 @@ fn detector_stats(frames: &[FrameStats]) -> DetectorStats {
         let Some(diff) = o.difficulty else {
             continue;
         };
+        if !matches!(o.class.as_str(), "Car" | "Pedestrian" | "Cyclist") {
+            continue;
+        }
         let thr = if o.class == "Car" { 0.7 } else { 0.5 };
         let e = counts
             .entry((o.class.clone(), diff.to_string()))
