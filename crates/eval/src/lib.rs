@@ -13,9 +13,25 @@
 //! Overlaps come from `fusiondet-geometry`; the protocol constants are in [`protocol`];
 //! the devkit's matching rules, including its quirks, are in the (private) engine.
 //!
+//! ```
+//! use fusiondet_eval::{Difficulty, EvalConfig, Metric, evaluate, synthetic};
+//! use fusiondet_kitti::ObjectClass;
+//!
+//! let (gt, det) = synthetic::generate(50, 7);
+//! let report = evaluate(&gt, &det, &EvalConfig::default()).unwrap();
+//! let car_3d = report.get(ObjectClass::Car, Metric::ThreeD, 0).unwrap();
+//! println!("Car 3D AP_R40 moderate: {:.2}", car_3d.ap40[1]);
+//! // Precision/recall at each score threshold, e.g. for a plot:
+//! let curve = car_3d.curve(Difficulty::Moderate);
+//! assert_eq!(curve.recall.len(), curve.thresholds.len());
+//! print!("{}", report.table());
+//! ```
+//!
 //! Known, deliberate departures from the devkit: a missing result file is not fatal; a
-//! class without detections is still evaluated (AP 0 rather than left out); where a
-//! threshold has neither true nor false positives the devkit divides 0 by 0, we use 0.
+//! class without detections is still evaluated (AP 0 rather than left out), and so are
+//! BEV and 3D when detections carry no 3D location (x = −1000, which the devkit skips);
+//! where a threshold has neither true nor false positives the devkit divides 0 by 0, we
+//! use 0.
 
 pub mod breakdown;
 #[cfg(test)]
