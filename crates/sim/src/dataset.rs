@@ -193,14 +193,21 @@ pub fn write_dataset(
         let writers: Vec<_> = (0..WRITERS)
             .map(|_| {
                 scope.spawn(|| -> Result<(), SimError> {
+                    // After an error keep draining the queue (so no simulating thread
+                    // blocks on a full queue) but write nothing more.
+                    let mut result = Ok(());
                     loop {
                         let next = rx.lock().expect("writer queue").recv();
                         let Ok(frame) = next else {
-                            return Ok(());
+                            return result;
                         };
+                        if result.is_err() || failed.load(Ordering::Relaxed) {
+                            continue;
+                        }
                         if let Err(e) = write_frame(&ds, &frame) {
                             failed.store(true, Ordering::Relaxed);
-                            return Err(e);
+                            result = Err(e);
+                            continue;
                         }
                         progress(done.fetch_add(1, Ordering::Relaxed) + 1, opts.frames);
                     }
@@ -315,6 +322,21 @@ mod tests {
         assert!(root.join("training/velodyne/notes.txt").exists());
         assert!(root.join("keep.txt").exists());
         assert!(root.join("training/image_2").is_dir());
+    }
+
+    #[test]
+    fn a_failed_write_stops_the_run_without_index_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        // A directory where frame 0's image should go makes its atomic rename fail.
+        std::fs::create_dir_all(root.join("training/image_2/000000.png")).unwrap();
+        let mut o = opts(root, 2);
+        o.force = true;
+        let err = write_dataset(&o, &|_, _| {}).unwrap_err().to_string();
+        assert!(err.contains("000000.png"), "{err}");
+        assert!(!root.join("ImageSets/trainval.txt").exists());
+        assert!(!root.join("rgb_detections/rgb_detection_val.txt").exists());
+        assert!(!root.join(STATS_FILE).exists());
     }
 
     #[test]

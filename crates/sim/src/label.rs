@@ -20,6 +20,7 @@ use crate::math::{V3, atan2};
 use crate::scene::{Actor, Scene};
 use fusiondet_geometry::{CameraModel, alpha_from_ry, clip_to_image, projected_bounds};
 use fusiondet_kitti::{Box2d, Box3d, Object, ObjectClass};
+use rayon::prelude::*;
 
 pub const OCC_PARTLY: f64 = 0.10;
 pub const OCC_LARGELY: f64 = 0.60;
@@ -107,109 +108,108 @@ fn round2(x: f64) -> f64 {
 pub fn label_frame(scene: &Scene, cam: &CameraModel, render: &Render) -> Vec<ActorView> {
     let (w, h) = (render.width as f64, render.height as f64);
     let rays = PixelRays::new(cam);
-    let mut views = Vec::new();
-    for (index, actor) in scene.actors.iter().enumerate() {
-        let box3d = actor_box3d(actor, cam);
-        if box3d.z < 0.3 {
-            // Centre behind (or at) the camera: KITTI labels only what is in front.
-            continue;
-        }
-        let Some(full) = projected_bounds(&box3d, cam) else {
-            continue;
-        };
-        let Some(clipped) = clip_to_image(&full, w, h) else {
-            continue;
-        };
-        let area = |b: &Box2d| (b.x2 - b.x1).max(0.0) * (b.y2 - b.y1).max(0.0);
-        let truncation = if area(&full) > 0.0 {
-            (1.0 - area(&clipped) / area(&full)).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        // Silhouette alone vs what the full render shows, on a grid whose stride keeps
-        // the ray count bounded for big near objects.
-        let (x0, y0) = (clipped.x1.floor() as u32, clipped.y1.floor() as u32);
-        let (x1, y1) = (
-            (clipped.x2.ceil() as u32).min(render.width - 1),
-            (clipped.y2.ceil() as u32).min(render.height - 1),
-        );
-        let box_px = ((x1 - x0 + 1) * (y1 - y0 + 1)) as f64;
-        let stride = if box_px > 40_000.0 {
-            3
-        } else if box_px > 10_000.0 {
-            2
-        } else {
-            1
-        };
-        let (mut own, mut vis) = (0usize, 0usize);
-        let (mut vx1, mut vy1, mut vx2, mut vy2) = (u32::MAX, u32::MAX, 0u32, 0u32);
-        let mut v = y0;
-        while v <= y1 {
-            let mut u = x0;
-            while u <= x1 {
-                let d = rays.dir(u as f64, v as f64);
-                if scene.hits_actor(index, rays.origin, d, 400.0) {
-                    own += 1;
-                    let seen = render.prim_at(u, v);
-                    if seen != crate::camera::SKY && scene.owner(seen) == Some(index) {
-                        vis += 1;
-                        vx1 = vx1.min(u);
-                        vy1 = vy1.min(v);
-                        vx2 = vx2.max(u);
-                        vy2 = vy2.max(v);
-                    }
-                }
-                u += stride;
+    // Objects are independent: view them in parallel (collected in actor order).
+    (0..scene.actors.len())
+        .into_par_iter()
+        .filter_map(|index| {
+            let actor = &scene.actors[index];
+            let box3d = actor_box3d(actor, cam);
+            if box3d.z < 0.3 {
+                // Centre behind (or at) the camera: KITTI labels only what is in front.
+                return None;
             }
-            v += stride;
-        }
-        let scale = (stride * stride) as f64;
-        let (own_px, visible_px) = (own as f64 * scale, vis as f64 * scale);
-        if own == 0 {
-            continue;
-        }
-        let hidden = 1.0 - vis as f64 / own as f64;
-        let s = stride.saturating_sub(1) as f64;
-        let visible_bbox = (vis > 0).then(|| Box2d {
-            x1: vx1 as f64,
-            y1: vy1 as f64,
-            x2: (vx2 as f64 + s).min(w - 1.0),
-            y2: (vy2 as f64 + s).min(h - 1.0),
-        });
-        let mut view = ActorView {
-            actor: index,
-            class: actor.class,
-            label: None,
-            box3d,
-            bbox: Some(clipped),
-            visible_bbox,
-            truncation,
-            hidden,
-            visible_px,
-            own_px,
-            points_in_box: 0,
-        };
-        if visible_px >= MIN_VISIBLE_PX {
-            let too_small = clipped.y2 - clipped.y1 < MIN_LABEL_HEIGHT_PX;
-            if box3d.z > MAX_LABEL_DEPTH || too_small {
-                if visible_px >= MIN_DONTCARE_PX && box3d.z <= MAX_DONTCARE_DEPTH {
-                    view.label = visible_bbox.map(dontcare);
-                }
+            let full = projected_bounds(&box3d, cam)?;
+            let clipped = clip_to_image(&full, w, h)?;
+            let area = |b: &Box2d| (b.x2 - b.x1).max(0.0) * (b.y2 - b.y1).max(0.0);
+            let truncation = if area(&full) > 0.0 {
+                (1.0 - area(&clipped) / area(&full)).clamp(0.0, 1.0)
             } else {
-                view.label = Some(Object {
-                    class: actor.class,
-                    truncation: round2(truncation),
-                    occlusion: occlusion_level(hidden),
-                    alpha: alpha_from_ry(box3d.ry, box3d.x, box3d.z),
-                    bbox: clipped,
-                    box3d,
-                    score: None,
-                });
+                0.0
+            };
+            // Silhouette alone vs what the full render shows, on a grid whose stride keeps
+            // the ray count bounded for big near objects.
+            let (x0, y0) = (clipped.x1.floor() as u32, clipped.y1.floor() as u32);
+            let (x1, y1) = (
+                (clipped.x2.ceil() as u32).min(render.width - 1),
+                (clipped.y2.ceil() as u32).min(render.height - 1),
+            );
+            let box_px = ((x1 - x0 + 1) * (y1 - y0 + 1)) as f64;
+            let stride = if box_px > 40_000.0 {
+                3
+            } else if box_px > 10_000.0 {
+                2
+            } else {
+                1
+            };
+            let (mut own, mut vis) = (0usize, 0usize);
+            let (mut vx1, mut vy1, mut vx2, mut vy2) = (u32::MAX, u32::MAX, 0u32, 0u32);
+            let mut v = y0;
+            while v <= y1 {
+                let mut u = x0;
+                while u <= x1 {
+                    let d = rays.dir(u as f64, v as f64);
+                    if scene.hits_actor(index, rays.origin, d, 400.0) {
+                        own += 1;
+                        let seen = render.prim_at(u, v);
+                        if seen != crate::camera::SKY && scene.owner(seen) == Some(index) {
+                            vis += 1;
+                            vx1 = vx1.min(u);
+                            vy1 = vy1.min(v);
+                            vx2 = vx2.max(u);
+                            vy2 = vy2.max(v);
+                        }
+                    }
+                    u += stride;
+                }
+                v += stride;
             }
-        }
-        views.push(view);
-    }
-    views
+            let scale = (stride * stride) as f64;
+            let (own_px, visible_px) = (own as f64 * scale, vis as f64 * scale);
+            if own == 0 {
+                return None;
+            }
+            let hidden = 1.0 - vis as f64 / own as f64;
+            let s = stride.saturating_sub(1) as f64;
+            let visible_bbox = (vis > 0).then(|| Box2d {
+                x1: vx1 as f64,
+                y1: vy1 as f64,
+                x2: (vx2 as f64 + s).min(w - 1.0),
+                y2: (vy2 as f64 + s).min(h - 1.0),
+            });
+            let mut view = ActorView {
+                actor: index,
+                class: actor.class,
+                label: None,
+                box3d,
+                bbox: Some(clipped),
+                visible_bbox,
+                truncation,
+                hidden,
+                visible_px,
+                own_px,
+                points_in_box: 0,
+            };
+            if visible_px >= MIN_VISIBLE_PX {
+                let too_small = clipped.y2 - clipped.y1 < MIN_LABEL_HEIGHT_PX;
+                if box3d.z > MAX_LABEL_DEPTH || too_small {
+                    if visible_px >= MIN_DONTCARE_PX && box3d.z <= MAX_DONTCARE_DEPTH {
+                        view.label = visible_bbox.map(dontcare);
+                    }
+                } else {
+                    view.label = Some(Object {
+                        class: actor.class,
+                        truncation: round2(truncation),
+                        occlusion: occlusion_level(hidden),
+                        alpha: alpha_from_ry(box3d.ry, box3d.x, box3d.z),
+                        bbox: clipped,
+                        box3d,
+                        score: None,
+                    });
+                }
+            }
+            Some(view)
+        })
+        .collect()
 }
 
 /// A DontCare line covering `bbox`.

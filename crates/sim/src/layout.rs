@@ -300,7 +300,7 @@ fn palette(b: &mut SceneBuilder, s: &mut Sampler) -> Palette {
     Palette {
         road: b.material(
             Material::solid([asphalt, asphalt, asphalt * 1.03], s.range(0.3, 0.38))
-                .with_pattern(Pattern::Speckle { amount: 0.08 }),
+                .with_pattern(Pattern::Speckle { amount: 0.05 }),
         ),
         marking: b.material(Material::solid([0.9, 0.9, 0.88], s.range(0.6, 0.85))),
         sidewalk: b.material(

@@ -4,22 +4,45 @@
 //! sidewalks, façades, trees, poles, parked and driving cars, vans, trucks,
 //! pedestrians, cyclists) seen by a Velodyne HDL-64E and KITTI's left colour camera.
 //! Both sensors ray cast the *same* scene (analytic boxes, rounded boxes, ellipsoids
-//! and cylinders in a BVH), so a LiDAR point projected into the image lands on the
-//! surface it hit. Labels (truncation, z-buffer occlusion, DontCare) and a simulated
+//! and cylinders), so a LiDAR point projected into the image lands on the surface it
+//! hit. Labels (truncation, z-buffer occlusion, DontCare) and a simulated
 //! F-PointNet-style 2D detector complete the frame.
 //!
-//! * [`simulate_frame`] builds one frame in memory; [`write_dataset`] writes a whole
-//!   dataset (frames in parallel, split files and detections last) and returns its
-//!   [`DatasetStats`].
-//! * Determinism: every random choice flows from `(seed, frame index)` ([`rng`]),
-//!   transcendental functions come from the pure-Rust `libm`, and parallel work is
-//!   collected in a fixed order, so the same seed gives byte-identical files on any
-//!   machine and any thread count.
-//! * The LiDAR beam pattern (64 measured ring elevations, 2,160 firings per laser
-//!   on a 0.09° encoder grid, ego-car shadow) and why a KITTI frame has ~120k points
-//!   rather than 64 × 4,500 are explained in [`sensors`].
-//! * Realism is checked against KITTI by [`stats`]: points on cars by distance,
-//!   class mix, occlusion and truncation shares, detector behaviour.
+//! # Using it
+//! * [`simulate_frame`]`(seed, index, &SimConfig)` builds one frame in memory
+//!   ([`SimFrame`]: points, image, calibration, `label_2` objects, 2D detections, and
+//!   the ground truth behind them: scene, per-point and per-pixel hits, per-object
+//!   visibility).
+//! * [`write_dataset`] writes a whole dataset (frames in parallel, each file atomic,
+//!   split lists and detection files last) and returns its [`DatasetStats`], which
+//!   are also written to `sim_stats.json`.
+//! * [`FrameStats`] / [`DatasetStats`] compute the realism report for frames made
+//!   in-process.
+//!
+//! # Determinism
+//! Every random choice flows from `(seed, frame index)` ([`rng`]): sequential choices
+//! from per-concern ChaCha8 streams, per-ray noise from a stateless hash of the ray
+//! index. Transcendental functions come from the pure-Rust `libm`, integer powers are
+//! explicit products, and parallel work is collected in a fixed order, so the same
+//! seed gives byte-identical files on any machine and any thread count.
+//!
+//! # Sensors
+//! The LiDAR beam pattern (64 measured ring elevations, 2,160 firings per laser on a
+//! 0.09° encoder grid, the ego car's shadow) and why a KITTI frame has ~120k points
+//! rather than 64 × 4,500 are explained in [`sensors`]; the return model (foliage,
+//! glass, weak returns from dark, grazing or far surfaces) in [`lidar`]. The camera
+//! uses one of KITTI's two real calibrations with small per-frame changes.
+//!
+//! # Speed
+//! Both sensors cast from one point, so each frame bins its primitives by viewing
+//! direction ([`viewgrid`]: rings × azimuth for the LiDAR, pixel tiles for the camera,
+//! an orthographic grid along the sun for shadows); a ray tests only its cell's
+//! primitives, nearest first. The [`bvh`] serves general rays.
+//!
+//! # Realism
+//! [`stats`] compares against KITTI: points inside car boxes by distance against the
+//! curve measured on real frames, class mix, occlusion and truncation shares,
+//! difficulty counts and the detector's score and recall profile.
 
 pub mod bvh;
 pub mod camera;
@@ -51,6 +74,7 @@ pub use stats::{DatasetStats, FrameStats};
 use fusiondet_geometry::{CameraModel, points_in_box};
 use fusiondet_kitti::{Calib, Detection2d, LidarPoint, Object, ObjectClass, frame_id};
 use image::RgbImage;
+use rayon::prelude::*;
 use rng::{Sampler, Stream, frame_key};
 
 /// Everything that shapes a simulated dataset besides the seed.
@@ -178,27 +202,30 @@ pub fn simulate_frame(seed: u64, index: usize, cfg: &SimConfig) -> SimFrame {
 /// Counts LiDAR points inside each labelled object's 3D box (in the rectified camera
 /// frame, as KITTI's points-per-object statistics are measured).
 fn count_points(views: &mut [ActorView], scene: &Scene, cam: &CameraModel, points: &[LidarPoint]) {
-    for v in views.iter_mut().filter(|v| v.is_labelled()) {
-        let a = &scene.actors[v.actor];
-        let centre = a.bottom_center + a.up * (a.h / 2.0);
-        let r = 0.5 * (a.l * a.l + a.w * a.w + a.h * a.h).sqrt() + 0.1;
-        let near: Vec<[f64; 3]> = points
-            .iter()
-            .filter(|p| {
-                let d = math::v3(
-                    p[0] as f64 - centre.x,
-                    p[1] as f64 - centre.y,
-                    p[2] as f64 - centre.z,
-                );
-                d.dot(d) <= r * r
-            })
-            .map(|p| cam.velo_to_rect([p[0] as f64, p[1] as f64, p[2] as f64]))
-            .collect();
-        v.points_in_box = points_in_box(&v.box3d, &near)
-            .into_iter()
-            .filter(|&x| x)
-            .count();
-    }
+    views
+        .par_iter_mut()
+        .filter(|v| v.is_labelled())
+        .for_each(|v| {
+            let a = &scene.actors[v.actor];
+            let centre = a.bottom_center + a.up * (a.h / 2.0);
+            let r = 0.5 * (a.l * a.l + a.w * a.w + a.h * a.h).sqrt() + 0.1;
+            let near: Vec<[f64; 3]> = points
+                .iter()
+                .filter(|p| {
+                    let d = math::v3(
+                        p[0] as f64 - centre.x,
+                        p[1] as f64 - centre.y,
+                        p[2] as f64 - centre.z,
+                    );
+                    d.dot(d) <= r * r
+                })
+                .map(|p| cam.velo_to_rect([p[0] as f64, p[1] as f64, p[2] as f64]))
+                .collect();
+            v.points_in_box = points_in_box(&v.box3d, &near)
+                .into_iter()
+                .filter(|&x| x)
+                .count();
+        });
 }
 
 /// The classes the KITTI benchmark evaluates, for convenience.

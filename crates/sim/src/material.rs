@@ -13,7 +13,8 @@ use crate::rng::hash_unit;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Pattern {
     Plain,
-    /// Small brightness noise on a 0.5 m grid (asphalt, dirt, grass).
+    /// Brightness noise of ±`amount` (reflectance ±2·`amount`) on a 0.5 m grid
+    /// (asphalt, dirt, grass).
     Speckle {
         amount: f64,
     },
@@ -89,7 +90,7 @@ fn scale(rgb: [f64; 3], s: f64) -> [f64; 3] {
 }
 
 /// Glass: dark, specular, and most beams do not come back.
-const GLASS_REFLECTANCE: f64 = 0.01;
+const GLASS_REFLECTANCE: f64 = 0.0;
 const GLASS_RETURN: f64 = 0.35;
 
 impl Material {
@@ -113,7 +114,7 @@ impl Material {
                 let s = 1.0 + amount * (cell - 0.5) * 2.0;
                 SurfaceSample {
                     rgb: scale(self.rgb, s),
-                    reflectance: self.reflectance * (1.0 + 0.5 * amount * (cell - 0.5)),
+                    reflectance: self.reflectance * (1.0 + 2.0 * amount * (cell - 0.5)),
                     ..base
                 }
             }

@@ -142,7 +142,7 @@ pub fn car(
         glass_rgb: GLASS_RGB,
         glass_from: -1.0,
     }));
-    let tyre = b.material(Material::solid([0.04, 0.04, 0.04], 0.02));
+    let tyre = b.material(Material::solid([0.04, 0.04, 0.04], 0.0));
     let plate = b.material(Material::solid([0.9, 0.9, 0.85], 0.9));
     let mut p = Parts {
         b,
@@ -223,7 +223,7 @@ pub fn van(
         glass_rgb: GLASS_RGB,
         glass_from: 0.45,
     }));
-    let tyre = b.material(Material::solid([0.04, 0.04, 0.04], 0.02));
+    let tyre = b.material(Material::solid([0.04, 0.04, 0.04], 0.0));
     let plate = b.material(Material::solid([0.9, 0.9, 0.85], 0.9));
     let mut p = Parts {
         b,

@@ -55,8 +55,8 @@ pub const EGO_MASK: [(usize, f64, f64); 17] = [
     (61, 340.0, 360.0),
     (61, 126.0, 142.0),
     (61, 146.0, 212.0),
-    (61, 216.0, 234.0),
-    (61, 320.0, 332.0),
+    (62, 216.0, 234.0),
+    (62, 320.0, 332.0),
 ];
 
 /// The LiDAR model.
@@ -96,7 +96,7 @@ impl Default for LidarSpec {
             max_range: 120.0,
             min_range: 2.5,
             range_noise: 0.02,
-            reflectance_noise: 0.02,
+            reflectance_noise: 0.05,
             dropout: 0.003,
             reference_range: 140.0,
             reference_reflectance: 0.3,
