@@ -123,14 +123,14 @@ fn beam(
             let depth = -material.free_path * ln(1.0 - u);
             if hit.t + depth < hit.t_exit {
                 let t = hit.t + depth;
-                (t, 0.6, scene.surface_at(hit.prim, d * hit.t))
+                (t, 0.6, scene.surface_at(&hit, d * hit.t))
             } else {
                 through_foliage = true;
                 t0 = hit.t_exit + 1e-4;
                 continue;
             }
         } else {
-            let sample = scene.surface_at(hit.prim, d * hit.t);
+            let sample = scene.surface_at(&hit, d * hit.t);
             if sample.return_prob < 1.0 && hash_unit(key, ray, SALT_GLASS) >= sample.return_prob {
                 return None;
             }

@@ -100,6 +100,15 @@ impl Aabb {
     }
 }
 
+/// Where a ray meets a primitive: the first surface distance ≥ tmin, the exit
+/// distance, and whether the ray started inside (then `t` is the exit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Span {
+    pub t: f64,
+    pub t_exit: f64,
+    pub inside: bool,
+}
+
 /// Where a ray enters a primitive: distance, exit distance and outward normal (world).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Entry {
@@ -168,14 +177,14 @@ impl Primitive {
     /// first distance ≥ `tmin` on its surface (the entry, or the exit for a ray that
     /// starts inside) and the exit. No normal: callers compute it for the winner only.
     #[inline]
-    pub fn hit_interval(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<(f64, f64)> {
+    pub fn hit_interval(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Span> {
         // Bounding sphere: reject rays passing farther than `radius` from the centre
         // (`d` need not be unit length).
         let oc = self.center - o;
         let dd = d.dot(d);
         let proj = oc.dot(d);
-        let dist2 = oc.dot(oc) - proj * proj / dd;
-        if dist2 > self.radius * self.radius {
+        // Squared distance of the centre from the ray's line, times |d|² (no division).
+        if oc.dot(oc) * dd - proj * proj > self.radius * self.radius * dd {
             return None;
         }
         let lo = self.rot.apply_t(-oc);
@@ -194,30 +203,36 @@ impl Primitive {
                 (t0, t1)
             }
         };
-        let t = if t0 >= tmin {
-            t0
+        let (t, inside) = if t0 >= tmin {
+            (t0, false)
         } else if t1 >= tmin {
-            t1
+            (t1, true)
         } else {
             return None;
         };
-        (t <= tmax).then_some((t, t1))
+        (t <= tmax).then_some(Span {
+            t,
+            t_exit: t1,
+            inside,
+        })
     }
 
-    /// The outward normal (world frame, facing the ray) where the ray `o + t d` meets
-    /// the surface; a ray that started inside gets the normal facing it.
-    pub fn normal_at(&self, o: V3, d: V3, t: f64, t_exit: f64) -> V3 {
-        let l = self.rot.apply_t(o + d * t - self.center);
-        let n_local = if t == t_exit && t > 0.0 && self.contains(o + d * (t * (1.0 - 1e-9))) {
+    /// The hit point and unit normal in the local frame, and the normal in the world
+    /// frame turned to face the ray; a ray that started inside gets the normal facing it.
+    pub fn surface_frame(&self, o: V3, d: V3, span: &Span) -> (V3, V3, V3) {
+        let l = self.rot.apply_t(o + d * span.t - self.center);
+        let mut n_local = if span.inside {
             -self.rot.apply_t(d)
         } else {
             self.local_normal(l)
-        };
-        let mut n = self.rot.apply(n_local).normalized();
+        }
+        .normalized();
+        let mut n = self.rot.apply(n_local);
         if n.dot(d) > 0.0 {
             n = -n;
+            n_local = -n_local;
         }
-        n
+        (l, n_local, n)
     }
 
     /// The outward normal in the local frame at a local surface point. Where two
@@ -267,11 +282,11 @@ impl Primitive {
     /// its normal. A ray starting inside reports the exit (normal facing the ray).
     #[inline]
     pub fn intersect(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Entry> {
-        let (t, t_exit) = self.hit_interval(o, d, tmin, tmax)?;
+        let span = self.hit_interval(o, d, tmin, tmax)?;
         Some(Entry {
-            t,
-            t_exit,
-            normal: self.normal_at(o, d, t, t_exit),
+            t: span.t,
+            t_exit: span.t_exit,
+            normal: self.surface_frame(o, d, &span).2,
         })
     }
 

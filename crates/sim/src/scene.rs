@@ -6,7 +6,7 @@
 use crate::bvh::Bvh;
 use crate::material::{Material, SurfaceSample};
 use crate::math::{M3, Pose, V3};
-use crate::primitive::{Aabb, NO_OWNER, Primitive, Shape, Surface};
+use crate::primitive::{Aabb, NO_OWNER, Primitive, Shape, Span, Surface};
 use fusiondet_kitti::ObjectClass;
 use std::ops::Range;
 
@@ -48,13 +48,16 @@ pub struct Clutter {
     pub h: f64,
 }
 
-/// A ray hit: distance, exit distance of the primitive, world normal, primitive index.
+/// A ray hit: distance, exit distance of the primitive, world normal (facing the
+/// ray), primitive index, and the hit point and normal in the primitive's frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit {
     pub t: f64,
     pub t_exit: f64,
     pub normal: V3,
     pub prim: u32,
+    pub local: V3,
+    pub local_normal: V3,
 }
 
 /// A finished, immutable scene.
@@ -75,30 +78,33 @@ impl Scene {
     /// Nearest hit of the ray `o + t d` with t in [tmin, tmax].
     #[inline]
     pub fn cast(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Hit> {
-        let mut best: Option<(u32, (f64, f64))> = None;
+        let mut best: Option<(u32, Span)> = None;
         let mut tmax = tmax;
         for &i in &self.unbounded {
             if let Some(e) = self.prims[i as usize].hit_interval(o, d, tmin, tmax) {
-                tmax = e.0;
+                tmax = e.t;
                 best = Some((i, e));
             }
         }
         let found = self.bvh.closest(o, d, tmin, tmax, |i, tmax| {
             self.prims[i as usize]
                 .hit_interval(o, d, tmin, tmax)
-                .map(|e| (e.0, e))
+                .map(|e| (e.t, e))
         });
         found.or(best).map(|(prim, e)| self.hit(prim, o, d, e))
     }
 
-    /// Completes a hit on `prim` at interval `e` with its normal.
+    /// Completes a hit on `prim` with its normals.
     #[inline]
-    pub fn hit(&self, prim: u32, o: V3, d: V3, e: (f64, f64)) -> Hit {
+    pub fn hit(&self, prim: u32, o: V3, d: V3, span: Span) -> Hit {
+        let (local, local_normal, normal) = self.prims[prim as usize].surface_frame(o, d, &span);
         Hit {
-            t: e.0,
-            t_exit: e.1,
-            normal: self.prims[prim as usize].normal_at(o, d, e.0, e.1),
+            t: span.t,
+            t_exit: span.t_exit,
+            normal,
             prim,
+            local,
+            local_normal,
         }
     }
 
@@ -118,12 +124,10 @@ impl Scene {
             .any(|p| p.hit_interval(o, d, 0.0, tmax).is_some())
     }
 
-    /// The material at a hit on primitive `prim` at world point `p`.
-    pub fn surface_at(&self, prim: u32, p: V3) -> SurfaceSample {
-        let pr = &self.prims[prim as usize];
-        let local = pr.rot.apply_t(p - pr.center);
-        let local_n = pr.local_normal(local).normalized();
-        self.materials[pr.material as usize].sample(local, local_n, pr.half, p)
+    /// The material at a hit (`p` is the hit point in the scene frame).
+    pub fn surface_at(&self, hit: &Hit, p: V3) -> SurfaceSample {
+        let pr = &self.prims[hit.prim as usize];
+        self.materials[pr.material as usize].sample(hit.local, hit.local_normal, pr.half, p)
     }
 
     /// The labelled object a primitive belongs to.

@@ -83,11 +83,11 @@ pub fn cast_candidates(
     tmin: f64,
     tmax: f64,
 ) -> Option<Hit> {
-    let mut best: Option<(u32, (f64, f64))> = None;
+    let mut best: Option<(u32, crate::primitive::Span)> = None;
     let mut tmax = tmax;
     for &i in scene.unbounded() {
         if let Some(e) = scene.prims[i as usize].hit_interval(o, d, tmin, tmax) {
-            tmax = e.0;
+            tmax = e.t;
             best = Some((i, e));
         }
     }
@@ -96,7 +96,7 @@ pub fn cast_candidates(
             break;
         }
         if let Some(e) = scene.prims[c.prim as usize].hit_interval(o, d, tmin, tmax) {
-            tmax = e.0;
+            tmax = e.t;
             best = Some((c.prim, e));
         }
     }
