@@ -1,7 +1,7 @@
 //! Frames per second of the simulator on this machine: a full frame (scene, LiDAR,
 //! camera, labels, 2D detections), its parts, and encoding/writing its files.
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use fusiondet_sim::{SimConfig, simulate_frame};
 use std::hint::black_box;
 
@@ -9,6 +9,8 @@ fn bench(c: &mut Criterion) {
     let cfg = SimConfig::default();
     let mut g = c.benchmark_group("sim");
     g.sample_size(20);
+    // Reported as elements/s = frames per second.
+    g.throughput(Throughput::Elements(1));
     // Different frames (worlds) per iteration, so the median covers scene variety.
     let mut i = 0usize;
     g.bench_function("simulate_frame", |b| {

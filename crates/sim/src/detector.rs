@@ -10,17 +10,18 @@
 //!
 //! Each object gets a latent quality `L = base(class) + 2·ln(h/40) − 4·hidden −
 //! 3·max(0, trunc − 0.1) + split bonus + N(0, 2²)`; its score is `sigmoid(L)` and it
-//! is reported when the score is at least 0.01 (F-PointNet's cut); 2% of cars and 6%
+//! is reported when the score is at least 0.01 (F-PointNet's cut); 2% of cars and 7%
 //! of people are missed whatever their quality. Box jitter shrinks as the score grows, occluded
 //! objects are boxed towards their visible part, 8% of detections get a low-scoring
 //! duplicate, and false positives (Poisson per class, mostly scored 0.01–0.2) sit on
 //! look-alike clutter or on the ground plane with the class's size.
 
 use crate::label::ActorView;
+use crate::label::box_image_bounds;
 use crate::math::{exp, ln};
 use crate::rng::Sampler;
 use crate::scene::{ClutterKind, Scene};
-use fusiondet_geometry::{CameraModel, clip_to_image, projected_bounds};
+use fusiondet_geometry::{CameraModel, clip_to_image};
 use fusiondet_kitti::{Box2d, Box3d, Detection2d, ObjectClass};
 
 /// Which split the detections are for (the detector was trained on `Train`).
@@ -54,13 +55,13 @@ pub struct DetectorSpec {
 impl Default for DetectorSpec {
     fn default() -> Self {
         DetectorSpec {
-            base: [6.4, 3.8, 3.4],
+            base: [6.4, 3.3, 3.1],
             height_gain: 2.0,
             hidden_penalty: 4.0,
             truncation_penalty: 3.0,
             noise: 2.0,
             train_bonus: 0.8,
-            flat_miss: [0.02, 0.06, 0.06],
+            flat_miss: [0.02, 0.07, 0.07],
             duplicate: 0.08,
             false_positives: [2.5, 1.5, 1.2],
             min_score: 0.01,
@@ -241,7 +242,7 @@ pub fn detect(
             z: loc[2],
             ry: 0.0,
         };
-        let Some(b) = projected_bounds(&bx, cam).and_then(|b| clip_to_image(&b, w, h)) else {
+        let Some(b) = box_image_bounds(&bx, cam).and_then(|b| clip_to_image(&b, w, h)) else {
             continue;
         };
         let score = sigmoid(-2.7 + 1.4 * s.normal());

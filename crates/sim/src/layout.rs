@@ -184,8 +184,8 @@ impl Footprint {
     /// Separating-axis test of two oriented rectangles.
     fn overlaps(&self, o: &Footprint) -> bool {
         let d = (o.c.0 - self.c.0, o.c.1 - self.c.1);
-        let r_a = self.hl.hypot(self.hw);
-        let r_b = o.hl.hypot(o.hw);
+        let r_a = (self.hl * self.hl + self.hw * self.hw).sqrt();
+        let r_b = (o.hl * o.hl + o.hw * o.hw).sqrt();
         if d.0 * d.0 + d.1 * d.1 > (r_a + r_b) * (r_a + r_b) {
             return false;
         }

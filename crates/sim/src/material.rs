@@ -177,7 +177,7 @@ impl Material {
                 let roof = local_n.z > 0.55;
                 let pillar = local.x.abs() > 0.88 * half.x && local_n.x.abs() < 0.5;
                 let sill = local.z < -0.75 * half.z;
-                let painted_part = local.x < glass_from * half.x;
+                let painted_part = glass_from > -1.0 && local.x < glass_from * half.x;
                 if roof || pillar || sill || painted_part {
                     base
                 } else {

@@ -192,8 +192,9 @@ fn angular_bounds(b: &Aabb, o: V3) -> (f64, f64, Option<(f64, f64)>) {
     } else {
         0.0
     };
-    let dmin = dx.hypot(dy);
-    let dmax = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs()));
+    let dmin = (dx * dx + dy * dy).sqrt();
+    let (mx, my) = (x0.abs().max(x1.abs()), y0.abs().max(y1.abs()));
+    let dmax = (mx * mx + my * my).sqrt();
     let (zlo, zhi) = (b.min.z - o.z, b.max.z - o.z);
     let deg = 180.0 / std::f64::consts::PI;
     let el_hi = if zhi >= 0.0 {
