@@ -6,7 +6,11 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "fusiondet", version, about = "Camera + LiDAR 3D object detection on KITTI-format data")]
+#[command(
+    name = "fusiondet",
+    version,
+    about = "Camera + LiDAR 3D object detection on KITTI-format data"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -14,6 +18,14 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the whole pipeline on the bundled data: simulate, train, detect, evaluate, draw.
+    Demo(commands::demo::DemoArgs),
+    /// Train a frustum detector (F-ConvNet) from a TOML experiment configuration.
+    Train(commands::train::TrainArgs),
+    /// Detect 3D boxes with a trained checkpoint and write KITTI result files.
+    Detect(commands::detect::DetectArgs),
+    /// Print a network's per-module parameter table.
+    Info(commands::info::InfoArgs),
     /// Official KITTI object evaluation (devkit-exact AP11/AP40, bbox/bev/3d/aos).
     Eval(commands::eval::EvalArgs),
     /// Draw a frame: image with projected 3D boxes above a bird's-eye view.
@@ -25,6 +37,10 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Demo(args) => commands::demo::run(args),
+        Command::Train(args) => commands::train::run(args),
+        Command::Detect(args) => commands::detect::run(args),
+        Command::Info(args) => commands::info::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::Viz(args) => commands::viz::run(args),
         Command::Simulate(args) => commands::simulate::run(args),

@@ -186,3 +186,26 @@ mod tests {
         assert!(err.contains("batch_size"), "{err}");
     }
 }
+
+#[cfg(test)]
+mod shipped_configs {
+    use super::*;
+    use fusiondet_models::ModelConfig;
+
+    fn load(name: &str) -> ExperimentConfig {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs").join(name);
+        ExperimentConfig::from_file(&path).unwrap()
+    }
+
+    #[test]
+    fn the_car_config_is_the_published_one() {
+        assert_eq!(load("fconvnet-car.toml"), ExperimentConfig::default());
+    }
+
+    #[test]
+    fn the_tiny_config_uses_the_tiny_network() {
+        let c = load("tiny.toml");
+        assert_eq!(c.model, ModelConfig::tiny());
+        assert_eq!(c.frustum.points_per_frustum, 256);
+    }
+}

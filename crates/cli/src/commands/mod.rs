@@ -1,5 +1,9 @@
 //! One module per subcommand: argument parsing and wiring only; the work lives in the library crates.
 
+pub mod demo;
+pub mod detect;
 pub mod eval;
+pub mod info;
 pub mod simulate;
+pub mod train;
 pub mod viz;

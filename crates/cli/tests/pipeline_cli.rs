@@ -1,0 +1,210 @@
+//! End-to-end tests of `demo`, `train`, `detect` and `info` through the binary.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn fusiondet(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fusiondet"))
+        .args(args)
+        .output()
+        .expect("the binary runs")
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn configs() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs")
+}
+
+#[test]
+fn demo_runs_the_whole_pipeline_and_can_be_rerun() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let o = fusiondet(&[
+        "demo",
+        "--out",
+        out.to_str().unwrap(),
+        "--frames",
+        "8",
+        "--epochs",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    assert!(t.contains("simulated 8 frames"), "{t}");
+    assert!(t.contains("Car AP_R40@0.70, 0.70, 0.70"), "{t}");
+    for f in [
+        "run/model.bpk",
+        "eval-sim.json",
+        "eval-kitti.json",
+        "pictures/kitti-000001.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing\n{t}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval-kitti.json")).unwrap())
+            .unwrap();
+    assert!(!json["results"].as_array().unwrap().is_empty());
+    // A second run replaces the demo's own output.
+    let o = fusiondet(&[
+        "demo",
+        "--out",
+        out.to_str().unwrap(),
+        "--frames",
+        "8",
+        "--epochs",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+}
+
+#[test]
+fn demo_refuses_a_directory_it_did_not_write() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("precious.txt"), b"keep me").unwrap();
+    let o = fusiondet(&["demo", "--out", dir.path().to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("not written by `fusiondet demo`"),
+        "{}",
+        text(&o)
+    );
+    assert_eq!(
+        std::fs::read(dir.path().join("precious.txt")).unwrap(),
+        b"keep me"
+    );
+}
+
+#[test]
+fn info_prints_the_published_parameter_count() {
+    let car = configs().join("fconvnet-car.toml");
+    let o = fusiondet(&["info", "--config", car.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(
+        text(&o).trim_end().ends_with("parameters: 3316777"),
+        "{}",
+        text(&o)
+    );
+}
+
+#[test]
+fn train_and_detect_report_bad_input_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[train]\nbatch_size = \"many\"\n").unwrap();
+    let o = fusiondet(&[
+        "train",
+        "--config",
+        bad.to_str().unwrap(),
+        "--data",
+        "x",
+        "--out",
+        "y",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("bad.toml") && text(&o).contains("batch_size"),
+        "{}",
+        text(&o)
+    );
+
+    let tiny = configs().join("tiny.toml");
+    let o = fusiondet(&[
+        "train",
+        "--config",
+        tiny.to_str().unwrap(),
+        "--data",
+        "/no/such/data",
+        "--out",
+        dir.path().join("run").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("/no/such/data"), "{}", text(&o));
+
+    let o = fusiondet(&[
+        "detect",
+        "--checkpoint",
+        "/no/model.bpk",
+        "--data",
+        "x",
+        "--out",
+        "y",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("no configuration found for /no/model.bpk"),
+        "{}",
+        text(&o)
+    );
+}
+
+#[test]
+fn train_then_detect_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("sim");
+    let o = fusiondet(&[
+        "simulate",
+        "--out",
+        data.to_str().unwrap(),
+        "--frames",
+        "6",
+        "--seed",
+        "3",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let run = dir.path().join("run");
+    let tiny = configs().join("tiny.toml");
+    let o = fusiondet(&[
+        "train",
+        "--config",
+        tiny.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--epochs",
+        "1",
+        "--max-frames",
+        "6",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("1 epoch(s) run"), "{}", text(&o));
+    let results = dir.path().join("results");
+    let o = fusiondet(&[
+        "detect",
+        "--checkpoint",
+        run.join("model.bpk").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--split",
+        "val",
+        "--out",
+        results.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let ids = std::fs::read_to_string(data.join("ImageSets/val.txt")).unwrap();
+    for id in ids.lines() {
+        assert!(
+            results.join(format!("{id}.txt")).is_file(),
+            "no result for {id}"
+        );
+    }
+    let o = fusiondet(&[
+        "eval",
+        "--label-dir",
+        data.join("training/label_2").to_str().unwrap(),
+        "--result-dir",
+        results.to_str().unwrap(),
+        "--split",
+        data.join("ImageSets/val.txt").to_str().unwrap(),
+        "--classes",
+        "Car",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+}
