@@ -63,7 +63,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     let interactive = std::io::stderr().is_terminal();
     let step = (args.frames / 100).max(1);
     let progress = |done: usize, total: usize| {
-        if interactive && (done % step == 0 || done == total) {
+        if interactive && (done.is_multiple_of(step) || done == total) {
             eprint!("\rsimulated {done}/{total} frames");
             let _ = std::io::stderr().flush();
         }
