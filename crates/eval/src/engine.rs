@@ -17,8 +17,9 @@
 //! * The second pass runs, per frame, once per distinct set of above-threshold
 //!   candidate detections rather than once per threshold: a frame's matching only
 //!   changes when a threshold crosses one of their scores.
-//! * Frames are processed in parallel (rayon fold/reduce); scratch buffers live in the
-//!   fold accumulator, so the inner loops do not allocate.
+//! * Frames are processed in parallel in fixed chunks (rayon), summed in frame order so
+//!   results are bit-identical from run to run; each chunk reuses one scratch buffer, so
+//!   the inner loops do not allocate.
 //!
 //! The devkit's order-dependent tie-breaking is kept: ground truth and detections are
 //! visited in file order, the first candidate wins ties.
