@@ -193,7 +193,9 @@ mod shipped_configs {
     use fusiondet_models::ModelConfig;
 
     fn load(name: &str) -> ExperimentConfig {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs").join(name);
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs")
+            .join(name);
         ExperimentConfig::from_file(&path).unwrap()
     }
 
