@@ -26,10 +26,31 @@ pub fn ry_from_alpha(alpha: f64, x: f64, z: f64) -> f64 {
     normalize_angle(alpha + x.atan2(z))
 }
 
+/// The 12 edges of a box over [`corners`]' numbering (0–3 bottom, 4–7 top).
+pub const BOX_EDGES: [(usize, usize); 12] = [
+    (0, 1),
+    (1, 2),
+    (2, 3),
+    (3, 0),
+    (4, 5),
+    (5, 6),
+    (6, 7),
+    (7, 4),
+    (0, 4),
+    (1, 5),
+    (2, 6),
+    (3, 7),
+];
+
+/// Depth (rectified camera z, metres) at which box edges are cut before projection.
+pub const NEAR_PLANE: f64 = 0.1;
+
 /// The eight corners in the rectified camera frame. Corners 0–3 are the bottom face
-/// (y = box.y), 4–7 the top face, both counter-clockwise seen from above.
+/// (y = box.y), 4–7 the top face, both counter-clockwise seen from above. The rotation
+/// uses `libm`'s sine and cosine (not the platform's), so corners, projected boxes and
+/// everything built on them are bit-identical on every machine.
 pub fn corners(b: &Box3d) -> [[f64; 3]; 8] {
-    let (s, c) = b.ry.sin_cos();
+    let (s, c) = (libm::sin(b.ry), libm::cos(b.ry));
     let xs = [b.l / 2.0, b.l / 2.0, -b.l / 2.0, -b.l / 2.0];
     let zs = [b.w / 2.0, -b.w / 2.0, -b.w / 2.0, b.w / 2.0];
     let mut out = [[0.0; 3]; 8];
@@ -58,24 +79,10 @@ pub fn bev_polygon(b: &Box3d) -> [[f64; 2]; 4] {
 /// the box lies wholly behind the camera. Edges crossing the near plane (depth 0.1 m)
 /// are cut there, so a box straddling the image plane still gets a proper extent.
 pub fn projected_bounds(b: &Box3d, cam: &CameraModel) -> Option<Box2d> {
-    const NEAR: f64 = 0.1;
-    const EDGES: [(usize, usize); 12] = [
-        (0, 1),
-        (1, 2),
-        (2, 3),
-        (3, 0),
-        (4, 5),
-        (5, 6),
-        (6, 7),
-        (7, 4),
-        (0, 4),
-        (1, 5),
-        (2, 6),
-        (3, 7),
-    ];
+    const NEAR: f64 = NEAR_PLANE;
     let c = corners(b);
     let mut pts: Vec<[f64; 3]> = c.iter().copied().filter(|p| p[2] >= NEAR).collect();
-    for (i, j) in EDGES {
+    for (i, j) in BOX_EDGES {
         let (a, b) = (c[i], c[j]);
         if (a[2] - NEAR) * (b[2] - NEAR) < 0.0 {
             let t = (NEAR - a[2]) / (b[2] - a[2]);

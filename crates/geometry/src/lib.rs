@@ -6,8 +6,8 @@ pub mod iou;
 pub mod nms;
 
 pub use box3d::{
-    alpha_from_ry, bev_polygon, clip_to_image, corners, count_points_in_box, normalize_angle,
-    points_in_box, project_to_image, projected_bounds, ry_from_alpha,
+    BOX_EDGES, NEAR_PLANE, alpha_from_ry, bev_polygon, clip_to_image, corners, count_points_in_box,
+    normalize_angle, points_in_box, project_to_image, projected_bounds, ry_from_alpha,
 };
 pub use camera::CameraModel;
 pub use iou::{Normalization, iou_2d, iou_3d, iou_bev, overlap_2d, overlap_3d, overlap_bev};

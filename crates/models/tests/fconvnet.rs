@@ -573,10 +573,11 @@ fn configuration_reads_from_toml() {
 
 #[test]
 fn bundled_configuration_files_match_the_presets() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
-    let car = FConvNetConfig::from_toml_file(&dir.join("fconvnet_car.toml")).unwrap();
+    // The experiment files under the repository's configs/ carry [model] and [loss] tables.
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+    let car = FConvNetConfig::from_toml_file(&dir.join("fconvnet-car.toml")).unwrap();
     assert_eq!(car, FConvNetConfig::car());
-    let tiny = FConvNetConfig::from_toml_file(&dir.join("fconvnet_tiny.toml")).unwrap();
+    let tiny = FConvNetConfig::from_toml_file(&dir.join("tiny.toml")).unwrap();
     assert_eq!(tiny, FConvNetConfig::tiny());
 }
 

@@ -17,7 +17,6 @@
 //! look-alike clutter or on the ground plane with the class's size.
 
 use crate::label::ActorView;
-use crate::label::box_image_bounds;
 use crate::math::{exp, ln};
 use crate::rng::Sampler;
 use crate::scene::{ClutterKind, Scene};
@@ -242,7 +241,9 @@ pub fn detect(
             z: loc[2],
             ry: 0.0,
         };
-        let Some(b) = box_image_bounds(&bx, cam).and_then(|b| clip_to_image(&b, w, h)) else {
+        let Some(b) =
+            fusiondet_geometry::projected_bounds(&bx, cam).and_then(|b| clip_to_image(&b, w, h))
+        else {
             continue;
         };
         let score = sigmoid(-2.7 + 1.4 * s.normal());

@@ -16,7 +16,7 @@
 //!   [`MIN_DONTCARE_PX`] of them show and they are within [`MAX_DONTCARE_DEPTH`].
 
 use crate::camera::{PixelRays, Render};
-use crate::math::{V3, atan2, cos, sin};
+use crate::math::{V3, atan2};
 use crate::scene::{Actor, Scene};
 use fusiondet_geometry::{CameraModel, clip_to_image, normalize_angle};
 use fusiondet_kitti::{Box2d, Box3d, Object, ObjectClass};
@@ -100,63 +100,6 @@ pub fn actor_box3d(a: &Actor, cam: &CameraModel) -> Box3d {
     }
 }
 
-/// The image extent of a 3D box, unclipped (`None` if wholly behind the camera).
-/// The same computation as the geometry crate's `projected_bounds` (edges cut at a
-/// 0.1 m near plane), with the corners rotated by `libm`'s sine and cosine so that
-/// labels are bit-identical on every platform.
-pub fn box_image_bounds(b: &Box3d, cam: &CameraModel) -> Option<Box2d> {
-    const NEAR: f64 = 0.1;
-    let (s, c) = (sin(b.ry), cos(b.ry));
-    let xs = [b.l / 2.0, b.l / 2.0, -b.l / 2.0, -b.l / 2.0];
-    let zs = [b.w / 2.0, -b.w / 2.0, -b.w / 2.0, b.w / 2.0];
-    let mut corners = [[0.0; 3]; 8];
-    for k in 0..4 {
-        let x = c * xs[k] + s * zs[k] + b.x;
-        let z = -s * xs[k] + c * zs[k] + b.z;
-        corners[k] = [x, b.y, z];
-        corners[k + 4] = [x, b.y - b.h, z];
-    }
-    const EDGES: [(usize, usize); 12] = [
-        (0, 1),
-        (1, 2),
-        (2, 3),
-        (3, 0),
-        (4, 5),
-        (5, 6),
-        (6, 7),
-        (7, 4),
-        (0, 4),
-        (1, 5),
-        (2, 6),
-        (3, 7),
-    ];
-    let mut pts: Vec<[f64; 3]> = corners.iter().copied().filter(|p| p[2] >= NEAR).collect();
-    for (i, j) in EDGES {
-        let (p, q) = (corners[i], corners[j]);
-        if (p[2] - NEAR) * (q[2] - NEAR) < 0.0 {
-            let t = (NEAR - p[2]) / (q[2] - p[2]);
-            pts.push([p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1]), NEAR]);
-        }
-    }
-    if pts.is_empty() {
-        return None;
-    }
-    let mut out = Box2d {
-        x1: f64::MAX,
-        y1: f64::MAX,
-        x2: f64::MIN,
-        y2: f64::MIN,
-    };
-    for p in pts {
-        let (u, v, _) = cam.rect_to_image(p);
-        out.x1 = out.x1.min(u);
-        out.y1 = out.y1.min(v);
-        out.x2 = out.x2.max(u);
-        out.y2 = out.y2.max(v);
-    }
-    Some(out)
-}
-
 fn round2(x: f64) -> f64 {
     (x * 100.0).round() / 100.0
 }
@@ -175,7 +118,7 @@ pub fn label_frame(scene: &Scene, cam: &CameraModel, render: &Render) -> Vec<Act
                 // Centre behind (or at) the camera: KITTI labels only what is in front.
                 return None;
             }
-            let full = box_image_bounds(&box3d, cam)?;
+            let full = fusiondet_geometry::projected_bounds(&box3d, cam)?;
             let clipped = clip_to_image(&full, w, h)?;
             let area = |b: &Box2d| (b.x2 - b.x1).max(0.0) * (b.y2 - b.y1).max(0.0);
             let truncation = if area(&full) > 0.0 {
@@ -305,36 +248,7 @@ mod tests {
     }
 
     #[test]
-    fn image_bounds_match_the_geometry_crate() {
-        use crate::rng::Sampler;
-        let cam =
-            CameraModel::from_calib(&crate::sensors::sample_calib(&mut Sampler::new(1))).unwrap();
-        let mut s = Sampler::new(2);
-        for _ in 0..500 {
-            let b = Box3d {
-                h: s.range(0.5, 3.0),
-                w: s.range(0.4, 2.5),
-                l: s.range(0.4, 8.0),
-                x: s.range(-20.0, 20.0),
-                y: s.range(0.5, 2.5),
-                z: s.range(-5.0, 60.0),
-                ry: s.range(-4.0, 4.0),
-            };
-            let ours = box_image_bounds(&b, &cam);
-            let theirs = fusiondet_geometry::projected_bounds(&b, &cam);
-            match (ours, theirs) {
-                (None, None) => {}
-                (Some(a), Some(g)) => {
-                    let tol =
-                        1e-6 * (1.0 + a.x2.abs().max(a.x1.abs()).max(a.y1.abs()).max(a.y2.abs()));
-                    assert!(
-                        (a.x1 - g.x1).abs() < tol && (a.y2 - g.y2).abs() < tol,
-                        "{a:?} {g:?}"
-                    );
-                }
-                other => panic!("{other:?}"),
-            }
-        }
+    fn alpha_matches_the_geometry_crate() {
         let a = normalize_angle(-1.55 - atan2(4.59, 45.84));
         assert!((a - fusiondet_geometry::alpha_from_ry(-1.55, 4.59, 45.84)).abs() < 1e-12);
     }

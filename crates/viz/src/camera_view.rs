@@ -9,25 +9,9 @@ use fusiondet_geometry::{CameraModel, clip_to_image, corners, projected_bounds};
 use fusiondet_kitti::{Box3d, Object, ObjectClass};
 use image::RgbImage;
 
-/// Depth (metres, rectified camera z) at which edges are cut; the same as the
-/// geometry crate's `projected_bounds`, so labels sit where the drawn box is.
-pub const NEAR_PLANE: f64 = 0.1;
-
-/// The 12 box edges over [`corners`]' numbering (0–3 bottom, 4–7 top).
-const EDGES: [(usize, usize); 12] = [
-    (0, 1),
-    (1, 2),
-    (2, 3),
-    (3, 0),
-    (4, 5),
-    (5, 6),
-    (6, 7),
-    (7, 4),
-    (0, 4),
-    (1, 5),
-    (2, 6),
-    (3, 7),
-];
+use fusiondet_geometry::BOX_EDGES as EDGES;
+/// Edges are cut at the geometry crate's near plane, so labels sit where the drawn box is.
+pub use fusiondet_geometry::NEAR_PLANE;
 
 /// The diagonals of the front face (corners 0, 1, 5, 4 lie at +l/2 along the heading):
 /// an X there shows which way the box faces.
