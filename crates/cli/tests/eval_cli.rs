@@ -1,35 +1,18 @@
 //! End-to-end tests of `fusiondet eval`: the devkit numbers of the mixed case through the
 //! binary and its JSON, the breakdown on the bundled KITTI frames, and bad input.
 
+mod common;
+
+use common::{repo_root as root, s, text};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_fusiondet"))
-}
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
+use std::process::Output;
 
 fn mixed() -> PathBuf {
     root().join("crates/eval/tests/data/mixed")
 }
 
 fn run(args: &[&str]) -> Output {
-    bin()
-        .arg("eval")
-        .args(args)
-        .output()
-        .expect("run fusiondet")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
+    common::run("eval", args)
 }
 
 /// A writable copy of the mixed case.
@@ -264,7 +247,7 @@ fn bad_options_are_clear_errors() {
     assert!(text(&out.stderr).contains("/no/such/split.txt"));
 
     // The breakdown rule is documented in --help.
-    let out = bin().args(["eval", "--help"]).output().unwrap();
+    let out = run(&["--help"]);
     let help = text(&out.stdout);
     assert!(
         help.contains("Filtering rule") && help.contains("sqrt(x^2 + (y - h/2)^2 + z^2)"),

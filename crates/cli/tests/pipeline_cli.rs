@@ -1,25 +1,17 @@
 //! End-to-end tests of `demo`, `train`, `detect` and `info` through the binary.
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
+use common::all_output as text;
+use std::process::Output;
+
+/// `fusiondet ARGS...` (the first argument is the subcommand).
 fn fusiondet(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fusiondet"))
-        .args(args)
-        .output()
-        .expect("the binary runs")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
+    common::run(args[0], &args[1..])
 }
 
 fn configs() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs")
+    common::repo_root().join("configs")
 }
 
 #[test]

@@ -6,22 +6,13 @@ use fusiondet_kitti::{
 };
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
+
+mod common;
+use common::{s, text};
 
 fn simulate(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fusiondet"))
-        .arg("simulate")
-        .args(args)
-        .output()
-        .expect("run fusiondet")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
+    common::run("simulate", args)
 }
 
 /// Every file under `root` with its bytes, by relative path.

@@ -3,19 +3,17 @@
 use fusiondet_kitti::image::read_image;
 use fusiondet_viz::image::{Rgb, RgbImage};
 use fusiondet_viz::style::{DETECTION, GT};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::PathBuf;
+use std::process::Output;
+
+mod common;
 
 fn training_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/kitti-sample/training")
+    common::repo_root().join("data/kitti-sample/training")
 }
 
 fn viz(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fusiondet"))
-        .arg("viz")
-        .args(args)
-        .output()
-        .expect("run fusiondet")
+    common::run("viz", args)
 }
 
 /// A result directory holding frame 000001's labels (DontCare dropped) with scores

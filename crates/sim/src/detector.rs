@@ -20,7 +20,7 @@ use crate::label::ActorView;
 use crate::math::{exp, ln};
 use crate::rng::Sampler;
 use crate::scene::{ClutterKind, Scene};
-use fusiondet_geometry::{CameraModel, clip_to_image};
+use fusiondet_geometry::{CameraModel, clip_to_image, project_to_image};
 use fusiondet_kitti::{Box2d, Box3d, Detection2d, ObjectClass};
 
 /// Which split the detections are for (the detector was trained on `Train`).
@@ -241,9 +241,7 @@ pub fn detect(
             z: loc[2],
             ry: 0.0,
         };
-        let Some(b) =
-            fusiondet_geometry::projected_bounds(&bx, cam).and_then(|b| clip_to_image(&b, w, h))
-        else {
+        let Some(b) = project_to_image(&bx, cam, w, h) else {
             continue;
         };
         let score = sigmoid(-2.7 + 1.4 * s.normal());

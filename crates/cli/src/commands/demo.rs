@@ -9,7 +9,7 @@
 
 use anyhow::{Context, bail};
 use fusiondet_eval::{EvalConfig, evaluate_dirs};
-use fusiondet_kitti::{DatasetDir, FrameDir, read_split};
+use fusiondet_kitti::{DatasetDir, read_split};
 use fusiondet_train::{DetectOptions, ExperimentConfig, TrainOptions, detect, train};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -116,7 +116,7 @@ fn pictures(
     n: usize,
 ) -> anyhow::Result<Vec<PathBuf>> {
     let dataset = DatasetDir::new(data);
-    let dir = FrameDir::new(dataset.training().root);
+    let dir = dataset.training();
     let mut written = Vec::new();
     for id in read_split(&dataset.split("val"))?.into_iter().take(n) {
         let view = fusiondet_viz::load_frame(&dir, &id, Some(results))?;

@@ -1,0 +1,33 @@
+//! Helpers shared by the end-to-end tests of the `fusiondet` binary.
+// Each test file uses only some of these.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// Runs `fusiondet SUBCOMMAND ARGS...` and collects its output.
+pub fn run(subcommand: &str, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fusiondet"))
+        .arg(subcommand)
+        .args(args)
+        .output()
+        .expect("run fusiondet")
+}
+
+/// The repository root (for bundled data and configs).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+pub fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// stdout followed by stderr.
+pub fn all_output(o: &Output) -> String {
+    format!("{}{}", text(&o.stdout), text(&o.stderr))
+}
