@@ -9,6 +9,8 @@
 //!   directory (a missing result file is a frame without detections).
 //! * [`evaluate_breakdown`] reports AP_R40 by distance, occlusion and LiDAR point count
 //!   (our own extension; its filtering rule is documented in [`breakdown`]).
+//! * [`ablation_table`] / [`ablation_breakdown_table`] put several configurations'
+//!   reports side by side, as papers' ablation tables do.
 //!
 //! Overlaps come from `fusiondet-geometry`; the protocol constants are in [`protocol`];
 //! the devkit's matching rules, including its quirks, are in the (private) engine.
@@ -33,6 +35,7 @@
 //! where a threshold has neither true nor false positives the devkit divides 0 by 0, we
 //! use 0.
 
+pub mod ablation;
 pub mod breakdown;
 #[cfg(test)]
 mod edge_cases;
@@ -47,6 +50,9 @@ mod reference;
 pub mod report;
 pub mod synthetic;
 
+pub use ablation::{
+    AblationRow, ablation_breakdown_table, ablation_table, ablation_to_json, write_ablation_json,
+};
 pub use breakdown::{
     BreakdownAxis, BreakdownRow, FramePoints, box_centre_range, breakdown_table,
     count_lidar_points, evaluate_breakdown,
