@@ -6,6 +6,9 @@
 //! [`load_frame`] reads a frame, [`render_frame`] draws it; the pieces
 //! ([`render_camera`], [`render_bev`], [`legend`], [`draw`], [`text`]) are public so
 //! that other figures (several frames on one sheet, curves) can reuse them.
+//!
+//! [`render_pr_curves`] / [`render_pr_difficulties`] draw precision–recall figures
+//! from the evaluation's curves, e.g. to compare the configurations of an ablation.
 
 pub mod bev;
 pub mod camera_view;
@@ -14,6 +17,7 @@ pub mod error;
 pub mod frame;
 pub mod legend;
 pub mod load;
+pub mod pr_plot;
 pub mod style;
 pub mod text;
 
@@ -30,3 +34,6 @@ pub use frame::{
     stack_vertical,
 };
 pub use load::{load_frame, result_file};
+pub use pr_plot::{
+    LegendAp, PlotArea, PrPlotOptions, render_pr_curves, render_pr_difficulties, write_plot_png,
+};

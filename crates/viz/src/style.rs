@@ -57,6 +57,35 @@ pub const NOTE: Rgb<u8> = Rgb([255, 214, 80]);
 /// The ego vehicle marker and the camera's field-of-view edges.
 pub const EGO: Rgb<u8> = Rgb([235, 235, 235]);
 
+/// Plots (precision-recall curves) are printed on paper, so they use a white
+/// background with dark ink, unlike the dark frame pictures.
+pub const PLOT_BACKGROUND: Rgb<u8> = Rgb([255, 255, 255]);
+/// The plot frame, tick marks and tick labels.
+pub const PLOT_AXIS: Rgb<u8> = Rgb([40, 40, 40]);
+/// Grid lines of a plot: light enough that curves always dominate.
+pub const PLOT_GRID: Rgb<u8> = Rgb([226, 226, 226]);
+/// Titles and legend text of a plot.
+pub const PLOT_TEXT: Rgb<u8> = Rgb([0, 0, 0]);
+
+/// One colour per curve of a plot, well apart in hue (the common "tab10" set);
+/// none is grey or black, so a curve never reads as an axis or a grid line.
+pub const SERIES: [Rgb<u8>; 9] = [
+    Rgb([31, 119, 180]),
+    Rgb([255, 127, 14]),
+    Rgb([44, 160, 44]),
+    Rgb([214, 39, 40]),
+    Rgb([148, 103, 189]),
+    Rgb([140, 86, 75]),
+    Rgb([227, 119, 194]),
+    Rgb([188, 189, 34]),
+    Rgb([23, 190, 207]),
+];
+
+/// The colour of the `i`-th curve; colours repeat after [`SERIES`]'s length.
+pub fn series_colour(i: usize) -> Rgb<u8> {
+    SERIES[i % SERIES.len()]
+}
+
 /// A class name of at most five letters for box labels.
 pub fn short_class(class: ObjectClass) -> &'static str {
     match class {
