@@ -3,7 +3,7 @@
 //! published F-ConvNet Car configuration), so a table only lists what it changes.
 
 use crate::error::{FrustumError, Result};
-use crate::slicing::{SliceStrategy, Slicing, UniformSlicing};
+use crate::slicing::{DepthGuidedSlicing, SliceStrategy, Slicing, UniformSlicing};
 use crate::targets::size_cluster_of;
 use fusiondet_kitti::ObjectClass;
 use serde::{Deserialize, Serialize};
@@ -128,6 +128,17 @@ impl FrustumConfig {
                 &[0.1, 0.2, 0.4, 0.8],
                 &[32, 64, 64, 128],
             )),
+            ..FrustumConfig::car()
+        }
+    }
+
+    /// SAF's Car model: the F-ConvNet Car model with depth-guided slicing
+    /// ([`DepthGuidedSlicing::saf_car`]: 240/120/60/30 sub-frustums, the first of each
+    /// scale the near region) over SAF's 0–75 m; output at the second scale (120).
+    pub fn saf_car() -> Self {
+        FrustumConfig {
+            depth_range: [0.0, 75.0],
+            slicing: Slicing::DepthGuided(DepthGuidedSlicing::saf_car()),
             ..FrustumConfig::car()
         }
     }
@@ -264,6 +275,99 @@ depth_shift = { sigma = 0.1, max = 0.3 }
         // And back.
         let again: FrustumConfig = toml::from_str(&toml::to_string(&c).unwrap()).unwrap();
         assert_eq!(again, c);
+    }
+
+    #[test]
+    fn saf_car_preset_and_depth_guided_toml() {
+        let saf = FrustumConfig::saf_car();
+        saf.validate().unwrap();
+        assert_eq!(
+            saf.slicing.slices_per_scale(saf.depth_range),
+            [240, 120, 60, 30]
+        );
+        assert_eq!(saf.slicing.max_points_per_scale(), [32, 64, 64, 128]);
+        let text = r#"
+depth_range = [0.0, 75.0]
+[slicing]
+kind = "depth_guided"
+slices = 240
+omega = 0.5
+max_points = [32, 64, 64, 128]
+mean_heights = { car = 1.56, pedestrian = 1.76, cyclist = 1.74 }
+"#;
+        let c: FrustumConfig = toml::from_str(text).unwrap();
+        c.validate().unwrap();
+        let Slicing::DepthGuided(s) = &c.slicing else {
+            panic!("{:?}", c.slicing)
+        };
+        assert_eq!(
+            (s.slices, s.omega, s.mean_heights.pedestrian),
+            (240, 0.5, 1.76)
+        );
+        assert_eq!(s.max_points, [32, 64, 64, 128]);
+        // Round trip, through the serialised form too.
+        let out = toml::to_string(&c).unwrap();
+        assert!(out.contains("kind = \"depth_guided\""), "{out}");
+        let again: FrustumConfig = toml::from_str(&out).unwrap();
+        assert_eq!(again, c);
+        let again: FrustumConfig = toml::from_str(&toml::to_string(&saf).unwrap()).unwrap();
+        assert_eq!(again, saf);
+        // Only the kind: SAF's Car values; a partial table overrides what it names.
+        let c: FrustumConfig =
+            toml::from_str("depth_range = [0.0, 75.0]\n[slicing]\nkind = \"depth_guided\"\n")
+                .unwrap();
+        assert_eq!(c, saf);
+        let c: FrustumConfig = toml::from_str(
+            "[slicing]\nkind = \"depth_guided\"\nomega = 0.3\nmean_heights = { car = 1.5 }\n",
+        )
+        .unwrap();
+        let Slicing::DepthGuided(s) = &c.slicing else {
+            panic!()
+        };
+        assert_eq!(
+            (s.omega, s.mean_heights.car, s.mean_heights.cyclist),
+            (0.3, 1.5, 1.74)
+        );
+    }
+
+    #[test]
+    fn bad_depth_guided_tables_are_named() {
+        for (text, want) in [
+            (
+                "kind = \"depth_guided\"\nstrides = [0.25]",
+                "unknown field `strides`",
+            ),
+            (
+                "kind = \"depth_guided\"\nmean_heights = { van = 2.0 }",
+                "unknown field `van`",
+            ),
+            ("kind = \"sliding\"", "unknown variant `sliding`"),
+        ] {
+            let err = toml::from_str::<FrustumConfig>(&format!("[slicing]\n{text}\n"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(want), "{text}: {err}");
+        }
+        for (text, want) in [
+            (
+                "slices = 100",
+                "`slicing.slices` = 100 must be divisible by 8",
+            ),
+            ("omega = 1.5", "`slicing.omega` = 1.5 must be in [0, 1)"),
+            (
+                "mean_heights = { car = -1.0 }",
+                "`slicing.mean_heights.car` = -1",
+            ),
+            (
+                "max_points = [32, 64, 0, 128]",
+                "`slicing.max_points` scale 2 is 0",
+            ),
+        ] {
+            let c: FrustumConfig =
+                toml::from_str(&format!("[slicing]\nkind = \"depth_guided\"\n{text}\n")).unwrap();
+            let err = c.validate().unwrap_err().to_string();
+            assert!(err.contains(want), "{text}: {err}");
+        }
     }
 
     #[test]

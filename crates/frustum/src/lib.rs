@@ -5,7 +5,8 @@
 //! Pipeline: [`Frame`] (LiDAR projected once) → [`extract_frustum`] per 2D box
 //! ([`FrustumPoints`] in the box's [`FrustumFrame`], or a [`SkipReason`]) →
 //! [`build_sample`] (augmentation, 1024-point sampling, sub-frustums of every scale
-//! by the configured [`Slicing`], [`BoxEncoding`] targets) → [`collate()`] into a
+//! by the configured [`Slicing`]: F-ConvNet's uniform or SAF's depth-guided;
+//! [`BoxEncoding`] targets) → [`collate()`] into a
 //! [`FrustumBatch`]. [`FrustumDataset`] ties these together over a [`FrameSource`]
 //! with seeded, parallel, thread-count-independent epochs. [`decode_box`] turns
 //! network outputs back into KITTI camera-frame boxes.
@@ -35,7 +36,8 @@ pub use sample::{
     Augmentation, FrustumSample, SampleScale, SampleSource, SampleTarget, build_sample,
 };
 pub use slicing::{
-    ScaleLayout, SliceContext, SliceInterval, SliceStrategy, Slicing, UniformSlicing,
+    DEFAULT_OMEGA, DepthGuidedSlicing, MAX_NEAR_FRACTION, MeanHeights, ScaleLayout, SliceContext,
+    SliceInterval, SliceStrategy, Slicing, UniformSlicing, coarse_depth,
 };
 pub use targets::{
     BoxEncoding, CLASSES, MEAN_SIZES, NUM_HEADING_BINS, decode_box, decode_encoding, encode_box,

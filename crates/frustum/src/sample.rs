@@ -292,6 +292,67 @@ mod tests {
     }
 
     #[test]
+    fn depth_guided_car_sample_on_frame_000003() {
+        let frame = sample_frame("000003");
+        let config = FrustumConfig::saf_car();
+        let obj = &frame.objects[0];
+        let fp = extract_frustum(&frame, &obj.bbox, config.depth_range, 25.0).unwrap();
+        let source = SampleSource {
+            frame_id: &frame.id,
+            class: obj.class,
+            score: None,
+            focal_v: frame.camera.fv(),
+            object: Some(&obj.box3d),
+        };
+        let s = build_sample(
+            &source,
+            &fp,
+            Augmentation {
+                mirror: true,
+                depth_shift: 0.6,
+            },
+            &config,
+            &mut derive_rng(7, &[]),
+        );
+        let counts: Vec<usize> = s.scales.iter().map(|sc| sc.centers.len()).collect();
+        assert_eq!(counts, [240, 120, 60, 30]);
+        // The 103 px tall box gives L_depth = 721.54 · 1.56 / 102.99 ≈ 10.9 m for a car
+        // at 13.3 m (its box is taller than a mean car's would be).
+        let l_depth = frame.camera.fv() * 1.56 / obj.bbox.height();
+        let near = crate::DEFAULT_OMEGA * l_depth;
+        for sc in &s.scales {
+            assert!((sc.slices[0].center - 0.5 * near).abs() < 1e-9);
+            // Centres are the ray points at the interval centres, even if uneven.
+            for (iv, c) in sc.slices.iter().zip(&sc.centers) {
+                assert_eq!(*c, s.frame.ray_point(iv.center));
+            }
+        }
+        let t = s.target.as_ref().unwrap();
+        assert_eq!(t.labels.len(), 120);
+        // Positives are exactly the output centres inside the shrunk footprint.
+        for (p, l) in s.positions().iter().zip(&t.labels) {
+            let inside = crate::targets::in_footprint(&t.in_frustum, p[0], p[2], 0.5);
+            assert_eq!(*l == LABEL_POSITIVE, inside, "position at {}", p[2]);
+        }
+        let positives: Vec<f64> = s
+            .positions()
+            .iter()
+            .zip(&t.labels)
+            .filter(|(_, l)| **l == LABEL_POSITIVE)
+            .map(|(p, _)| p[2])
+            .collect();
+        // Shifted by 0.6 m: about 13.9 m along the frustum.
+        assert!(positives.len() >= 2, "{positives:?}");
+        assert!(
+            positives.iter().all(|z| (z - 13.9).abs() < 1.2),
+            "{positives:?}"
+        );
+        // The decoded target is the label.
+        let back = crate::targets::decode_encoding(&t.encoding, &s.frame);
+        assert!((back.x - obj.box3d.x).abs() < 1e-9 && (back.z - obj.box3d.z).abs() < 1e-9);
+    }
+
+    #[test]
     fn sampling_repeats_only_when_needed() {
         let mut rng = derive_rng(5, &[]);
         let few = sample_indices(10, 1024, &mut rng);

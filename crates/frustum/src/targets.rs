@@ -333,6 +333,62 @@ mod tests {
         assert_eq!(position_labels(&pos, &Box3d { y: -1.3, ..gt }), labels);
     }
 
+    /// Depth-guided output positions: the near region's centre, then even ones.
+    fn depth_guided_ray(near: f64, n: usize, range: f64) -> Vec<[f64; 3]> {
+        let step = (range - near) / n as f64;
+        std::iter::once([0.0, 1.0, 0.5 * near])
+            .chain((1..n).map(|k| [0.0, 1.0, near + k as f64 * step]))
+            .collect()
+    }
+
+    #[test]
+    fn labels_with_uneven_depth_guided_positions() {
+        // Near region [0, 12] (centre 6), then 119 positions 0.525 m apart from 12.525 m.
+        let pos = depth_guided_ray(12.0, 120, 75.0);
+        let gt = Box3d {
+            h: 1.5,
+            w: 1.6,
+            l: 4.0,
+            x: 0.1,
+            y: 1.7,
+            z: 20.0,
+            ry: PI / 2.0,
+        };
+        let labels = position_labels(&pos, &gt);
+        for (p, l) in pos.iter().zip(&labels) {
+            let z = p[2];
+            let expect = if (19.0..=21.0).contains(&z) {
+                1
+            } else if (18.0..=22.0).contains(&z) {
+                -1
+            } else {
+                0
+            };
+            assert_eq!(*l, expect, "z {z}");
+        }
+        // 19.35, 19.875, 20.4, 20.925.
+        assert_eq!(labels.iter().filter(|&&l| l == 1).count(), 4);
+        // An object inside the near region: the near centre is the nearest position.
+        let near_obj = Box3d {
+            x: 1.5,
+            z: 7.0,
+            ..gt
+        };
+        let labels = position_labels(&pos, &near_obj);
+        assert_eq!(labels[0], 1);
+        assert_eq!(labels.iter().filter(|&&l| l == 1).count(), 1);
+        // Between the near centre (6) and the first fine one (12.525), beside the ray:
+        // the fine one at 12.525 is nearer to z = 10 than 6 is.
+        let gap = Box3d {
+            x: 1.5,
+            z: 10.0,
+            ..gt
+        };
+        let labels = position_labels(&pos, &gap);
+        assert_eq!(labels.iter().position(|&l| l == 1), Some(1));
+        assert_eq!(labels.iter().filter(|&&l| l == 1).count(), 1);
+    }
+
     #[test]
     fn nearest_position_is_positive_when_none_is_inside() {
         // A pedestrian 1 m beside the ray: no position inside; nearest is z = 30.25.

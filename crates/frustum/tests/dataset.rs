@@ -373,3 +373,65 @@ fn collate_of_nothing_and_mixed_targets() {
         "mixing samples with and without targets is refused"
     );
 }
+
+/// SAF's depth-guided slicing through the whole pipeline: fixed counts per scale,
+/// uneven per-frustum centres, pairs within their own intervals, a positive
+/// per frustum, and targets that decode to the labels.
+#[test]
+fn depth_guided_batches_follow_the_contract_and_decode() {
+    let d = FrustumDataset::from_labels(frames(&ALL), FrustumConfig::saf_car(), 3).unwrap();
+    assert_eq!(d.len(), 30, "{}", d.skips());
+    let all = batches(&d, 9, 1, 5);
+    let mut near_ends = Vec::new();
+    for pb in &all {
+        let b = &pb.batch;
+        let counts: Vec<usize> = b.scales.iter().map(|s| s.slices_per_frustum).collect();
+        assert_eq!(counts, [240, 120, 60, 30]);
+        for (k, s) in b.scales.iter().enumerate() {
+            assert_eq!(s.slice_centers.len(), 5 * s.slices_per_frustum * 3);
+            assert!(s.pair_slice.windows(2).all(|w| w[0] <= w[1]));
+            for (&p, &q) in s.pair_point.iter().zip(&s.pair_slice) {
+                let (p, q) = (p as usize, q as usize);
+                let (i, j) = (q / s.slices_per_frustum, q % s.slices_per_frustum);
+                assert_eq!(p / 1024, i);
+                // The sample's own interval, not a common stride.
+                let iv = pb.samples[i].scales[k].slices[j];
+                let z = b.points[3 * p + 2] as f64;
+                assert!((z - iv.center).abs() <= iv.half_length + 1e-4);
+                assert!((s.slice_centers[3 * q + 2] as f64 - iv.center).abs() < 1e-4);
+            }
+        }
+        for s in &pb.samples {
+            let near = s.scales[0].slices[0];
+            near_ends.push(near.center + near.half_length);
+        }
+        let t = b.targets.as_ref().unwrap();
+        assert_eq!(t.labels.len(), 5 * 120);
+        let pos = &b.scales[b.output_scale];
+        for (i, s) in pb.samples.iter().enumerate() {
+            let gt = s.target.as_ref().unwrap().object;
+            let k = (0..120).find(|&k| t.labels[i * 120 + k] == 1).unwrap();
+            let pc: [f64; 3] =
+                std::array::from_fn(|j| pos.slice_centers[3 * (i * 120 + k) + j] as f64);
+            let off: [f64; 3] = std::array::from_fn(|j| t.center[3 * i + j] as f64 - pc[j]);
+            let sr: [f64; 3] = std::array::from_fn(|j| t.size_residual[3 * i + j] as f64);
+            let out = decode_box(
+                pc,
+                off,
+                t.heading_bin[i] as usize,
+                t.heading_residual[i] as f64,
+                t.size_cluster[i] as usize,
+                sr,
+                &s.frame,
+            );
+            for (a, g) in [(out.x, gt.x), (out.y, gt.y), (out.z, gt.z), (out.l, gt.l)] {
+                assert!((a - g).abs() < 1e-4, "{out:?} vs {gt:?}");
+            }
+            assert!(normalize_angle(out.ry - gt.ry).abs() < 1e-5);
+        }
+    }
+    // The near region follows each frustum's 2D box.
+    near_ends.sort_by(f64::total_cmp);
+    near_ends.dedup();
+    assert!(near_ends.len() > 10, "{near_ends:?}");
+}
