@@ -5,8 +5,8 @@
 //! Pipeline: [`Frame`] (LiDAR projected once) → [`extract_frustum`] per 2D box
 //! ([`FrustumPoints`] in the box's [`FrustumFrame`], or a [`SkipReason`]) →
 //! [`build_sample`] (augmentation, 1024-point sampling, sub-frustums of every scale
-//! by the configured [`Slicing`]: F-ConvNet's uniform or SAF's depth-guided;
-//! [`BoxEncoding`] targets) → [`collate()`] into a
+//! by the configured [`Slicing`]: F-ConvNet's uniform or SAF's depth-guided, whose ω
+//! [`omega_study()`] helps choose; [`BoxEncoding`] targets) → [`collate()`] into a
 //! [`FrustumBatch`]. [`FrustumDataset`] ties these together over a [`FrameSource`]
 //! with seeded, parallel, thread-count-independent epochs. [`decode_box`] turns
 //! network outputs back into KITTI camera-frame boxes.
@@ -20,6 +20,7 @@ pub mod dataset;
 pub mod error;
 pub mod frame;
 pub mod frustum;
+pub mod omega_study;
 pub mod rng;
 pub mod sample;
 pub mod slicing;
@@ -32,6 +33,9 @@ pub use dataset::{Batches, FrustumDataset, FrustumSpec, PreparedBatch, jitter_bo
 pub use error::{FrustumError, Result, SkipCounts, SkipReason};
 pub use frame::{DiskFrames, Frame, FrameSource, InMemoryFrames, ProjectedCloud};
 pub use frustum::{FrustumFrame, FrustumPoints, clip_box, extract_frustum};
+pub use omega_study::{
+    DEFAULT_OMEGAS, MAX_OBJECT_LOSS, OmegaRow, OmegaStudy, omega_study, omega_study_from_labels,
+};
 pub use sample::{
     Augmentation, FrustumSample, SampleScale, SampleSource, SampleTarget, build_sample,
 };
