@@ -61,6 +61,7 @@ fn bench(c: &mut Criterion) {
             class: fusiondet_kitti::ObjectClass::Pedestrian,
             score: Some(1.0),
             focal_v: frame.camera.fv(),
+            p2: frame.camera.p2_rows(),
             object: None,
         };
         let mut rng = derive_rng(2, &[]);
@@ -87,6 +88,7 @@ fn bench(c: &mut Criterion) {
                     class: d.class,
                     score: Some(d.score),
                     focal_v: frame.camera.fv(),
+                    p2: frame.camera.p2_rows(),
                     object: None,
                 };
                 Some(build_sample(

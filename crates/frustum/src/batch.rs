@@ -57,6 +57,9 @@ pub struct FrustumBatch {
     pub points: Vec<f32>,
     /// One-hot class of each frustum's 2D box (Car, Pedestrian, Cyclist), [batch, 3].
     pub class_one_hot: Vec<f32>,
+    /// Frustum frame → homogeneous pixels, row-major 3 × 4 per frustum, [batch, 12]
+    /// (SAF's projection loss).
+    pub image_projection: Vec<f32>,
     /// The four scales, finest first.
     pub scales: Vec<BatchScale>,
     /// Index into `scales` whose slice centres are the output positions (1: 140 for Car).

@@ -19,6 +19,7 @@ pub fn collate(samples: &[FrustumSample]) -> FrustumBatch {
             points_per_frustum: 0,
             points: Vec::new(),
             class_one_hot: Vec::new(),
+            image_projection: Vec::new(),
             scales: Vec::new(),
             output_scale: 0,
             targets: None,
@@ -56,8 +57,10 @@ pub fn collate(samples: &[FrustumSample]) -> FrustumBatch {
 
     let mut points = Vec::with_capacity(n * n_points * 3);
     let mut class_one_hot = vec![0.0f32; n * CLASSES.len()];
+    let mut image_projection = Vec::with_capacity(n * 12);
     for (i, s) in samples.iter().enumerate() {
         points.extend(s.points.iter().flat_map(|p| p.map(|v| v as f32)));
+        image_projection.extend(s.image_projection.map(|v| v as f32));
         let slot = size_cluster_of(s.class).expect("sample class has a one-hot slot");
         class_one_hot[i * CLASSES.len() + slot] = 1.0;
     }
@@ -125,6 +128,7 @@ pub fn collate(samples: &[FrustumSample]) -> FrustumBatch {
         points_per_frustum: n_points,
         points,
         class_one_hot,
+        image_projection,
         scales,
         output_scale: first.output_scale,
         targets,

@@ -19,6 +19,10 @@ pub struct FrustumConfig {
     pub classes: Vec<ObjectClass>,
     /// Points sampled per frustum (with repetition when the frustum has fewer).
     pub points_per_frustum: usize,
+    /// Sub-frustums are cut from the first this many sampled points (0 = all). SAF's LFA
+    /// takes 4096 points and halves them twice at random; the samples are in random
+    /// order, so its survivors are the first 1024, and only those are sliced.
+    pub sliced_points: usize,
     /// [min, max] depth in metres along the frustum axis (the frustum frame's z):
     /// points outside are not part of the frustum and the sub-frustums tile this range.
     pub depth_range: [f64; 2],
@@ -104,6 +108,7 @@ impl FrustumConfig {
         FrustumConfig {
             classes: vec![ObjectClass::Car],
             points_per_frustum: 1024,
+            sliced_points: 0,
             depth_range: [0.0, 70.0],
             slicing: Slicing::Uniform(UniformSlicing::with_double_lengths(
                 &[0.25, 0.5, 1.0, 2.0],
@@ -158,6 +163,12 @@ impl FrustumConfig {
         }
         if self.points_per_frustum == 0 {
             return bad("`points_per_frustum` must be positive".into());
+        }
+        if self.sliced_points > self.points_per_frustum {
+            return bad(format!(
+                "`sliced_points` {} exceeds `points_per_frustum` {}; use at most that many (0 = all)",
+                self.sliced_points, self.points_per_frustum
+            ));
         }
         let [lo, hi] = self.depth_range;
         if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi > lo) {

@@ -282,6 +282,7 @@ impl<S: FrameSource> FrustumDataset<S> {
             class: spec.class,
             score: spec.score,
             focal_v: frame.camera.fv(),
+            p2: frame.camera.p2_rows(),
             object,
         };
         Ok(build_sample(

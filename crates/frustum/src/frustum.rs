@@ -116,6 +116,27 @@ impl FrustumFrame {
         [x, q[1], q[2] - self.depth_shift]
     }
 
+    /// The row-major 3 × 4 matrix taking (augmented) frustum-frame points to homogeneous
+    /// pixels: P2 · [A | t] where `to_rect(q) = A·q + t`.
+    pub fn image_projection(&self, p2: &[[f64; 4]; 3]) -> [f64; 12] {
+        let (s, c) = self.azimuth.sin_cos();
+        let m = if self.mirrored { -1.0 } else { 1.0 };
+        let a = [[c * m, 0.0, s], [0.0, 1.0, 0.0], [-s * m, 0.0, c]];
+        let t = [
+            self.origin[0] - s * self.depth_shift,
+            0.0,
+            self.origin[2] - c * self.depth_shift,
+        ];
+        let mut out = [0.0; 12];
+        for r in 0..3 {
+            for col in 0..3 {
+                out[4 * r + col] = (0..3).map(|k| p2[r][k] * a[k][col]).sum();
+            }
+            out[4 * r + 3] = (0..3).map(|k| p2[r][k] * t[k]).sum::<f64>() + p2[r][3];
+        }
+        out
+    }
+
     /// KITTI rotation_y → heading in the frustum frame, wrapped to (−π, π].
     pub fn heading_to_frustum(&self, ry: f64) -> f64 {
         let a = ry - self.azimuth;
@@ -228,6 +249,30 @@ mod tests {
 
     fn close(a: [f64; 3], b: [f64; 3], tol: f64) -> bool {
         (0..3).all(|k| (a[k] - b[k]).abs() <= tol)
+    }
+
+    #[test]
+    fn image_projection_equals_to_rect_then_p2() {
+        let cam = sample_camera();
+        let base = FrustumFrame::through_pixel(&cam, 300.0, 200.0);
+        for (mirrored, shift) in [(false, 0.0), (true, 0.0), (false, 1.3), (true, -0.7)] {
+            let f = base.with_augmentation(mirrored, shift);
+            let m = f.image_projection(&cam.p2_rows());
+            for q in [[0.3, 0.8, 12.0], [-2.0, -1.0, 30.5], [1.0, 1.5, 4.0]] {
+                let r = f.to_rect(q);
+                let (u, v, depth) = cam.rect_to_image(r);
+                assert!(depth > 0.0);
+                let want = (u, v);
+                let h: Vec<f64> = (0..3)
+                    .map(|row| (0..3).map(|k| m[4 * row + k] * q[k]).sum::<f64>() + m[4 * row + 3])
+                    .collect();
+                let got = (h[0] / h[2], h[1] / h[2]);
+                assert!(
+                    (got.0 - want.0).abs() < 1e-9 && (got.1 - want.1).abs() < 1e-9,
+                    "{got:?} vs {want:?} (mirrored {mirrored}, shift {shift})"
+                );
+            }
+        }
     }
 
     #[test]

@@ -55,6 +55,9 @@ pub struct FrustumSample {
     pub frame: FrustumFrame,
     /// Distinct LiDAR points in the frustum before resampling.
     pub num_frustum_points: usize,
+    /// Sample coordinates → pixels (row-major 3 × 4; P2 · frustum→camera, augmentation
+    /// included), for SAF's projection loss.
+    pub image_projection: [f64; 12],
     /// Sampled points in the frustum frame (`points_per_frustum` of them, repeated
     /// when the frustum has fewer), in random order.
     pub points: Vec<[f64; 3]>,
@@ -126,6 +129,8 @@ pub struct SampleSource<'a> {
     pub score: Option<f64>,
     /// Vertical focal length of P2 (for slicing strategies that use it).
     pub focal_v: f64,
+    /// P2 (rectified camera → pixels), for the sample's image projection.
+    pub p2: [[f64; 4]; 3],
     /// The ground truth (camera frame) for training samples.
     pub object: Option<&'a Box3d>,
 }
@@ -154,7 +159,11 @@ pub fn build_sample(
         box2d: &frustum.box2d,
         focal_v: source.focal_v,
     });
-    let depths: Vec<f64> = points.iter().map(|p| p[2]).collect();
+    let sliced = match config.sliced_points {
+        0 => points.len(),
+        n => n.min(points.len()),
+    };
+    let depths: Vec<f64> = points[..sliced].iter().map(|p| p[2]).collect();
     let order = depth_order(&depths);
     let scales = layout
         .into_iter()
@@ -180,6 +189,7 @@ pub fn build_sample(
         box2d: frustum.box2d,
         score: source.score,
         frame,
+        image_projection: frame.image_projection(&source.p2),
         num_frustum_points: frustum.points.len(),
         points,
         scales,
@@ -254,6 +264,10 @@ impl FrustumSample {
                 c[0] = -c[0];
             }
         }
+        // The mirror negates x before the projection: its first column changes sign.
+        for row in 0..3 {
+            out.image_projection[4 * row] = -out.image_projection[4 * row];
+        }
         if let Some(t) = &self.target {
             out.target = Some(make_target(
                 &t.object,
@@ -286,9 +300,57 @@ mod tests {
             class: obj.class,
             score: None,
             focal_v: frame.camera.fv(),
+            p2: frame.camera.p2_rows(),
             object: Some(&obj.box3d),
         };
         build_sample(&source, &fp, aug, &config, &mut derive_rng(seed, &[]))
+    }
+
+    #[test]
+    fn only_the_first_sliced_points_are_cut_into_sub_frustums() {
+        let frame = sample_frame("000003");
+        let config = FrustumConfig {
+            points_per_frustum: 4096,
+            sliced_points: 1024,
+            ..FrustumConfig::car()
+        };
+        config.validate().unwrap();
+        let obj = &frame.objects[0];
+        let fp = extract_frustum(&frame, &obj.bbox, config.depth_range, 25.0).unwrap();
+        let source = SampleSource {
+            frame_id: &frame.id,
+            class: obj.class,
+            score: None,
+            focal_v: frame.camera.fv(),
+            p2: frame.camera.p2_rows(),
+            object: Some(&obj.box3d),
+        };
+        let s = build_sample(
+            &source,
+            &fp,
+            Augmentation::default(),
+            &config,
+            &mut derive_rng(1, &[]),
+        );
+        assert_eq!(s.points.len(), 4096);
+        let used: Vec<u32> = s
+            .scales
+            .iter()
+            .flat_map(|sc| sc.pair_point.clone())
+            .collect();
+        assert!(used.iter().all(|&p| p < 1024));
+        assert!(used.iter().any(|&p| p >= 1000), "the whole prefix is used");
+        let too_many = FrustumConfig {
+            sliced_points: 5000,
+            ..config
+        };
+        assert!(
+            too_many
+                .validate()
+                .unwrap_err()
+                .to_string()
+                .contains("sliced_points")
+        );
     }
 
     #[test]
@@ -302,6 +364,7 @@ mod tests {
             class: obj.class,
             score: None,
             focal_v: frame.camera.fv(),
+            p2: frame.camera.p2_rows(),
             object: Some(&obj.box3d),
         };
         let s = build_sample(

@@ -45,6 +45,10 @@ impl CameraModel {
     pub fn fv(&self) -> f64 {
         self.p2[(1, 1)]
     }
+    /// P2 as plain rows.
+    pub fn p2_rows(&self) -> [[f64; 4]; 3] {
+        std::array::from_fn(|r| std::array::from_fn(|c| self.p2[(r, c)]))
+    }
     pub fn cu(&self) -> f64 {
         self.p2[(0, 2)]
     }

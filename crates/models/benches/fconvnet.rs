@@ -48,7 +48,7 @@ fn inference(c: &mut Criterion) {
     });
     for k in 0..4 {
         g.bench_function(format!("pointnet scale {}", k + 1), |b| {
-            b.iter(|| sync(&model.encoders[k].forward(&inputs.scales[k])))
+            b.iter(|| sync(&model.encoders[k].forward(&inputs.scales[k], None)))
         });
     }
     g.finish();

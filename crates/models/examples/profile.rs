@@ -74,7 +74,7 @@ fn main() {
     let feats: Vec<Tensor<2>> = (0..4)
         .map(|k| {
             stage(&format!("pointnet scale {}", k + 1), n, || {
-                let f = model.encoders[k].forward(&inputs.scales[k]);
+                let f = model.encoders[k].forward(&inputs.scales[k], None);
                 sync(&f);
                 f
             })
@@ -89,7 +89,7 @@ fn main() {
     for round in 0..2 {
         stage(&format!("pointnets sequential (round {round})"), n, || {
             for k in 0..4 {
-                sync(&model.encoders[k].forward(&inputs.scales[k]));
+                sync(&model.encoders[k].forward(&inputs.scales[k], None));
             }
         });
         stage(
@@ -100,7 +100,7 @@ fn main() {
                     let handles: Vec<_> = (0..4)
                         .map(|k| {
                             let (enc, scale) = (&model.encoders[k], &inputs.scales[k]);
-                            s.spawn(move || sync(&enc.forward(scale)))
+                            s.spawn(move || sync(&enc.forward(scale, None)))
                         })
                         .collect();
                     handles.into_iter().for_each(|h| h.join().unwrap());
@@ -129,7 +129,7 @@ fn main() {
             &format!("pointnet scale {} forward (autodiff)", k + 1),
             n,
             || {
-                let f = model.as_ref().unwrap().encoders[k].forward(&inputs.scales[k]);
+                let f = model.as_ref().unwrap().encoders[k].forward(&inputs.scales[k], None);
                 sync(&f);
             },
         );

@@ -65,6 +65,8 @@ pub fn config_differences(expected: &ModelConfig, found: &ModelConfig) -> Vec<St
     let ModelConfig {
         num_classes,
         slice_encoder,
+        attention,
+        lfa,
         pointnet_widths,
         fcn_channels,
         deconv_channels,
@@ -90,6 +92,8 @@ pub fn config_differences(expected: &ModelConfig, found: &ModelConfig) -> Vec<St
     compare!(
         num_classes,
         slice_encoder,
+        attention,
+        lfa,
         pointnet_widths,
         fcn_channels,
         deconv_channels,

@@ -19,15 +19,103 @@ pub struct FConvNetConfig {
 }
 
 /// Which per-slice encoder runs on the (point, sub-frustum) pairs of each scale.
-///
-/// Only the plain PointNet exists today; SAF's local feature aggregation and FCAM's
-/// CBAM-style attention are meant to be added here as further variants.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum SliceEncoderKind {
-    /// Shared MLP (Linear + BatchNorm + ReLU per layer) and a max-pool over the slice.
+    /// F-ConvNet: shared MLP (Linear + BatchNorm + ReLU per layer), max-pooled per slice.
     #[default]
     PointNet,
+    /// FCAM with CBAM: the PointNet with channel + spatial attention after the hidden
+    /// layers listed in `[model.attention]`.
+    Cbam,
+    /// FCAM: the improved CBAM (parallel ReLU and tanh channel MLPs).
+    ImprovedCbam,
+}
+
+impl SliceEncoderKind {
+    pub fn uses_attention(self) -> bool {
+        !matches!(self, Self::PointNet)
+    }
+}
+
+/// FCAM's attention blocks (used by the `cbam` and `improved_cbam` encoders).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AttentionConfig {
+    /// Reduction of the ReLU channel MLP (CBAM: 16).
+    pub channel_reduction: usize,
+    /// Reduction of the improved CBAM's tanh channel MLP (32).
+    pub tanh_reduction: usize,
+    /// Side of the spatial attention's square kernel (7).
+    pub spatial_kernel: usize,
+    /// PointNet layers (0-based) whose outputs are attended. The default, one block after
+    /// the first layer, is the placement whose parameter count matches FCAM's published
+    /// +11,264 over F-ConvNet (the channel MLPs of 64/64/128/256-channel maps).
+    pub after_layers: Vec<usize>,
+}
+
+impl Default for AttentionConfig {
+    fn default() -> Self {
+        Self {
+            channel_reduction: 16,
+            tanh_reduction: 32,
+            spatial_kernel: 7,
+            after_layers: vec![0],
+        }
+    }
+}
+
+/// SAF's local feature aggregation (`[model.lfa]`; absent = off). See [`crate::lfa`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LfaConfig {
+    /// K nearest neighbours per point.
+    pub neighbours: usize,
+    /// One entry per random halving.
+    pub stages: Vec<LfaStageConfig>,
+}
+
+/// The MLP widths of one LFA stage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LfaStageConfig {
+    /// MLP over each neighbour's relative-position encoding, max-pooled over the K.
+    pub local: Vec<usize>,
+    /// MLP over the point itself.
+    pub point: Vec<usize>,
+}
+
+impl LfaStageConfig {
+    pub fn out_channels(&self) -> usize {
+        self.local.last().copied().unwrap_or(0) + self.point.last().copied().unwrap_or(0)
+    }
+}
+
+impl Default for LfaConfig {
+    /// Two halvings (4096 → 2048 → 1024 points), K = 16, 64 feature channels per point:
+    /// the paper gives no widths; these keep LFA near a tenth of a training step here.
+    fn default() -> Self {
+        Self {
+            neighbours: 16,
+            stages: vec![
+                LfaStageConfig {
+                    local: vec![16, 32],
+                    point: vec![32],
+                },
+                LfaStageConfig {
+                    local: vec![32],
+                    point: vec![32],
+                },
+            ],
+        }
+    }
+}
+
+impl LfaConfig {
+    /// Feature channels each surviving point carries into the PointNets.
+    pub fn out_channels(&self) -> usize {
+        self.stages.last().map_or(0, LfaStageConfig::out_channels)
+    }
 }
 
 /// The architecture. Everything here determines the weights' shapes or their meaning.
@@ -38,6 +126,11 @@ pub struct ModelConfig {
     pub num_classes: usize,
     /// Per-slice encoder.
     pub slice_encoder: SliceEncoderKind,
+    /// FCAM's attention blocks (ignored by the plain PointNet).
+    pub attention: AttentionConfig,
+    /// SAF's local feature aggregation before the PointNets; `None` (no `[model.lfa]`)
+    /// for F-ConvNet.
+    pub lfa: Option<LfaConfig>,
     /// PointNet layer widths per scale, finest scale first (four scales).
     pub pointnet_widths: Vec<Vec<usize>>,
     /// Output channels of FCN blocks 1–4 (each block's convolutions and its merge conv).
@@ -74,6 +167,9 @@ pub struct LossConfig {
     pub residual_delta: f32,
     /// Huber delta on the mean corner distance.
     pub corner_delta: f32,
+    /// SAF's joint 3D–2D projection loss weight μ (0 = off; SAF uses 0.1): smooth-L1 on the
+    /// 2D box of the projected predicted box against the projected ground truth.
+    pub projection_weight: f32,
 }
 
 impl Default for ModelConfig {
@@ -94,6 +190,7 @@ impl Default for LossConfig {
             center_delta: 3.0,
             residual_delta: 1.0,
             corner_delta: 1.0,
+            projection_weight: 0.0,
         }
     }
 }
@@ -113,6 +210,8 @@ impl ModelConfig {
         Self {
             num_classes: 3,
             slice_encoder: SliceEncoderKind::PointNet,
+            attention: AttentionConfig::default(),
+            lfa: None,
             pointnet_widths: vec![
                 vec![64, 64, 128],
                 vec![64, 64, 128],
@@ -142,6 +241,11 @@ impl ModelConfig {
             deconv_channels: 32,
             ..Self::car()
         }
+    }
+
+    /// Input channels of the slice PointNets: relative coordinates plus LFA features.
+    pub fn pointnet_input_channels(&self) -> usize {
+        3 + self.lfa.as_ref().map_or(0, LfaConfig::out_channels)
     }
 
     /// Channels of one scale's slice features after the one-hot is appended.
@@ -193,6 +297,39 @@ impl ModelConfig {
             return bad(
                 "deconv_channels, num_heading_bins and num_classes must be positive".into(),
             );
+        }
+        if self.slice_encoder.uses_attention() {
+            let a = &self.attention;
+            if a.channel_reduction == 0 || a.tanh_reduction == 0 || a.spatial_kernel % 2 == 0 {
+                return bad("attention: reductions must be positive and spatial_kernel odd".into());
+            }
+            if let Some(l) = a
+                .after_layers
+                .iter()
+                .find(|&&l| self.pointnet_widths.iter().any(|w| l + 1 >= w.len()))
+            {
+                return bad(format!(
+                    "attention.after_layers: layer {l} is not a hidden layer of every PointNet \
+                     (attention goes after a hidden layer, before the last)"
+                ));
+            }
+        }
+        if let Some(lfa) = &self.lfa {
+            if lfa.neighbours == 0
+                || lfa.stages.is_empty()
+                || lfa.stages.iter().any(|s| {
+                    s.local.is_empty()
+                        || s.point.is_empty()
+                        || s.local.contains(&0)
+                        || s.point.contains(&0)
+                })
+            {
+                return bad(
+                    "lfa: neighbours must be positive and every stage needs non-empty, positive \
+                     `local` and `point` widths"
+                        .into(),
+                );
+            }
         }
         if self.size_clusters.is_empty() {
             return bad("size_clusters must not be empty".into());

@@ -48,8 +48,21 @@ pub struct ParamTable {
 impl ParamTable {
     pub fn new(model: &FConvNet) -> Self {
         let mut rows = Vec::new();
+        if let Some(lfa) = &model.lfa {
+            for (k, stage) in lfa.stages.iter().enumerate() {
+                rows.push((format!("lfa stage {}", k + 1), trainable_params(stage)));
+            }
+        }
         for (k, enc) in model.encoders.iter().enumerate() {
-            rows.push((format!("pointnet scale {}", k + 1), trainable_params(enc)));
+            let crate::pointnet::SliceEncoder::PointNet(p) = enc;
+            let attention: usize = p.attention.iter().map(trainable_params).sum();
+            rows.push((
+                format!("pointnet scale {}", k + 1),
+                trainable_params(enc) - attention,
+            ));
+            if attention > 0 {
+                rows.push((format!("  attention (cbam) scale {}", k + 1), attention));
+            }
         }
         let f = &model.fcn;
         rows.push(("fcn block1".into(), trainable_params(&f.block1)));
@@ -92,9 +105,18 @@ pub fn render_info(config: &FConvNetConfig) -> Result<String, ModelError> {
     let model = FConvNet::new(m, &Device::flex())?;
     let table = ParamTable::new(&model);
     Ok(format!(
-        "F-ConvNet: {:?} slice encoder, pointnet widths {:?}, fcn channels {:?}, deconv {} × 3, \
+        "F-ConvNet: {:?} slice encoder{}, pointnet widths {:?}, fcn channels {:?}, deconv {} × 3, \
          {} heading bins, {} size clusters, regression {} per position\n{table}",
         m.slice_encoder,
+        match &m.lfa {
+            Some(l) => format!(
+                " after LFA (K = {}, {} halvings, {} channels per point)",
+                l.neighbours,
+                l.stages.len(),
+                l.out_channels()
+            ),
+            None => String::new(),
+        },
         m.pointnet_widths,
         m.fcn_channels,
         m.deconv_channels,

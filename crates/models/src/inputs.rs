@@ -6,6 +6,7 @@
 
 use crate::config::ModelConfig;
 use crate::error::ModelError;
+use crate::lfa::LfaInputs;
 use burn::prelude::*;
 use fusiondet_frustum::{BatchScale, FrustumBatch};
 
@@ -28,6 +29,10 @@ pub struct ScaleInputs {
     pub rel_coords: Tensor<2>,
     /// How the ragged form max-pools the pair features into slices.
     pub pool: SlicePool,
+    /// Indices for FCAM's attention; built only when the encoder needs them.
+    pub attention: Option<AttentionIndex>,
+    /// [num_pairs]: each pair's row in the LFA feature tensor (SAF only).
+    pub pair_feature_row: Option<Tensor<1, Int>>,
     /// Host copies, for building the padded form on demand.
     rel_host: Vec<f32>,
     slice_start: Vec<usize>,
@@ -129,6 +134,70 @@ impl SlicePool {
     }
 }
 
+/// How CBAM reaches one scale's pairs per frustum (channel attention) and on the
+/// (sub-frustum × point) grid (spatial attention); see [`crate::attention`].
+#[derive(Debug, Clone)]
+pub struct AttentionIndex {
+    pub frustums: usize,
+    pub slices_per_frustum: usize,
+    /// Grid columns: the scale's cap on points per sub-frustum.
+    pub cap: usize,
+    /// [pairs]: the frustum of each pair.
+    pub pair_frustum: Tensor<1, Int>,
+    /// [frustums, 1]: pairs per frustum, at least 1 (the mean's divisor).
+    pub frustum_counts: Tensor<2>,
+    /// Max-pools pair rows (plus a zero row) into frustums.
+    pub frustum_pool: SlicePool,
+    /// [frustums · slices · cap]: the pair in each grid cell, `pairs` (a zero row) if empty.
+    pub grid_cell_pair: Tensor<1, Int>,
+    /// [pairs]: the grid cell of each pair.
+    pub pair_grid_cell: Tensor<1, Int>,
+}
+
+impl AttentionIndex {
+    /// `slice_start` has one entry per slice plus the end; pairs are in slice order and
+    /// slices frustum-major, so each frustum's pairs are contiguous.
+    fn new(
+        slice_start: &[usize],
+        frustums: usize,
+        slices_per_frustum: usize,
+        cap: usize,
+        device: &Device,
+    ) -> Self {
+        let num_pairs = *slice_start.last().unwrap_or(&0);
+        let mut pair_frustum = Vec::with_capacity(num_pairs);
+        let mut pair_cell = Vec::with_capacity(num_pairs);
+        let mut cell_pair = vec![num_pairs as i64; frustums * slices_per_frustum * cap];
+        for (sl, w) in slice_start.windows(2).enumerate() {
+            for (j, pair) in (w[0]..w[1]).enumerate() {
+                let cell = sl * cap + j;
+                pair_frustum.push((sl / slices_per_frustum) as i64);
+                pair_cell.push(cell as i64);
+                cell_pair[cell] = pair as i64;
+            }
+        }
+        let starts: Vec<usize> = (0..=frustums)
+            .map(|f| slice_start[f * slices_per_frustum])
+            .collect();
+        let counts: Vec<usize> = starts.windows(2).map(|w| w[1] - w[0]).collect();
+        let counts_f: Vec<f32> = counts.iter().map(|&c| c.max(1) as f32).collect();
+        let ints = |v: Vec<i64>| {
+            let n = v.len();
+            Tensor::<1, Int>::from_data(TensorData::new(v, [n]), device)
+        };
+        Self {
+            frustums,
+            slices_per_frustum,
+            cap,
+            pair_frustum: ints(pair_frustum),
+            frustum_counts: Tensor::from_data(TensorData::new(counts_f, [frustums, 1]), device),
+            frustum_pool: SlicePool::new(&counts, &starts, num_pairs, device),
+            grid_cell_pair: ints(cell_pair),
+            pair_grid_cell: ints(pair_cell),
+        }
+    }
+}
+
 /// The padded form of one scale: every slice padded to the cap, with masks.
 #[derive(Debug, Clone)]
 pub struct PaddedScaleInputs {
@@ -153,6 +222,8 @@ pub struct BatchInputs {
     pub scales: Vec<ScaleInputs>,
     /// [batch, num_classes].
     pub class_one_hot: Tensor<2>,
+    /// SAF's neighbour indices, when the network has LFA.
+    pub lfa: Option<LfaInputs>,
     /// Output positions per frustum (the slices of the output scale).
     pub positions: usize,
     /// Output position centres, [batch · positions · 3] (host copy, frustum-major).
@@ -212,12 +283,41 @@ impl BatchInputs {
                 ));
             }
         }
+        let lfa = config
+            .lfa
+            .as_ref()
+            .map(|l| LfaInputs::new(&batch.points, b, batch.points_per_frustum, l, device))
+            .transpose()?;
+        // Points that survive LFA's halvings, per frustum (all of them without LFA).
+        let surviving = config.lfa.as_ref().map_or(batch.points_per_frustum, |l| {
+            batch.points_per_frustum >> l.stages.len()
+        });
         let scales = batch
             .scales
             .iter()
             .enumerate()
-            .map(|(k, s)| ScaleInputs::new(k, s, b, &batch.points, num_points, device))
-            .collect::<Result<Vec<_>, _>>()?;
+            .map(|(k, s)| {
+                let mut scale = ScaleInputs::new(
+                    k,
+                    s,
+                    b,
+                    &batch.points,
+                    num_points,
+                    config.slice_encoder.uses_attention(),
+                    device,
+                )?;
+                if lfa.is_some() {
+                    scale.pair_feature_row = Some(pair_feature_rows(
+                        k,
+                        &s.pair_point,
+                        batch.points_per_frustum,
+                        surviving,
+                        device,
+                    )?);
+                }
+                Ok(scale)
+            })
+            .collect::<Result<Vec<_>, ModelError>>()?;
         let out = &batch.scales[batch.output_scale];
         let class_one_hot = Tensor::from_data(
             TensorData::new(batch.class_one_hot.clone(), [b, config.num_classes]),
@@ -229,6 +329,7 @@ impl BatchInputs {
             position_centers: out.slice_centers.clone(),
             scales,
             class_one_hot,
+            lfa,
             device: device.clone(),
         })
     }
@@ -238,6 +339,30 @@ impl BatchInputs {
     }
 }
 
+/// Rows of the pairs' points among LFA's survivors: point i < `surviving` of frustum f
+/// (row f · n0 + i of the batch) is row f · surviving + i of the LFA features.
+fn pair_feature_rows(
+    k: usize,
+    pair_point: &[i64],
+    n0: usize,
+    surviving: usize,
+    device: &Device,
+) -> Result<Tensor<1, Int>, ModelError> {
+    let mut rows = Vec::with_capacity(pair_point.len());
+    for &p in pair_point {
+        let (f, i) = (p as usize / n0, p as usize % n0);
+        if i >= surviving {
+            return Err(ModelError::Batch(format!(
+                "scale {k}: a sub-frustum uses point {i} of its frustum, but only the first \
+                 {surviving} survive LFA's halvings; set frustum.sliced_points = {surviving}"
+            )));
+        }
+        rows.push((f * surviving + i) as i64);
+    }
+    let n = rows.len();
+    Ok(Tensor::from_data(TensorData::new(rows, [n]), device))
+}
+
 impl ScaleInputs {
     fn new(
         k: usize,
@@ -245,6 +370,7 @@ impl ScaleInputs {
         batch_size: usize,
         points: &[f32],
         num_points: usize,
+        with_attention: bool,
         device: &Device,
     ) -> Result<Self, ModelError> {
         let err = |msg: String| Err(ModelError::Batch(format!("scale {k}: {msg}")));
@@ -299,16 +425,27 @@ impl ScaleInputs {
             slice_start.push(slice_start.last().unwrap() + c);
         }
         let pool = SlicePool::new(&counts, &slice_start, num_pairs, device);
+        let cap = s.max_points_per_slice.max(1);
+        let attention = with_attention.then(|| {
+            AttentionIndex::new(&slice_start, batch_size, s.slices_per_frustum, cap, device)
+        });
         Ok(Self {
             num_slices,
             slices_per_frustum: s.slices_per_frustum,
             num_pairs,
-            cap: s.max_points_per_slice.max(1),
+            cap,
+            attention,
+            pair_feature_row: None,
             rel_coords: Tensor::from_data(TensorData::new(rel.clone(), [num_pairs, 3]), device),
             pool,
             rel_host: rel,
             slice_start,
         })
+    }
+
+    /// Row offsets of each slice's pairs, plus the end.
+    pub fn slice_start(&self) -> &[usize] {
+        &self.slice_start
     }
 
     /// The padded form: every slice's pairs followed by zero rows up to the cap.

@@ -1,7 +1,8 @@
 //! Frustum ConvNet (F-ConvNet, Wang & Jia, IROS 2019) in burn: the network, its loss,
 //! inference decoding, checkpoints and the parameter table of `fusiondet info`.
 //!
-//! Module boundaries: [`pointnet`] (per-scale slice encoders over ragged point/slice pairs),
+//! Module boundaries: [`pointnet`] (per-scale slice encoders over ragged point/slice pairs,
+//! with FCAM's [`attention`] blocks),
 //! [`fcn`] (the fully convolutional network over the slice sequence), [`heads`],
 //! [`loss`]. The model code is backend-agnostic: tensors live on a [`burn::tensor::Device`]
 //! chosen at run time (`Device::flex()` on the CPU, `.autodiff()` for training).
@@ -19,6 +20,7 @@
 //! # Ok(()) }
 //! ```
 
+pub mod attention;
 pub mod boxes;
 pub mod checkpoint;
 pub mod config;
@@ -28,13 +30,17 @@ pub mod fcn;
 pub mod heads;
 pub mod info;
 pub mod inputs;
+pub mod lfa;
 pub mod loss;
 pub mod model;
 pub mod pointnet;
 pub mod synthetic;
 
 pub use checkpoint::{load_checkpoint, read_checkpoint_config, save_checkpoint};
-pub use config::{FConvNetConfig, LossConfig, ModelConfig, SliceEncoderKind};
+pub use config::{
+    AttentionConfig, FConvNetConfig, LfaConfig, LfaStageConfig, LossConfig, ModelConfig,
+    SliceEncoderKind,
+};
 pub use decode::{FrustumPrediction, decode};
 pub use error::ModelError;
 pub use info::{ParamTable, render_info};

@@ -49,6 +49,9 @@ pub struct LossTargets {
     mean_size: Tensor<2>,
     corners: Tensor<3>,
     corners_flipped: Tensor<3>,
+    /// Per positive: frustum frame → pixels [Np, 3, 4] and the GT's projected 2D box as
+    /// (centre u, centre v, width, height) [Np, 4]; present when the PL term is on.
+    projection: Option<(Tensor<3>, Tensor<2>)>,
 }
 
 impl LossTargets {
@@ -104,6 +107,14 @@ impl LossTargets {
             (vec![], vec![], vec![], vec![], vec![]);
         let (mut sc, mut si, mut sr, mut ms, mut corners, mut flipped) =
             (vec![], vec![], vec![], vec![], vec![], vec![]);
+        let use_projection = loss.projection_weight > 0.0;
+        if use_projection && batch.image_projection.len() != b * 12 {
+            return bad(format!(
+                "the projection loss needs a 3 × 4 image projection per frustum; the batch has {} values for {b} frustums",
+                batch.image_projection.len()
+            ));
+        }
+        let (mut proj, mut gt_box) = (vec![], vec![]);
         for (flat, &label) in t.labels.iter().enumerate() {
             if label < 0 {
                 continue;
@@ -138,6 +149,20 @@ impl LossTargets {
             });
             corners.extend(gt.iter().flatten());
             flipped.extend(flip_corners(&gt, c).iter().flatten());
+            if use_projection {
+                let m: [f32; 12] = batch.image_projection[f * 12..f * 12 + 12]
+                    .try_into()
+                    .unwrap();
+                proj.extend_from_slice(&m);
+                match projected_box(&gt, &m) {
+                    Some(b2) => gt_box.extend_from_slice(&b2),
+                    None => {
+                        return bad(format!(
+                            "frustum {f}: the ground truth does not project in front of the camera"
+                        ));
+                    }
+                }
+            }
         }
         let (nk, np) = (kept.len(), positive.len());
         let f2 = |v: Vec<f32>, cols: usize| {
@@ -168,6 +193,12 @@ impl LossTargets {
             mean_size: f2(ms, 3),
             corners: f3(corners),
             corners_flipped: f3(flipped),
+            projection: use_projection.then(|| {
+                (
+                    Tensor::from_data(TensorData::new(proj, [np, 3, 4]), device),
+                    f2(gt_box, 4),
+                )
+            }),
         })
     }
 
@@ -187,12 +218,14 @@ pub struct LossComponents {
     pub size_cls: f32,
     pub size_res: f32,
     pub corner: f32,
+    /// SAF's projection term (0 when off).
+    pub projection: f32,
     pub num_positives: usize,
 }
 
 impl LossComponents {
     /// (name, value) pairs in a fixed order.
-    pub fn named(&self) -> [(&'static str, f32); 8] {
+    pub fn named(&self) -> [(&'static str, f32); 9] {
         [
             ("total", self.total),
             ("cls", self.cls),
@@ -202,6 +235,7 @@ impl LossComponents {
             ("size_cls", self.size_cls),
             ("size_res", self.size_res),
             ("corner", self.corner),
+            ("projection", self.projection),
         ]
     }
 }
@@ -308,8 +342,15 @@ pub fn fconvnet_loss(
     } else {
         Some(box_losses(output, targets, config, b * p))
     };
-    let [center, heading_cls, heading_res, size_cls, size_res, corner] =
-        box_terms.unwrap_or_else(|| std::array::from_fn(|_| zero()));
+    let [
+        center,
+        heading_cls,
+        heading_res,
+        size_cls,
+        size_res,
+        corner,
+        projection,
+    ] = box_terms.unwrap_or_else(|| std::array::from_fn(|_| zero()));
     let box_total = center.clone()
         + heading_cls.clone()
         + size_cls.clone()
@@ -318,7 +359,9 @@ pub fn fconvnet_loss(
             .mul_scalar(config.heading_residual_weight)
         + size_res.clone().mul_scalar(config.size_residual_weight)
         + corner.clone().mul_scalar(config.corner_weight);
-    let total = cls.clone() + box_total.mul_scalar(config.box_weight);
+    let total = cls.clone()
+        + box_total.mul_scalar(config.box_weight)
+        + projection.clone().mul_scalar(config.projection_weight);
 
     let values: Vec<f32> = Tensor::cat(
         vec![
@@ -330,6 +373,7 @@ pub fn fconvnet_loss(
             size_cls,
             size_res,
             corner,
+            projection,
         ],
         0,
     )
@@ -345,6 +389,7 @@ pub fn fconvnet_loss(
         size_cls: values[5],
         size_res: values[6],
         corner: values[7],
+        projection: values[8],
         num_positives: targets.num_positives,
     };
     check_finite(&components)?;
@@ -369,13 +414,14 @@ pub fn check_finite(c: &LossComponents) -> Result<(), ModelError> {
     }
 }
 
-/// Centre, heading class, heading residual, size class, size residual, corner (means over positives).
+/// Centre, heading class, heading residual, size class, size residual, corner, projection
+/// (means over positives; projection zero when off).
 fn box_losses(
     output: &FConvNetOutput,
     t: &LossTargets,
     config: &LossConfig,
     rows: usize,
-) -> [Tensor<1>; 6] {
+) -> [Tensor<1>; 7] {
     let l = t.layout;
     let r = l.len();
     let reg = output
@@ -430,5 +476,72 @@ fn box_losses(
     let corner_dist = dist(&t.corners).min_pair(dist(&t.corners_flipped));
     let corner = huber(corner_dist, config.corner_delta).mean();
 
-    [center, heading_cls, heading_res, size_cls, size_res, corner]
+    let projection = match &t.projection {
+        Some((proj, gt)) => projection_loss(corners, proj.clone(), gt.clone()),
+        None => Tensor::zeros([1], &reg.device()),
+    };
+    [
+        center,
+        heading_cls,
+        heading_res,
+        size_cls,
+        size_res,
+        corner,
+        projection,
+    ]
+}
+
+/// Nearest depth a corner is projected at: corners behind the camera would flip sign.
+const MIN_PROJECTION_DEPTH: f32 = 0.1;
+
+/// The 2D box (centre u, centre v, width, height) of corners projected by a row-major 3 × 4
+/// matrix; `None` when a corner lies behind the camera.
+pub fn projected_box(corners: &[[f32; 3]; 8], m: &[f32; 12]) -> Option<[f32; 4]> {
+    let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+    for c in corners {
+        let row =
+            |r: usize| m[4 * r] * c[0] + m[4 * r + 1] * c[1] + m[4 * r + 2] * c[2] + m[4 * r + 3];
+        let z = row(2);
+        if z < MIN_PROJECTION_DEPTH {
+            return None;
+        }
+        for (d, v) in [row(0) / z, row(1) / z].into_iter().enumerate() {
+            lo[d] = lo[d].min(v);
+            hi[d] = hi[d].max(v);
+        }
+    }
+    Some([
+        0.5 * (lo[0] + hi[0]),
+        0.5 * (lo[1] + hi[1]),
+        (hi[0] - lo[0]).max(1e-3),
+        (hi[1] - lo[1]).max(1e-3),
+    ])
+}
+
+/// SAF's PL term: corners [Np, 8, 3] projected by [Np, 3, 4]; smooth-L1 (δ = 1) on
+/// (Δu / w_gt, Δv / h_gt, ln(w / w_gt), ln(h / h_gt)), summed per box, mean over boxes.
+pub fn projection_loss(corners: Tensor<3>, proj: Tensor<3>, gt: Tensor<2>) -> Tensor<1> {
+    let [np, _, _] = corners.dims();
+    let device = corners.device();
+    let homogeneous = Tensor::cat(vec![corners, Tensor::ones([np, 8, 1], &device)], 2);
+    let image = homogeneous.matmul(proj.swap_dims(1, 2)); // [Np, 8, 3]
+    let z = image
+        .clone()
+        .narrow(2, 2, 1)
+        .clamp_min(MIN_PROJECTION_DEPTH);
+    let u = (image.clone().narrow(2, 0, 1) / z.clone()).reshape([np, 8]);
+    let v = (image.narrow(2, 1, 1) / z).reshape([np, 8]);
+    let (u0, u1) = (u.clone().min_dim(1), u.max_dim(1));
+    let (v0, v1) = (v.clone().min_dim(1), v.max_dim(1));
+    let col = |k: usize| gt.clone().narrow(1, k, 1);
+    let (w_gt, h_gt) = (col(2), col(3));
+    let w = (u1.clone() - u0.clone()).clamp_min(1e-3);
+    let h = (v1.clone() - v0.clone()).clamp_min(1e-3);
+    let du = ((u0 + u1).mul_scalar(0.5) - col(0)) / w_gt.clone();
+    let dv = ((v0 + v1).mul_scalar(0.5) - col(1)) / h_gt.clone();
+    let dw = (w / w_gt).log();
+    let dh = (h / h_gt).log();
+    huber(Tensor::cat(vec![du, dv, dw, dh], 1), 1.0)
+        .sum_dim(1)
+        .mean()
 }

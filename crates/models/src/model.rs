@@ -5,6 +5,7 @@ use crate::error::ModelError;
 use crate::fcn::Fcn;
 use crate::heads::Heads;
 use crate::inputs::BatchInputs;
+use crate::lfa::Lfa;
 use crate::pointnet::SliceEncoder;
 use burn::prelude::*;
 use fusiondet_frustum::FrustumBatch;
@@ -20,6 +21,8 @@ pub struct FConvNetOutput {
 
 #[derive(Module, Debug)]
 pub struct FConvNet {
+    /// SAF's local feature aggregation (absent in F-ConvNet and FCAM).
+    pub lfa: Option<Lfa>,
     /// One encoder per scale, finest first.
     pub encoders: Vec<SliceEncoder>,
     pub fcn: Fcn,
@@ -33,6 +36,7 @@ impl FConvNet {
     pub fn new(config: &ModelConfig, device: &Device) -> Result<Self, ModelError> {
         config.validate()?;
         Ok(Self {
+            lfa: config.lfa.as_ref().map(|l| Lfa::new(config, l, device)),
             encoders: config
                 .pointnet_widths
                 .iter()
@@ -65,11 +69,15 @@ impl FConvNet {
 
     /// The forward pass (ragged PointNets).
     pub fn forward_inputs(&self, inputs: &BatchInputs) -> FConvNetOutput {
+        let point_features = match (&self.lfa, &inputs.lfa) {
+            (Some(lfa), Some(li)) => Some(lfa.forward(li)),
+            _ => None,
+        };
         let feats: Vec<Tensor<2>> = self
             .encoders
             .iter()
             .zip(&inputs.scales)
-            .map(|(enc, scale)| enc.forward(scale))
+            .map(|(enc, scale)| enc.forward(scale, point_features.as_ref()))
             .collect();
         self.forward_from_slice_features(inputs, feats)
     }

@@ -7,6 +7,7 @@
 //! (max and ReLU commute, gradients included), on slices instead of pairs. The padded form (every slice padded to the cap, masked) computes the
 //! same function with far more work and exists to check the ragged one.
 
+use crate::attention::Cbam;
 use crate::config::{ModelConfig, SliceEncoderKind};
 use crate::inputs::{PaddedScaleInputs, ScaleInputs};
 use burn::nn::{BatchNorm, BatchNormConfig, Linear, LinearConfig};
@@ -85,16 +86,21 @@ fn masked_batch_norm(bn: &BatchNorm, x: Tensor<2>, valid: &Tensor<2>, count: usi
     out
 }
 
-/// The plain PointNet of F-ConvNet: a shared MLP on pair coordinates relative to the slice
-/// centre, max-pooled per slice (empty slices give zeros).
+/// The PointNet of F-ConvNet: a shared MLP on pair coordinates relative to the slice
+/// centre, max-pooled per slice (empty slices give zeros). FCAM's variants attend the
+/// outputs of some hidden layers with CBAM ([`Cbam`]).
 #[derive(Module, Debug)]
 pub struct PointNet {
     pub layers: Vec<MlpLayer>,
+    /// One block per entry of `attention_after`.
+    pub attention: Vec<Cbam>,
+    #[module(skip)]
+    attention_after: Vec<usize>,
 }
 
 impl PointNet {
     pub fn new(widths: &[usize], config: &ModelConfig, device: &Device) -> Self {
-        let mut d_in = 3;
+        let mut d_in = config.pointnet_input_channels();
         let layers = widths
             .iter()
             .map(|&w| {
@@ -103,7 +109,35 @@ impl PointNet {
                 layer
             })
             .collect();
-        Self { layers }
+        let attention_after = if config.slice_encoder.uses_attention() {
+            config.attention.after_layers.clone()
+        } else {
+            Vec::new()
+        };
+        let improved = config.slice_encoder == SliceEncoderKind::ImprovedCbam;
+        let attention = attention_after
+            .iter()
+            .map(|&l| Cbam::new(widths[l], improved, &config.attention, device))
+            .collect();
+        Self {
+            layers,
+            attention,
+            attention_after,
+        }
+    }
+
+    /// Hidden layer `l`'s output, attended when a block follows that layer.
+    fn attend(&self, l: usize, x: Tensor<2>, scale: &ScaleInputs) -> Tensor<2> {
+        match self.attention_after.iter().position(|&a| a == l) {
+            Some(k) => {
+                let index = scale
+                    .attention
+                    .as_ref()
+                    .expect("inputs built for an attention encoder carry the attention index");
+                self.attention[k].forward(x, index)
+            }
+            None => x,
+        }
     }
 
     pub fn out_channels(&self) -> usize {
@@ -113,25 +147,37 @@ impl PointNet {
             .unwrap_or(3)
     }
 
-    /// Ragged form: [num_slices, C].
-    pub fn forward(&self, scale: &ScaleInputs) -> Tensor<2> {
+    /// Ragged form: [num_slices, C]. `point_features` ([points, C_f], SAF's LFA) are
+    /// appended to each pair's relative coordinates.
+    pub fn forward(&self, scale: &ScaleInputs, point_features: Option<&Tensor<2>>) -> Tensor<2> {
         let device = scale.rel_coords.device();
         let c = self.out_channels();
         if scale.num_pairs == 0 {
             return Tensor::zeros([scale.num_slices, c], &device);
         }
         let (last, rest) = self.layers.split_last().expect("at least one layer");
-        let mut x = scale.rel_coords.clone();
-        for layer in rest {
-            x = layer.forward(x);
+        let mut x = match (point_features, &scale.pair_feature_row) {
+            (Some(f), Some(rows)) => Tensor::cat(
+                vec![scale.rel_coords.clone(), f.clone().select(0, rows.clone())],
+                1,
+            ),
+            _ => scale.rel_coords.clone(),
+        };
+        for (l, layer) in rest.iter().enumerate() {
+            x = self.attend(l, layer.forward(x), scale);
         }
         let x = last.forward_pre_activation(x);
         let x = Tensor::cat(vec![x, Tensor::zeros([1, c], &device)], 0);
         relu(scale.pool.max_pool(x))
     }
 
-    /// Padded form: the same function computed on every slice padded to the cap.
+    /// Padded form: the same function computed on every slice padded to the cap (the plain
+    /// PointNet only: it exists to check the ragged form's pooling and batch norm).
     pub fn forward_padded(&self, scale: &PaddedScaleInputs) -> Tensor<2> {
+        assert!(
+            self.attention.is_empty(),
+            "the padded form checks the plain PointNet; attention runs on the ragged form only"
+        );
         let c = self.out_channels();
         let mut x = scale.coords.clone();
         for layer in &self.layers {
@@ -160,15 +206,13 @@ pub enum SliceEncoder {
 
 impl SliceEncoder {
     pub fn new(widths: &[usize], config: &ModelConfig, device: &Device) -> Self {
-        match config.slice_encoder {
-            SliceEncoderKind::PointNet => Self::PointNet(PointNet::new(widths, config, device)),
-        }
+        Self::PointNet(PointNet::new(widths, config, device))
     }
 
     /// Per-slice features, [num_slices, C].
-    pub fn forward(&self, scale: &ScaleInputs) -> Tensor<2> {
+    pub fn forward(&self, scale: &ScaleInputs, point_features: Option<&Tensor<2>>) -> Tensor<2> {
         match self {
-            Self::PointNet(p) => p.forward(scale),
+            Self::PointNet(p) => p.forward(scale, point_features),
         }
     }
 

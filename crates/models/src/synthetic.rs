@@ -182,6 +182,14 @@ pub fn synthetic_batch(spec: &SyntheticSpec, seed: u64) -> FrustumBatch {
         points_per_frustum: n,
         points,
         class_one_hot: (0..b).flat_map(|_| [1.0, 0.0, 0.0]).collect(),
+        // A KITTI-like pinhole looking down the frustum axis.
+        image_projection: (0..b)
+            .flat_map(|_| {
+                [
+                    721.5, 0.0, 609.6, 44.9, 0.0, 721.5, 172.9, 0.2, 0.0, 0.0, 1.0, 0.003,
+                ]
+            })
+            .collect(),
         scales,
         output_scale: 1,
         targets,

@@ -71,7 +71,7 @@ fn ragged_and_padded_pointnets_agree_in_outputs_and_gradients() {
 
     // Per-scale slice features, training mode (batch statistics over the real pairs).
     for (k, (enc, scale)) in model.encoders.iter().zip(&inputs.scales).enumerate() {
-        let ragged = enc.forward(scale);
+        let ragged = enc.forward(scale, None);
         let padded = enc.forward_padded(&scale.padded(&device));
         assert_eq!(ragged.dims(), padded.dims());
         assert_close(

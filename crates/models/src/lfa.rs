@@ -1,0 +1,288 @@
+//! SAF's local feature aggregation (LFA; He et al., Sensors 2022, after RandLA-Net).
+//!
+//! The frustum arrives with N₀ points in random order (the frustum sampler shuffles), so
+//! "random sampling halves the points" is "keep the first half": after S halvings the
+//! first N₀ / 2^S points remain, and those are the points the sub-frustums are cut from
+//! (`frustum.sliced_points`). Before each halving every surviving point i gets
+//!
+//! `f_i = MaxPool_k MLP_local(p_k ⊕ (p_i − p_k) ⊕ ‖p_i − p_k‖ ⊕ p_i [⊕ g_k]) ⊕ MLP_point(p_i [⊕ g_i])`
+//!
+//! over its K nearest neighbours k among the points of the current stage (g the previous
+//! stage's features; coordinates relative to the frustum's centroid). Only survivors get
+//! features: the dropped half would feed nothing downstream. The slice PointNets then see
+//! each pair's coordinates relative to its sub-frustum centre together with `f` of its point.
+//!
+//! The neighbour search runs on the host when the batch's tensors are built (a k-d tree
+//! from `kiddo` over the frustum's distinct points: repeated samples are one neighbour).
+
+use crate::config::{LfaConfig, ModelConfig};
+use crate::error::ModelError;
+use crate::pointnet::MlpLayer;
+use burn::prelude::*;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use std::num::NonZero;
+
+/// One stage's host-built indices.
+#[derive(Debug, Clone)]
+pub struct LfaStageIndex {
+    /// Points of the stage per frustum (N_s).
+    pub points: usize,
+    /// [B · N_s / 2]: rows of the survivors in the stage's point rows.
+    pub keep: Tensor<1, Int>,
+    /// [B · N_s / 2 · K]: rows of each survivor's K nearest neighbours.
+    pub neighbours: Tensor<1, Int>,
+}
+
+/// Everything LFA needs for a batch.
+#[derive(Debug, Clone)]
+pub struct LfaInputs {
+    pub neighbours: usize,
+    /// [B · N₀, 3]: points relative to their frustum's centroid.
+    pub coords: Tensor<2>,
+    pub stages: Vec<LfaStageIndex>,
+}
+
+impl LfaInputs {
+    /// `points` is the batch's [B · N₀ · 3] array; `n0` points per frustum.
+    pub fn new(
+        points: &[f32],
+        batch_size: usize,
+        n0: usize,
+        config: &LfaConfig,
+        device: &Device,
+    ) -> Result<Self, ModelError> {
+        let stages = config.stages.len();
+        let k = config.neighbours;
+        if n0 % (1 << stages) != 0 || n0 >> stages < k {
+            return Err(ModelError::Batch(format!(
+                "LFA: {n0} points per frustum cannot be halved {stages} times keeping at least \
+                 {k} neighbours; use frustum.points_per_frustum = a multiple of {}",
+                1 << stages
+            )));
+        }
+        let mut coords = Vec::with_capacity(points.len());
+        for f in 0..batch_size {
+            let frustum = &points[f * n0 * 3..(f + 1) * n0 * 3];
+            let mut centroid = [0f64; 3];
+            for p in frustum.chunks_exact(3) {
+                for d in 0..3 {
+                    centroid[d] += p[d] as f64 / n0 as f64;
+                }
+            }
+            for p in frustum.chunks_exact(3) {
+                for d in 0..3 {
+                    coords.push(p[d] - centroid[d] as f32);
+                }
+            }
+        }
+        let mut stage_index = Vec::with_capacity(stages);
+        let mut n = n0;
+        for _ in 0..stages {
+            let half = n / 2;
+            let mut keep = Vec::with_capacity(batch_size * half);
+            let mut neighbours = Vec::with_capacity(batch_size * half * k);
+            for f in 0..batch_size {
+                // The stage's points of frustum f are the first n of its N₀ points.
+                let pts: Vec<[f32; 3]> = (0..n)
+                    .map(|i| {
+                        let r = (f * n0 + i) * 3;
+                        [coords[r], coords[r + 1], coords[r + 2]]
+                    })
+                    .collect();
+                let knn = nearest_neighbours(&pts, half, k);
+                keep.extend((0..half).map(|i| (f * n + i) as i64));
+                neighbours.extend(knn.into_iter().map(|j| (f * n + j) as i64));
+            }
+            let ints = |v: Vec<i64>| {
+                let len = v.len();
+                Tensor::<1, Int>::from_data(TensorData::new(v, [len]), device)
+            };
+            stage_index.push(LfaStageIndex {
+                points: n,
+                keep: ints(keep),
+                neighbours: ints(neighbours),
+            });
+            n = half;
+        }
+        Ok(Self {
+            neighbours: k,
+            coords: Tensor::from_data(TensorData::new(coords, [batch_size * n0, 3]), device),
+            stages: stage_index,
+        })
+    }
+}
+
+/// The K nearest distinct points (by index among `points`) of each of the first `queries`
+/// points, nearest first; a point with fewer than K distinct neighbours repeats its last.
+pub fn nearest_neighbours(points: &[[f32; 3]], queries: usize, k: usize) -> Vec<usize> {
+    // Distinct coordinates, each represented by its first index (ordered by first use).
+    let mut first: std::collections::HashMap<[u32; 3], usize> = Default::default();
+    let mut distinct: Vec<[f32; 3]> = Vec::new();
+    let mut distinct_index: Vec<usize> = Vec::new();
+    for (i, p) in points.iter().enumerate() {
+        let key = p.map(f32::to_bits);
+        first.entry(key).or_insert_with(|| {
+            distinct.push(*p);
+            distinct_index.push(i);
+            distinct.len() - 1
+        });
+    }
+    let mut out = Vec::with_capacity(queries * k);
+    let take = k.min(distinct.len());
+    let tree: ImmutableKdTree<f32, 3> =
+        ImmutableKdTree::new_from_slice(&distinct).expect("finite coordinates build a k-d tree");
+    for q in &points[..queries] {
+        let found = tree
+            .query(q)
+            .nearest_n::<SquaredEuclidean<f32>>(NonZero::new(take).expect("k ≥ 1"))
+            .execute();
+        let mut last = 0;
+        for item in found.iter() {
+            last = distinct_index[item.item as usize];
+            out.push(last);
+        }
+        out.extend(std::iter::repeat_n(last, k - found.len()));
+    }
+    out
+}
+
+/// One stage: a local MLP over neighbour encodings (max-pooled) beside a point MLP.
+#[derive(Module, Debug)]
+pub struct LfaStage {
+    pub local: Vec<MlpLayer>,
+    pub point: Vec<MlpLayer>,
+}
+
+fn mlp(d_in: usize, widths: &[usize], config: &ModelConfig, device: &Device) -> Vec<MlpLayer> {
+    let mut d = d_in;
+    widths
+        .iter()
+        .map(|&w| {
+            let layer = MlpLayer::new(d, w, config, device);
+            d = w;
+            layer
+        })
+        .collect()
+}
+
+fn run(layers: &[MlpLayer], mut x: Tensor<2>) -> Tensor<2> {
+    for layer in layers {
+        x = layer.forward(x);
+    }
+    x
+}
+
+/// Local feature aggregation over the frustum's points.
+#[derive(Module, Debug)]
+pub struct Lfa {
+    pub stages: Vec<LfaStage>,
+}
+
+impl Lfa {
+    pub fn new(config: &ModelConfig, lfa: &LfaConfig, device: &Device) -> Self {
+        let mut prev = 0;
+        let stages = lfa
+            .stages
+            .iter()
+            .map(|s| {
+                let stage = LfaStage {
+                    local: mlp(10 + prev, &s.local, config, device),
+                    point: mlp(3 + prev, &s.point, config, device),
+                };
+                prev = s.out_channels();
+                stage
+            })
+            .collect();
+        Self { stages }
+    }
+
+    /// Features of the surviving points, [B · N_S, C] (frustum-major, in sample order).
+    pub fn forward(&self, inputs: &LfaInputs) -> Tensor<2> {
+        let k = inputs.neighbours;
+        let mut coords = inputs.coords.clone();
+        let mut feats: Option<Tensor<2>> = None;
+        for (stage, index) in self.stages.iter().zip(&inputs.stages) {
+            let q = coords.clone().select(0, index.keep.clone()); // [M, 3]
+            let m = q.dims()[0];
+            let nb = coords.clone().select(0, index.neighbours.clone()); // [M·K, 3]
+            let qk = q
+                .clone()
+                .reshape([m, 1, 3])
+                .expand([m, k, 3])
+                .reshape([m * k, 3]);
+            let rel = qk.clone() - nb.clone();
+            let dist = rel.clone().square().sum_dim(1).add_scalar(1e-12).sqrt();
+            let mut local_in = vec![nb, rel, dist, qk];
+            let mut point_in = vec![q.clone()];
+            if let Some(g) = &feats {
+                local_in.push(g.clone().select(0, index.neighbours.clone()));
+                point_in.push(g.clone().select(0, index.keep.clone()));
+            }
+            let local = run(&stage.local, Tensor::cat(local_in, 1));
+            let c = local.dims()[1];
+            let local = local.reshape([m, k, c]).max_dim(1).reshape([m, c]);
+            let point = run(&stage.point, Tensor::cat(point_in, 1));
+            feats = Some(Tensor::cat(vec![local, point], 1));
+            coords = q;
+        }
+        feats.expect("LFA has at least one stage")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn neighbours_are_the_nearest_distinct_points() {
+        // A line of points 0, 1, 2, ... with point 5 repeated at the end.
+        let mut pts: Vec<[f32; 3]> = (0..10).map(|i| [i as f32, 0.0, 0.0]).collect();
+        pts.push([5.0, 0.0, 0.0]);
+        let nn = nearest_neighbours(&pts, 4, 3);
+        assert_eq!(&nn[0..3], &[0, 1, 2]);
+        assert_eq!(nn[3], 1);
+        let mut second: Vec<usize> = nn[4..6].to_vec();
+        second.sort();
+        assert_eq!(second, [0, 2]);
+        // Point 3's neighbours: 3, then 2 and 4 (either order); never the duplicate 10.
+        assert_eq!(nn[9], 3);
+        assert!(!nn.contains(&10));
+    }
+
+    #[test]
+    fn too_few_distinct_points_repeat_the_last_neighbour() {
+        let pts = vec![[1.0, 2.0, 3.0]; 8];
+        assert_eq!(nearest_neighbours(&pts, 2, 4), vec![0; 8]);
+    }
+
+    #[test]
+    fn survivors_and_neighbours_stay_in_their_frustum() {
+        let device = Device::flex();
+        let n0 = 64;
+        let points: Vec<f32> = (0..2 * n0 * 3)
+            .map(|i| ((i * 37) % 101) as f32 * 0.1)
+            .collect();
+        let config = LfaConfig {
+            neighbours: 4,
+            ..LfaConfig::default()
+        };
+        let inputs = LfaInputs::new(&points, 2, n0, &config, &device).unwrap();
+        let mut n = n0;
+        for stage in &inputs.stages {
+            let keep = stage.keep.clone().try_into_vec_as::<i64>().unwrap();
+            let nb = stage.neighbours.clone().try_into_vec_as::<i64>().unwrap();
+            assert_eq!(keep.len(), n);
+            assert_eq!(nb.len(), n * 4);
+            for (row, &r) in keep.iter().enumerate() {
+                let f = row / (n / 2);
+                assert_eq!(r as usize, f * n + row % (n / 2));
+                for &j in &nb[row * 4..row * 4 + 4] {
+                    assert_eq!(j as usize / n, f, "neighbour in another frustum");
+                }
+            }
+            n /= 2;
+        }
+        let bad = LfaInputs::new(&points[..2 * 6 * 3], 2, 6, &config, &device);
+        assert!(bad.unwrap_err().to_string().contains("halved"));
+    }
+}
