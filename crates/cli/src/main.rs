@@ -32,6 +32,10 @@ enum Command {
     Viz(commands::viz::VizArgs),
     /// Simulate a LiDAR + camera dataset in KITTI format.
     Simulate(commands::simulate::SimulateArgs),
+    /// Train and evaluate several configurations on one dataset: ablation tables and PR plots.
+    Ablation(commands::ablation::AblationArgs),
+    /// Choose SAF's ω: what the near sub-frustum takes from objects and clutter, per ω.
+    OmegaStudy(commands::omega_study::OmegaStudyArgs),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +48,8 @@ fn main() -> ExitCode {
         Command::Eval(args) => commands::eval::run(args),
         Command::Viz(args) => commands::viz::run(args),
         Command::Simulate(args) => commands::simulate::run(args),
+        Command::Ablation(args) => commands::ablation::run(args),
+        Command::OmegaStudy(args) => commands::omega_study::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

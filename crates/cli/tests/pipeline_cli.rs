@@ -200,3 +200,111 @@ fn train_then_detect_from_the_command_line() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
 }
+
+#[test]
+fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("sim");
+    let o = fusiondet(&[
+        "simulate",
+        "--out",
+        data.to_str().unwrap(),
+        "--frames",
+        "6",
+        "--seed",
+        "4",
+        "--traffic-scale",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let out = dir.path().join("ablation");
+    let c = configs();
+    let args = [
+        "ablation",
+        "--configs",
+        c.join("tiny.toml").to_str().unwrap(),
+        c.join("tiny-fcam.toml").to_str().unwrap(),
+        c.join("tiny-saf.toml").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--epochs",
+        "1",
+    ]
+    .map(str::to_string);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = fusiondet(&args);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    for name in ["tiny", "tiny-fcam", "tiny-saf"] {
+        assert!(t.contains(&format!("| {name} ")), "{name} row missing\n{t}");
+        assert!(out.join("runs").join(name).join("model.bpk").is_file());
+    }
+    assert!(t.contains("3D Easy") && t.contains("Occl. 1"), "{t}");
+    for f in [
+        "ablation.md",
+        "ablation.json",
+        "pr-car-3d.png",
+        "pr-car-bev.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("ablation.json")).unwrap()).unwrap();
+    assert_eq!(json["configurations"].as_array().unwrap().len(), 3);
+    // A re-run resumes the finished trainings instead of repeating them.
+    let o = fusiondet(&args);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("0 epoch(s) run"), "{}", text(&o));
+}
+
+#[test]
+fn ablation_and_omega_study_reject_bad_input() {
+    let c = configs();
+    let o = fusiondet(&[
+        "ablation",
+        "--configs",
+        c.join("tiny.toml").to_str().unwrap(),
+        c.join("fconvnet-people.toml").to_str().unwrap(),
+        "--data",
+        "/nonexistent",
+        "--out",
+        "/tmp/unused-ablation",
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("same classes"), "{}", text(&o));
+    let o = fusiondet(&[
+        "omega-study",
+        "--config",
+        c.join("tiny.toml").to_str().unwrap(),
+        "--data",
+        "/nonexistent",
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("depth_guided"), "{}", text(&o));
+    let o = fusiondet(&[
+        "simulate",
+        "--out",
+        "/tmp/x",
+        "--frames",
+        "1",
+        "--traffic-scale=0",
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("--traffic-scale"), "{}", text(&o));
+}
+
+#[test]
+fn omega_study_runs_on_the_bundled_frames() {
+    let kitti = common::repo_root().join("data/kitti-sample");
+    let o = fusiondet(&[
+        "omega-study",
+        "--config",
+        configs().join("saf-car.toml").to_str().unwrap(),
+        "--data",
+        kitti.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("0.85"), "{}", text(&o));
+}

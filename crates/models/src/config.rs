@@ -300,7 +300,10 @@ impl ModelConfig {
         }
         if self.slice_encoder.uses_attention() {
             let a = &self.attention;
-            if a.channel_reduction == 0 || a.tanh_reduction == 0 || a.spatial_kernel % 2 == 0 {
+            if a.channel_reduction == 0
+                || a.tanh_reduction == 0
+                || a.spatial_kernel.is_multiple_of(2)
+            {
                 return bad("attention: reductions must be positive and spatial_kernel odd".into());
             }
             if let Some(l) = a
@@ -314,22 +317,21 @@ impl ModelConfig {
                 ));
             }
         }
-        if let Some(lfa) = &self.lfa {
-            if lfa.neighbours == 0
+        if let Some(lfa) = &self.lfa
+            && (lfa.neighbours == 0
                 || lfa.stages.is_empty()
                 || lfa.stages.iter().any(|s| {
                     s.local.is_empty()
                         || s.point.is_empty()
                         || s.local.contains(&0)
                         || s.point.contains(&0)
-                })
-            {
-                return bad(
-                    "lfa: neighbours must be positive and every stage needs non-empty, positive \
-                     `local` and `point` widths"
-                        .into(),
-                );
-            }
+                }))
+        {
+            return bad(
+                "lfa: neighbours must be positive and every stage needs non-empty, positive \
+                 `local` and `point` widths"
+                    .into(),
+            );
         }
         if self.size_clusters.is_empty() {
             return bad("size_clusters must not be empty".into());

@@ -98,6 +98,11 @@ impl fmt::Display for ParamTable {
     }
 }
 
+/// Trainable parameters of the network `config` describes (built on the CPU, not run).
+pub fn parameter_count(config: &crate::config::ModelConfig) -> Result<usize, ModelError> {
+    Ok(trainable_params(&FConvNet::new(config, &Device::flex())?))
+}
+
 /// The text `fusiondet info --config FILE` prints: a configuration summary and the table.
 /// The network is built on the CPU device without running it.
 pub fn render_info(config: &FConvNetConfig) -> Result<String, ModelError> {

@@ -53,7 +53,7 @@ impl LfaInputs {
     ) -> Result<Self, ModelError> {
         let stages = config.stages.len();
         let k = config.neighbours;
-        if n0 % (1 << stages) != 0 || n0 >> stages < k {
+        if !n0.is_multiple_of(1 << stages) || n0 >> stages < k {
             return Err(ModelError::Batch(format!(
                 "LFA: {n0} points per frustum cannot be halved {stages} times keeping at least \
                  {k} neighbours; use frustum.points_per_frustum = a multiple of {}",

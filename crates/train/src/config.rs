@@ -150,6 +150,20 @@ impl ExperimentConfig {
         if !(0.0..1.0).contains(&self.detect.nms_iou) {
             return bad("detect.nms_iou must be in [0, 1)".into());
         }
+        if let Some(lfa) = &self.model.lfa {
+            let n = self.frustum.points_per_frustum;
+            let survivors = n >> lfa.stages.len();
+            if !n.is_multiple_of(1 << lfa.stages.len()) || self.frustum.sliced_points != survivors {
+                return bad(format!(
+                    "model.lfa halves the frustum's points {} times: frustum.points_per_frustum \
+                     ({n}) must be divisible by {} and frustum.sliced_points ({}) must equal the \
+                     survivors, {survivors}",
+                    lfa.stages.len(),
+                    1 << lfa.stages.len(),
+                    self.frustum.sliced_points
+                ));
+            }
+        }
         Ok(())
     }
 }
@@ -202,6 +216,90 @@ mod shipped_configs {
     #[test]
     fn the_car_config_is_the_published_one() {
         assert_eq!(load("fconvnet-car.toml"), ExperimentConfig::default());
+    }
+
+    #[test]
+    fn every_shipped_config_loads_and_says_what_it_is() {
+        use fusiondet_models::SliceEncoderKind;
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+        let mut names = Vec::new();
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                let c = ExperimentConfig::from_file(&path).unwrap();
+                let file_stem = path.file_stem().unwrap().to_string_lossy().to_string();
+                assert_eq!(c.name, file_stem, "{}: name", path.display());
+                // The name states the variant (tiny-* are the tiny network's variants):
+                // check that the file holds it.
+                let stem = file_stem.strip_prefix("tiny-").unwrap_or(&file_stem);
+                let variant = stem
+                    .strip_suffix("-car")
+                    .or_else(|| stem.strip_suffix("-people"))
+                    .unwrap_or(stem);
+                let parts: Vec<&str> = variant.split('-').collect();
+                let saf = parts[0] == "saf";
+                let all_three = variant == "saf";
+                let slicing = all_three || (saf && parts.contains(&"slicing"));
+                let lfa = all_three || (saf && parts.contains(&"lfa"));
+                let pl = all_three || (saf && parts.contains(&"pl"));
+                assert_eq!(
+                    matches!(
+                        c.frustum.slicing,
+                        fusiondet_frustum::Slicing::DepthGuided(_)
+                    ),
+                    slicing,
+                    "{stem}: slicing"
+                );
+                assert_eq!(c.model.lfa.is_some(), lfa, "{stem}: lfa");
+                assert_eq!(c.loss.projection_weight > 0.0, pl, "{stem}: pl");
+                let encoder = if variant == "fcam-cbam" {
+                    SliceEncoderKind::Cbam
+                } else if variant == "fcam" {
+                    SliceEncoderKind::ImprovedCbam
+                } else {
+                    SliceEncoderKind::PointNet
+                };
+                assert_eq!(c.model.slice_encoder, encoder, "{stem}: encoder");
+                if stem.ends_with("-people") {
+                    use fusiondet_kitti::ObjectClass::{Cyclist, Pedestrian};
+                    assert_eq!(c.frustum.classes, [Pedestrian, Cyclist], "{stem}");
+                }
+                names.push(file_stem);
+            }
+        }
+        names.sort();
+        // Every row of the seeds' tables, for Car and for Pedestrian + Cyclist.
+        for row in [
+            "fconvnet",
+            "fcam-cbam",
+            "fcam",
+            "saf",
+            "saf-slicing",
+            "saf-lfa",
+            "saf-pl",
+            "saf-slicing-lfa",
+            "saf-slicing-pl",
+            "saf-lfa-pl",
+        ] {
+            for class in ["car", "people"] {
+                let name = format!("{row}-{class}");
+                assert!(names.contains(&name), "configs/{name}.toml is missing");
+            }
+        }
+    }
+
+    #[test]
+    fn lfa_needs_the_survivors_to_be_the_sliced_points() {
+        let err = ExperimentConfig::from_toml_str(
+            "[frustum]\npoints_per_frustum = 4096\n[model.lfa]\n",
+            Path::new("s.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("sliced_points") && err.contains("1024"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -1,9 +1,11 @@
 //! One module per subcommand: argument parsing and wiring only; the work lives in the library crates.
 
+pub mod ablation;
 pub mod demo;
 pub mod detect;
 pub mod eval;
 pub mod info;
+pub mod omega_study;
 pub mod simulate;
 pub mod train;
 pub mod viz;

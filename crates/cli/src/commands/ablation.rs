@@ -1,0 +1,233 @@
+//! `fusiondet ablation`: trains and evaluates a list of configurations on one dataset and
+//! prints the seeds' ablation tables (AP3D and APBEV, easy/moderate/hard, AP40 and AP11),
+//! the per-occlusion / per-distance / per-LiDAR-points breakdown, and draws the
+//! precision–recall curves.
+//!
+//! Each training runs in its own `fusiondet train` process: a training is bit-reproducible
+//! in a process of its own (two in one process share rayon's pool), and a finished run is
+//! resumed rather than repeated, so an interrupted ablation continues where it stopped.
+
+use anyhow::{Context, bail};
+use fusiondet_eval::{
+    AblationRow, Difficulty, EvalConfig, Metric, ablation_breakdown_table, ablation_table,
+    count_lidar_points, evaluate, evaluate_breakdown, frame_ids, load_dirs, write_ablation_json,
+};
+use fusiondet_kitti::{DatasetDir, ObjectClass};
+use fusiondet_models::info::parameter_count;
+use fusiondet_train::{DetectOptions, ExperimentConfig, detect};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+#[derive(clap::Args)]
+#[command(after_help = "\
+Writes OUT/runs/<name>/ (training), OUT/results/<name>/ (KITTI result files of the val split), \
+OUT/ablation.md (the tables), OUT/ablation.json and OUT/pr-<class>-3d.png / -bev.png \
+(precision-recall curves, easy/moderate/hard). Frames/s is detection on the val split \
+without reading files from disk (frustums + network + decoding and NMS), divided into frames.")]
+pub struct AblationArgs {
+    /// Configurations to compare (TOML files), in table order; the first is the baseline.
+    #[arg(long, num_args = 1.., required = true)]
+    pub configs: Vec<PathBuf>,
+    /// Dataset root with training/, ImageSets/{train,val}.txt and rgb_detections/.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Output directory.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Override train.epochs of every configuration.
+    #[arg(long)]
+    pub epochs: Option<usize>,
+    /// Override train.max_frames of every configuration (0 = the whole train split).
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+    /// Override train.seed of every configuration.
+    #[arg(long)]
+    pub seed: Option<u64>,
+}
+
+/// One configuration's results.
+struct Entry {
+    name: String,
+    report: fusiondet_eval::EvalReport,
+    breakdown: Vec<fusiondet_eval::BreakdownRow>,
+    params: usize,
+    frames_per_second: f64,
+}
+
+pub fn run(args: AblationArgs) -> anyhow::Result<()> {
+    let configs: Vec<(PathBuf, ExperimentConfig)> = args
+        .configs
+        .iter()
+        .map(|p| Ok((p.clone(), ExperimentConfig::from_file(p)?)))
+        .collect::<anyhow::Result<_>>()?;
+    let mut names: Vec<&str> = configs.iter().map(|(_, c)| c.name.as_str()).collect();
+    names.sort_unstable();
+    if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
+        bail!(
+            "two configurations are named `{}`; names become directories, give each its own",
+            w[0]
+        );
+    }
+    let classes = configs[0].1.frustum.classes.clone();
+    if let Some((p, _)) = configs.iter().find(|(_, c)| c.frustum.classes != classes) {
+        bail!(
+            "{}: detects {:?} but {} detects {:?}; an ablation compares models of the same classes",
+            p.display(),
+            configs
+                .iter()
+                .find(|(q, _)| q == p)
+                .map(|(_, c)| &c.frustum.classes),
+            args.configs[0].display(),
+            classes
+        );
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("{}: cannot create", args.out.display()))?;
+    let dataset = DatasetDir::new(&args.data);
+    let label_dir = dataset.training().root.join("label_2");
+    let ids = frame_ids(&label_dir, Some(&dataset.split("val")))?;
+
+    let mut entries = Vec::new();
+    for (path, config) in &configs {
+        entries.push(run_one(&args, path, config, &label_dir, &ids)?);
+    }
+
+    let eval_classes: Vec<ObjectClass> = classes.clone();
+    let rows: Vec<AblationRow> = entries
+        .iter()
+        .map(|e| AblationRow {
+            name: e.name.clone(),
+            report: e.report.clone(),
+            breakdown: Some(e.breakdown.clone()),
+            params: Some(e.params),
+            frames_per_second: Some(e.frames_per_second),
+        })
+        .collect();
+    let mut text = format!(
+        "# Ablation on {} ({} val frames)\n\n",
+        args.data.display(),
+        ids.len()
+    );
+    for &class in &eval_classes {
+        text += &format!("## {class}\n\n");
+        text += &ablation_table(&rows, class, 0);
+        text +=
+            &format!("\n### {class}: AP_R40 by distance, occlusion and LiDAR points (hard)\n\n");
+        text += &ablation_breakdown_table(&rows, class, 0, Difficulty::Hard);
+        text += "\n";
+        for (metric, tag) in [(Metric::ThreeD, "3d"), (Metric::Bev, "bev")] {
+            let curves: Vec<(&str, &fusiondet_eval::MetricResult)> = rows
+                .iter()
+                .filter_map(|r| Some((r.name.as_str(), r.report.get(class, metric, 0)?)))
+                .collect();
+            let image = fusiondet_viz::render_pr_difficulties(
+                &format!("{class} {} precision-recall", tag.to_uppercase()),
+                &curves,
+                &Default::default(),
+            );
+            let png = args
+                .out
+                .join(format!("pr-{}-{tag}.png", class.to_string().to_lowercase()));
+            fusiondet_viz::write_plot_png(&png, &image)?;
+            text += &format!(
+                "![{class} {tag}]({})\n\n",
+                png.file_name().unwrap().to_string_lossy()
+            );
+        }
+    }
+    print!("{text}");
+    fusiondet_kitti::write_atomic(&args.out.join("ablation.md"), text.as_bytes())
+        .with_context(|| format!("{}: cannot write", args.out.display()))?;
+    write_ablation_json(&args.out.join("ablation.json"), &rows)?;
+    println!(
+        "wrote {}/ablation.md, ablation.json and the PR plots",
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Trains (in a child process), detects on the val split and evaluates one configuration.
+fn run_one(
+    args: &AblationArgs,
+    path: &Path,
+    config: &ExperimentConfig,
+    label_dir: &Path,
+    ids: &[String],
+) -> anyhow::Result<Entry> {
+    let run_dir = args.out.join("runs").join(&config.name);
+    let exe = std::env::current_exe().context("cannot locate the fusiondet binary")?;
+    let mut train = Command::new(exe);
+    train
+        .arg("train")
+        .arg("--config")
+        .arg(path)
+        .arg("--data")
+        .arg(&args.data)
+        .arg("--out")
+        .arg(&run_dir);
+    if run_dir.join("state.json").exists() {
+        train.arg("--resume");
+    }
+    for (flag, value) in [
+        ("--epochs", args.epochs.map(|v| v.to_string())),
+        ("--max-frames", args.max_frames.map(|v| v.to_string())),
+        ("--seed", args.seed.map(|v| v.to_string())),
+    ] {
+        if let Some(v) = value {
+            train.arg(flag).arg(v);
+        }
+    }
+    eprintln!("== {}: training ({})", config.name, path.display());
+    let status = train.status().context("cannot start `fusiondet train`")?;
+    if !status.success() {
+        bail!(
+            "training {} failed ({status}); its run directory is {}",
+            config.name,
+            run_dir.display()
+        );
+    }
+    // The run directory holds the configuration it was trained with (overrides included).
+    let trained = ExperimentConfig::from_file(&run_dir.join("config.toml"))?;
+    let results = args.out.join("results").join(&config.name);
+    if results.exists() {
+        std::fs::remove_dir_all(&results)
+            .with_context(|| format!("{}: cannot clear", results.display()))?;
+    }
+    let summary = detect(&DetectOptions {
+        config: trained.clone(),
+        checkpoint: run_dir.join("model.bpk"),
+        data_dir: args.data.clone(),
+        split: "val".into(),
+        out_dir: results.clone(),
+        detections: None,
+    })?;
+    let t = &summary.timing;
+    let compute = (t.frustums + t.network + t.decode_nms).as_secs_f64();
+    let frames_per_second = summary.frames as f64 / compute.max(1e-9);
+    let eval_config = EvalConfig {
+        classes: trained.frustum.classes.clone(),
+        ..Default::default()
+    };
+    let frames = load_dirs(label_dir, &results, ids)?;
+    let report = evaluate(&frames.gt, &frames.det, &eval_config)?;
+    let training = DatasetDir::new(&args.data).training();
+    let points = count_lidar_points(
+        &frames.gt,
+        &frames.det,
+        &training.root.join("velodyne"),
+        &training.root.join("calib"),
+    )?;
+    let breakdown = evaluate_breakdown(&frames.gt, &frames.det, &eval_config, Some(&points))?;
+    let params = parameter_count(&trained.model)?;
+    eprintln!(
+        "== {}: {} frames, {} boxes, {frames_per_second:.1} frames/s, {params} parameters",
+        config.name, summary.frames, summary.boxes_written
+    );
+    Ok(Entry {
+        name: config.name.clone(),
+        report,
+        breakdown,
+        params,
+        frames_per_second,
+    })
+}
