@@ -36,6 +36,8 @@ enum Command {
     Ablation(commands::ablation::AblationArgs),
     /// Choose SAF's ω: what the near sub-frustum takes from objects and clutter, per ω.
     OmegaStudy(commands::omega_study::OmegaStudyArgs),
+    /// Detection speed of a trained model: frames/s and time per stage (medians).
+    Bench(commands::bench::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -50,6 +52,7 @@ fn main() -> ExitCode {
         Command::Simulate(args) => commands::simulate::run(args),
         Command::Ablation(args) => commands::ablation::run(args),
         Command::OmegaStudy(args) => commands::omega_study::run(args),
+        Command::Bench(args) => commands::bench::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

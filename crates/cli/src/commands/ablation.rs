@@ -14,7 +14,7 @@ use fusiondet_eval::{
 };
 use fusiondet_kitti::{DatasetDir, ObjectClass};
 use fusiondet_models::info::parameter_count;
-use fusiondet_train::{DetectOptions, ExperimentConfig, detect};
+use fusiondet_train::{DetectOptions, ExperimentConfig, detect, frames_per_second};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -201,9 +201,7 @@ fn run_one(
         out_dir: results.clone(),
         detections: None,
     })?;
-    let t = &summary.timing;
-    let compute = (t.frustums + t.network + t.decode_nms).as_secs_f64();
-    let frames_per_second = summary.frames as f64 / compute.max(1e-9);
+    let frames_per_second = frames_per_second(summary.frames, &summary.timing);
     let eval_config = EvalConfig {
         classes: trained.frustum.classes.clone(),
         ..Default::default()

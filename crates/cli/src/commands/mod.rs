@@ -1,6 +1,7 @@
 //! One module per subcommand: argument parsing and wiring only; the work lives in the library crates.
 
 pub mod ablation;
+pub mod bench;
 pub mod demo;
 pub mod detect;
 pub mod eval;

@@ -1,0 +1,178 @@
+//! Detection speed: the detection pipeline run several times over the same in-memory
+//! frames (reading files from disk is left out), with the median time of each stage.
+//! `fusiondet bench` prints it; the ablation reports its frames/s the same way.
+
+use crate::config::ExperimentConfig;
+use crate::detect::{StageTimes, detect_frames};
+use crate::error::Result;
+use crate::trainer::load_split;
+use burn::prelude::*;
+use fusiondet_frustum::FrameSource;
+use fusiondet_kitti::{DatasetDir, read_detections2d};
+use std::fmt;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// What to measure.
+#[derive(Debug, Clone)]
+pub struct BenchOptions {
+    pub config: ExperimentConfig,
+    pub checkpoint: PathBuf,
+    pub data_dir: PathBuf,
+    pub split: String,
+    pub detections: Option<PathBuf>,
+    /// Timed runs (after one untimed warm-up run).
+    pub repeats: usize,
+    /// Use at most this many frames of the split (0 = all).
+    pub max_frames: usize,
+}
+
+/// The timed runs of one model.
+#[derive(Debug, Clone)]
+pub struct DetectBench {
+    pub frames: usize,
+    pub frustums: usize,
+    pub runs: Vec<StageTimes>,
+}
+
+fn median(mut v: Vec<Duration>) -> Duration {
+    v.sort();
+    match v.len() {
+        0 => Duration::ZERO,
+        n if n % 2 == 1 => v[n / 2],
+        n => (v[n / 2 - 1] + v[n / 2]) / 2,
+    }
+}
+
+impl DetectBench {
+    /// Median of each stage over the runs (load is not part of the runs).
+    pub fn median(&self) -> StageTimes {
+        let pick = |f: fn(&StageTimes) -> Duration| median(self.runs.iter().map(f).collect());
+        StageTimes {
+            load: Duration::ZERO,
+            frustums: pick(|t| t.frustums),
+            network: pick(|t| t.network),
+            decode_nms: pick(|t| t.decode_nms),
+        }
+    }
+
+    /// Median total time of a run (frustums + network + decoding and NMS).
+    pub fn median_total(&self) -> Duration {
+        median(
+            self.runs
+                .iter()
+                .map(|t| t.frustums + t.network + t.decode_nms)
+                .collect(),
+        )
+    }
+
+    pub fn frames_per_second(&self) -> f64 {
+        self.frames as f64 / self.median_total().as_secs_f64().max(1e-9)
+    }
+}
+
+impl fmt::Display for DetectBench {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let m = self.median();
+        let total = self.median_total().as_secs_f64().max(1e-9);
+        writeln!(
+            f,
+            "{} frames, {} frustums ({:.1} per frame), {} timed runs (medians):",
+            self.frames,
+            self.frustums,
+            self.frustums as f64 / self.frames.max(1) as f64,
+            self.runs.len()
+        )?;
+        for (name, d) in [
+            ("frustums (extract, sample, slice)", m.frustums),
+            ("network (tensors, forward, decode)", m.network),
+            ("boxes + 3D NMS", m.decode_nms),
+        ] {
+            writeln!(
+                f,
+                "  {name:<36} {:>8.1} ms  {:>5.1}%",
+                d.as_secs_f64() * 1e3,
+                100.0 * d.as_secs_f64() / total
+            )?;
+        }
+        write!(
+            f,
+            "  total {:.1} ms per frame: {:.2} frames/s",
+            1e3 * total / self.frames.max(1) as f64,
+            self.frames_per_second()
+        )
+    }
+}
+
+/// Loads the model and the frames once, runs detection `1 + repeats` times and keeps the
+/// timings of all but the first.
+pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
+    let cfg = &options.config;
+    let device = Device::flex();
+    let model = fusiondet_models::load_checkpoint(&cfg.model, &options.checkpoint, &device)?;
+    let frames = load_split(&options.data_dir, &options.split, options.max_frames, false)?;
+    let det_path = options
+        .detections
+        .clone()
+        .unwrap_or_else(|| DatasetDir::new(&options.data_dir).rgb_detections(&options.split));
+    let detections = read_detections2d(&det_path)?;
+    let mut runs = Vec::with_capacity(options.repeats);
+    let mut frustums = 0;
+    for run in 0..=options.repeats {
+        let mut timing = StageTimes::default();
+        let (_, _, n) = detect_frames(
+            &model,
+            &device,
+            cfg,
+            frames.clone(),
+            &detections,
+            &mut timing,
+        )?;
+        frustums = n;
+        if run > 0 {
+            runs.push(timing);
+        }
+    }
+    Ok(DetectBench {
+        frames: frames.len(),
+        frustums,
+        runs,
+    })
+}
+
+/// Frames/s of a finished detection run (disk reads left out), for one-off reports.
+pub fn frames_per_second(frames: usize, timing: &StageTimes) -> f64 {
+    let compute = timing.frustums + timing.network + timing.decode_nms;
+    frames as f64 / compute.as_secs_f64().max(1e-9)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ms(v: u64) -> Duration {
+        Duration::from_millis(v)
+    }
+
+    #[test]
+    fn medians_and_rates() {
+        let run = |a, b, c| StageTimes {
+            load: ms(999),
+            frustums: ms(a),
+            network: ms(b),
+            decode_nms: ms(c),
+        };
+        let bench = DetectBench {
+            frames: 10,
+            frustums: 80,
+            runs: vec![run(100, 900, 10), run(300, 700, 30), run(200, 800, 20)],
+        };
+        assert_eq!(bench.median().network, ms(800));
+        assert_eq!(bench.median_total(), ms(1020));
+        assert!((bench.frames_per_second() - 10.0 / 1.02).abs() < 1e-9);
+        let text = bench.to_string();
+        assert!(text.contains("78.4%"), "{text}");
+        assert!(text.contains("9.80 frames/s"), "{text}");
+        assert_eq!(median(vec![ms(1), ms(3)]), ms(2));
+    }
+}
