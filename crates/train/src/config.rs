@@ -49,6 +49,10 @@ pub struct DetectConfig {
     pub batch_size: usize,
     /// Seeds the point sampling of test frustums.
     pub seed: u64,
+    /// Points sampled per test frustum when not `frustum.points_per_frustum` (a speed /
+    /// accuracy knob: the PointNets' work is proportional to it). Not for LFA models,
+    /// whose point count is part of the architecture.
+    pub points_per_frustum: Option<usize>,
 }
 
 impl Default for ExperimentConfig {
@@ -89,6 +93,7 @@ impl Default for DetectConfig {
             nms_iou: 0.1,
             batch_size: 32,
             seed: 7,
+            points_per_frustum: None,
         }
     }
 }
@@ -113,6 +118,24 @@ impl ExperimentConfig {
 
     pub fn to_toml_string(&self) -> String {
         toml::to_string_pretty(self).expect("the experiment configuration serialises")
+    }
+
+    /// The same configuration with another test-time point count, validated.
+    pub fn with_test_points(mut self, points: Option<usize>) -> Result<Self> {
+        self.detect.points_per_frustum = points;
+        self.validate(Path::new("--points"))?;
+        Ok(self)
+    }
+
+    /// The frustum settings detection uses (the training ones, with the test point count).
+    pub fn detect_frustum(&self) -> FrustumConfig {
+        FrustumConfig {
+            points_per_frustum: self
+                .detect
+                .points_per_frustum
+                .unwrap_or(self.frustum.points_per_frustum),
+            ..self.frustum.clone()
+        }
     }
 
     /// The network + loss part, as the models crate takes it.
@@ -149,6 +172,18 @@ impl ExperimentConfig {
         }
         if !(0.0..1.0).contains(&self.detect.nms_iou) {
             return bad("detect.nms_iou must be in [0, 1)".into());
+        }
+        if let Some(n) = self.detect.points_per_frustum {
+            if n == 0 {
+                return bad("detect.points_per_frustum must be at least 1".into());
+            }
+            if self.model.lfa.is_some() {
+                return bad(
+                    "detect.points_per_frustum cannot change the point count of an LFA model \
+                     (its halvings fix it); remove it"
+                        .into(),
+                );
+            }
         }
         if let Some(lfa) = &self.model.lfa {
             let n = self.frustum.points_per_frustum;
@@ -286,6 +321,19 @@ mod shipped_configs {
                 assert!(names.contains(&name), "configs/{name}.toml is missing");
             }
         }
+    }
+
+    #[test]
+    fn test_points_override_the_detection_frustums_only() {
+        let c = load("fconvnet-car.toml").with_test_points(Some(512)).unwrap();
+        assert_eq!(c.detect_frustum().points_per_frustum, 512);
+        assert_eq!(c.frustum.points_per_frustum, 1024);
+        assert!(load("fconvnet-car.toml").with_test_points(Some(0)).is_err());
+        let err = load("saf-car.toml")
+            .with_test_points(Some(512))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("LFA"), "{err}");
     }
 
     #[test]

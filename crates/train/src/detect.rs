@@ -60,7 +60,7 @@ pub fn detect_frames<S: FrameSource>(
         .map(|i| frames.frame_id(i).to_string())
         .collect();
     let t = Instant::now();
-    let dataset = FrustumDataset::from_detections(frames, detections, config.frustum.clone())?;
+    let dataset = FrustumDataset::from_detections(frames, detections, config.detect_frustum())?;
     timing.frustums += t.elapsed();
     let mut candidates: BTreeMap<String, Vec<Object>> =
         ids.into_iter().map(|id| (id, Vec::new())).collect();

@@ -27,13 +27,19 @@ pub struct BenchArgs {
     /// Use at most this many frames of the split (0 = all).
     #[arg(long, default_value_t = 0)]
     pub max_frames: usize,
+    /// Points sampled per frustum at test time (overrides detect.points_per_frustum).
+    #[arg(long)]
+    pub points: Option<usize>,
 }
 
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     if args.repeats == 0 {
         anyhow::bail!("--repeats must be at least 1");
     }
-    let config = config_for_checkpoint(&args.checkpoint, args.config.as_deref())?;
+    let mut config = config_for_checkpoint(&args.checkpoint, args.config.as_deref())?;
+    if args.points.is_some() {
+        config = config.with_test_points(args.points)?;
+    }
     let name = config.name.clone();
     let bench = bench_detect(&BenchOptions {
         config,

@@ -23,6 +23,10 @@ pub struct DetectArgs {
     /// 2D detections (F-PointNet format); default DATA/rgb_detections/rgb_detection_<split>.txt.
     #[arg(long)]
     pub detections: Option<PathBuf>,
+    /// Points sampled per frustum at test time (overrides detect.points_per_frustum:
+    /// fewer is faster).
+    #[arg(long)]
+    pub points: Option<usize>,
 }
 
 /// The configuration that belongs to a checkpoint.
@@ -47,7 +51,10 @@ pub fn config_for_checkpoint(
 }
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
-    let config = config_for_checkpoint(&args.checkpoint, args.config.as_deref())?;
+    let mut config = config_for_checkpoint(&args.checkpoint, args.config.as_deref())?;
+    if args.points.is_some() {
+        config = config.with_test_points(args.points)?;
+    }
     let s = detect(&DetectOptions {
         config,
         checkpoint: args.checkpoint,
