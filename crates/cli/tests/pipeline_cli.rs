@@ -15,7 +15,41 @@ fn configs() -> std::path::PathBuf {
 }
 
 #[test]
-fn demo_runs_the_whole_pipeline_and_can_be_rerun() {
+fn demo_runs_the_shipped_model_and_can_be_rerun() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let args = ["demo", "--out", out.to_str().unwrap(), "--frames", "8"];
+    let o = fusiondet(&args);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    assert!(t.contains("simulated 8 frames"), "{t}");
+    assert!(t.contains("the shipped F-ConvNet Car model"), "{t}");
+    assert!(t.contains("Car AP_R40@0.70, 0.70, 0.70"), "{t}");
+    for f in [
+        "model/fconvnet-car.bpk",
+        "model/fconvnet-car.toml",
+        "eval-sim.json",
+        "eval-kitti.json",
+        "pictures/kitti-000001.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing\n{t}");
+    }
+    // The written model is the repository's file, byte for byte.
+    assert_eq!(
+        std::fs::read(out.join("model/fconvnet-car.bpk")).unwrap(),
+        std::fs::read(common::repo_root().join("models/fconvnet-car.bpk")).unwrap()
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval-kitti.json")).unwrap())
+            .unwrap();
+    assert!(!json["results"].as_array().unwrap().is_empty());
+    // A second run replaces the demo's own output.
+    let o = fusiondet(&args);
+    assert!(o.status.success(), "{}", text(&o));
+}
+
+#[test]
+fn demo_can_train_the_tiny_network_instead() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
     let o = fusiondet(&[
@@ -24,36 +58,15 @@ fn demo_runs_the_whole_pipeline_and_can_be_rerun() {
         out.to_str().unwrap(),
         "--frames",
         "8",
+        "--train-tiny",
         "--epochs",
         "1",
     ]);
     assert!(o.status.success(), "{}", text(&o));
     let t = text(&o);
-    assert!(t.contains("simulated 8 frames"), "{t}");
-    assert!(t.contains("Car AP_R40@0.70, 0.70, 0.70"), "{t}");
-    for f in [
-        "run/model.bpk",
-        "eval-sim.json",
-        "eval-kitti.json",
-        "pictures/kitti-000001.png",
-    ] {
-        assert!(out.join(f).is_file(), "{f} missing\n{t}");
-    }
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("eval-kitti.json")).unwrap())
-            .unwrap();
-    assert!(!json["results"].as_array().unwrap().is_empty());
-    // A second run replaces the demo's own output.
-    let o = fusiondet(&[
-        "demo",
-        "--out",
-        out.to_str().unwrap(),
-        "--frames",
-        "8",
-        "--epochs",
-        "1",
-    ]);
-    assert!(o.status.success(), "{}", text(&o));
+    assert!(t.contains("trained the tiny F-ConvNet"), "{t}");
+    assert!(out.join("run/model.bpk").is_file(), "{t}");
+    assert!(!out.join("model").exists(), "{t}");
 }
 
 #[test]
@@ -199,6 +212,29 @@ fn train_then_detect_from_the_command_line() {
         "Car",
     ]);
     assert!(o.status.success(), "{}", text(&o));
+    let o = fusiondet(&[
+        "bench",
+        "--checkpoint",
+        run.join("model.bpk").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--repeats",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    assert!(t.contains("2 timed runs") && t.contains("frames/s"), "{t}");
+    let o = fusiondet(&[
+        "bench",
+        "--checkpoint",
+        run.join("model.bpk").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--repeats",
+        "0",
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("--repeats"), "{}", text(&o));
 }
 
 #[test]
