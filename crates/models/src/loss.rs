@@ -49,9 +49,11 @@ pub struct LossTargets {
     mean_size: Tensor<2>,
     corners: Tensor<3>,
     corners_flipped: Tensor<3>,
-    /// Per positive: frustum frame → pixels [Np, 3, 4] and the GT's projected 2D box as
-    /// (centre u, centre v, width, height) [Np, 4]; present when the PL term is on.
-    projection: Option<(Tensor<3>, Tensor<2>)>,
+    /// For the positives whose ground truth projects in front of the camera (rows into the
+    /// positives [Nv]): frustum frame → pixels [Nv, 3, 4] and the GT's projected 2D box as
+    /// (centre u, centre v, width, height) [Nv, 4]; present when the PL term is on and
+    /// some positive projects.
+    projection: Option<(Tensor<1, Int>, Tensor<3>, Tensor<2>)>,
 }
 
 impl LossTargets {
@@ -114,7 +116,7 @@ impl LossTargets {
                 batch.image_projection.len()
             ));
         }
-        let (mut proj, mut gt_box) = (vec![], vec![]);
+        let (mut proj, mut gt_box, mut proj_rows) = (vec![], vec![], vec![]);
         for (flat, &label) in t.labels.iter().enumerate() {
             if label < 0 {
                 continue;
@@ -153,14 +155,12 @@ impl LossTargets {
                 let m: [f32; 12] = batch.image_projection[f * 12..f * 12 + 12]
                     .try_into()
                     .unwrap();
-                proj.extend_from_slice(&m);
-                match projected_box(&gt, &m) {
-                    Some(b2) => gt_box.extend_from_slice(&b2),
-                    None => {
-                        return bad(format!(
-                            "frustum {f}: the ground truth does not project in front of the camera"
-                        ));
-                    }
+                // A box reaching behind the camera plane (a car alongside) has no 2D box:
+                // it takes no part in the projection term.
+                if let Some(b2) = projected_box(&gt, &m) {
+                    proj_rows.push((positive.len() - 1) as i64);
+                    proj.extend_from_slice(&m);
+                    gt_box.extend_from_slice(&b2);
                 }
             }
         }
@@ -193,10 +193,12 @@ impl LossTargets {
             mean_size: f2(ms, 3),
             corners: f3(corners),
             corners_flipped: f3(flipped),
-            projection: use_projection.then(|| {
+            projection: (use_projection && !proj_rows.is_empty()).then(|| {
+                let nv = proj_rows.len();
                 (
-                    Tensor::from_data(TensorData::new(proj, [np, 3, 4]), device),
-                    f2(gt_box, 4),
+                    Tensor::from_data(TensorData::new(proj_rows, [nv]), device),
+                    Tensor::from_data(TensorData::new(proj, [nv, 3, 4]), device),
+                    Tensor::from_data(TensorData::new(gt_box, [nv, 4]), device),
                 )
             }),
         })
@@ -477,7 +479,9 @@ fn box_losses(
     let corner = huber(corner_dist, config.corner_delta).mean();
 
     let projection = match &t.projection {
-        Some((proj, gt)) => projection_loss(corners, proj.clone(), gt.clone()),
+        Some((rows, proj, gt)) => {
+            projection_loss(corners.select(0, rows.clone()), proj.clone(), gt.clone())
+        }
         None => Tensor::zeros([1], &reg.device()),
     };
     [

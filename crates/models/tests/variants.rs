@@ -219,3 +219,25 @@ fn checkpoints_remember_the_variant() {
     assert!(err.contains("lfa"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn ground_truth_behind_the_camera_is_left_out_of_the_projection_term() {
+    let config = tiny_variant(SliceEncoderKind::PointNet, false, true);
+    let device = Device::flex();
+    let model = FConvNet::new(&config.model, &device).unwrap();
+    let mut batch = synthetic_batch(&SyntheticSpec::tiny(3), 9);
+    // Frustum 0 looks backwards: every corner of its ground truth is behind the camera.
+    batch.image_projection[8..12].copy_from_slice(&[0.0, 0.0, -1.0, 0.0]);
+    let targets = LossTargets::new(&batch, &config.model, &config.loss, &device).unwrap();
+    let out = model.forward(&batch, &device).unwrap();
+    let with_one_behind = fconvnet_loss(&out, &targets, &config.loss).unwrap();
+    assert!(with_one_behind.components.projection.is_finite());
+    // All of them behind: the term is zero, the rest of the loss unchanged.
+    for f in 0..3 {
+        batch.image_projection[f * 12 + 8..f * 12 + 12].copy_from_slice(&[0.0, 0.0, -1.0, 0.0]);
+    }
+    let targets = LossTargets::new(&batch, &config.model, &config.loss, &device).unwrap();
+    let none = fconvnet_loss(&out, &targets, &config.loss).unwrap();
+    assert_eq!(none.components.projection, 0.0);
+    assert_eq!(none.components.corner, with_one_behind.components.corner);
+}

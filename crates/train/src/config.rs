@@ -325,7 +325,9 @@ mod shipped_configs {
 
     #[test]
     fn test_points_override_the_detection_frustums_only() {
-        let c = load("fconvnet-car.toml").with_test_points(Some(512)).unwrap();
+        let c = load("fconvnet-car.toml")
+            .with_test_points(Some(512))
+            .unwrap();
         assert_eq!(c.detect_frustum().points_per_frustum, 512);
         assert_eq!(c.frustum.points_per_frustum, 1024);
         assert!(load("fconvnet-car.toml").with_test_points(Some(0)).is_err());

@@ -64,8 +64,13 @@ pub fn detect_frames<S: FrameSource>(
     timing.frustums += t.elapsed();
     let mut candidates: BTreeMap<String, Vec<Object>> =
         ids.into_iter().map(|id| (id, Vec::new())).collect();
-    for prepared in dataset.in_order(config.detect.seed, config.detect.batch_size) {
+    let mut batches = dataset.in_order(config.detect.seed, config.detect.batch_size);
+    loop {
+        // Batches are prepared (sampled, sliced, collated) when asked for: time the ask.
         let t = Instant::now();
+        let Some(prepared) = batches.next() else {
+            break;
+        };
         let prepared = prepared?;
         timing.frustums += t.elapsed();
         let t = Instant::now();
