@@ -267,6 +267,7 @@ mod shipped_configs {
                 // The name states the variant (tiny-* are the tiny network's variants):
                 // check that the file holds it.
                 let stem = file_stem.strip_prefix("tiny-").unwrap_or(&file_stem);
+                let stem = stem.strip_suffix("-sim").unwrap_or(stem);
                 let variant = stem
                     .strip_suffix("-car")
                     .or_else(|| stem.strip_suffix("-people"))
