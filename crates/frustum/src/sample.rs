@@ -291,8 +291,12 @@ mod tests {
     use fusiondet_geometry::points_in_box;
 
     fn car_sample(aug: Augmentation, seed: u64) -> FrustumSample {
+        sample_of_000003(&FrustumConfig::car(), aug, seed)
+    }
+
+    /// The training sample of the first object of bundled frame 000003.
+    fn sample_of_000003(config: &FrustumConfig, aug: Augmentation, seed: u64) -> FrustumSample {
         let frame = sample_frame("000003");
-        let config = FrustumConfig::car();
         let obj = &frame.objects[0];
         let fp = extract_frustum(&frame, &obj.bbox, config.depth_range, 25.0).unwrap();
         let source = SampleSource {
@@ -303,35 +307,18 @@ mod tests {
             p2: frame.camera.p2_rows(),
             object: Some(&obj.box3d),
         };
-        build_sample(&source, &fp, aug, &config, &mut derive_rng(seed, &[]))
+        build_sample(&source, &fp, aug, config, &mut derive_rng(seed, &[]))
     }
 
     #[test]
     fn only_the_first_sliced_points_are_cut_into_sub_frustums() {
-        let frame = sample_frame("000003");
         let config = FrustumConfig {
             points_per_frustum: 4096,
             sliced_points: 1024,
             ..FrustumConfig::car()
         };
         config.validate().unwrap();
-        let obj = &frame.objects[0];
-        let fp = extract_frustum(&frame, &obj.bbox, config.depth_range, 25.0).unwrap();
-        let source = SampleSource {
-            frame_id: &frame.id,
-            class: obj.class,
-            score: None,
-            focal_v: frame.camera.fv(),
-            p2: frame.camera.p2_rows(),
-            object: Some(&obj.box3d),
-        };
-        let s = build_sample(
-            &source,
-            &fp,
-            Augmentation::default(),
-            &config,
-            &mut derive_rng(1, &[]),
-        );
+        let s = sample_of_000003(&config, Augmentation::default(), 1);
         assert_eq!(s.points.len(), 4096);
         let used: Vec<u32> = s
             .scales
@@ -356,26 +343,14 @@ mod tests {
     #[test]
     fn depth_guided_car_sample_on_frame_000003() {
         let frame = sample_frame("000003");
-        let config = FrustumConfig::saf_car();
         let obj = &frame.objects[0];
-        let fp = extract_frustum(&frame, &obj.bbox, config.depth_range, 25.0).unwrap();
-        let source = SampleSource {
-            frame_id: &frame.id,
-            class: obj.class,
-            score: None,
-            focal_v: frame.camera.fv(),
-            p2: frame.camera.p2_rows(),
-            object: Some(&obj.box3d),
-        };
-        let s = build_sample(
-            &source,
-            &fp,
+        let s = sample_of_000003(
+            &FrustumConfig::saf_car(),
             Augmentation {
                 mirror: true,
                 depth_shift: 0.6,
             },
-            &config,
-            &mut derive_rng(7, &[]),
+            7,
         );
         let counts: Vec<usize> = s.scales.iter().map(|sc| sc.centers.len()).collect();
         assert_eq!(counts, [240, 120, 60, 30]);

@@ -296,11 +296,10 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn labels_on_a_synthetic_object() {
-        // A car across the ray at 20 m, length along z (ry = π/2): footprint z ∈
-        // [18, 22], shrunk [19, 21]; x extent ±0.8 (shrunk ±0.4) contains the ray.
-        let gt = Box3d {
+    /// A car across the ray at 20 m, length along z (ry = π/2): footprint z ∈ [18, 22],
+    /// shrunk [19, 21]; x extent ±0.8 (shrunk ±0.4) contains the ray.
+    fn car_across_ray_at_20m() -> Box3d {
+        Box3d {
             h: 1.5,
             w: 1.6,
             l: 4.0,
@@ -308,10 +307,13 @@ mod tests {
             y: 1.7,
             z: 20.0,
             ry: PI / 2.0,
-        };
-        let pos = ray(140, 0.5);
-        let labels = position_labels(&pos, &gt);
-        for (p, l) in pos.iter().zip(&labels) {
+        }
+    }
+
+    /// Positions on the ray: positive inside the shrunk footprint z ∈ [19, 21], ignored in
+    /// the rest of [18, 22], negative elsewhere.
+    fn assert_labels_across_car_at_20m(pos: &[[f64; 3]], labels: &[i64]) {
+        for (p, l) in pos.iter().zip(labels) {
             let z = p[2];
             let expect = if (19.0..=21.0).contains(&z) {
                 1
@@ -322,6 +324,14 @@ mod tests {
             };
             assert_eq!(*l, expect, "z {z}");
         }
+    }
+
+    #[test]
+    fn labels_on_a_synthetic_object() {
+        let gt = car_across_ray_at_20m();
+        let pos = ray(140, 0.5);
+        let labels = position_labels(&pos, &gt);
+        assert_labels_across_car_at_20m(&pos, &labels);
         assert_eq!(labels.iter().filter(|&&l| l == 1).count(), 4); // 19.25 .. 20.75
         // Every positive really is inside the shrunk box.
         for (p, l) in pos.iter().zip(&labels) {
@@ -345,27 +355,9 @@ mod tests {
     fn labels_with_uneven_depth_guided_positions() {
         // Near region [0, 12] (centre 6), then 119 positions 0.525 m apart from 12.525 m.
         let pos = depth_guided_ray(12.0, 120, 75.0);
-        let gt = Box3d {
-            h: 1.5,
-            w: 1.6,
-            l: 4.0,
-            x: 0.1,
-            y: 1.7,
-            z: 20.0,
-            ry: PI / 2.0,
-        };
+        let gt = car_across_ray_at_20m();
         let labels = position_labels(&pos, &gt);
-        for (p, l) in pos.iter().zip(&labels) {
-            let z = p[2];
-            let expect = if (19.0..=21.0).contains(&z) {
-                1
-            } else if (18.0..=22.0).contains(&z) {
-                -1
-            } else {
-                0
-            };
-            assert_eq!(*l, expect, "z {z}");
-        }
+        assert_labels_across_car_at_20m(&pos, &labels);
         // 19.35, 19.875, 20.4, 20.925.
         assert_eq!(labels.iter().filter(|&&l| l == 1).count(), 4);
         // An object inside the near region: the near centre is the nearest position.

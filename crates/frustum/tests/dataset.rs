@@ -152,6 +152,28 @@ fn batches_follow_the_contract() {
     }
 }
 
+/// Sample `i`'s f32 targets decoded through `decode_box` from its first positive output
+/// position's centre.
+fn decode_at_first_positive(pb: &PreparedBatch, i: usize) -> fusiondet_kitti::Box3d {
+    let b = &pb.batch;
+    let t = b.targets.as_ref().unwrap();
+    let pos = &b.scales[b.output_scale];
+    let n = pos.slices_per_frustum;
+    let k = (0..n).find(|&k| t.labels[i * n + k] == 1).unwrap();
+    let pc: [f64; 3] = std::array::from_fn(|j| pos.slice_centers[3 * (i * n + k) + j] as f64);
+    let off: [f64; 3] = std::array::from_fn(|j| t.center[3 * i + j] as f64 - pc[j]);
+    let sr: [f64; 3] = std::array::from_fn(|j| t.size_residual[3 * i + j] as f64);
+    decode_box(
+        pc,
+        off,
+        t.heading_bin[i] as usize,
+        t.heading_residual[i] as f64,
+        t.size_cluster[i] as usize,
+        sr,
+        &pb.samples[i].frame,
+    )
+}
+
 /// Decoding the batch's own f32 targets through `decode_box`, from each positive
 /// position's centre, gives back the KITTI label (within f32 precision), whatever
 /// flip and depth shift the sample received.
@@ -160,26 +182,14 @@ fn batch_targets_decode_to_the_labels() {
     let d = FrustumDataset::from_labels(frames(&ALL), FrustumConfig::car(), 4).unwrap();
     let mut flipped = 0;
     for pb in batches(&d, 21, 2, 5) {
-        let b = &pb.batch;
-        let t = b.targets.as_ref().unwrap();
-        let pos = &b.scales[b.output_scale];
+        assert_eq!(
+            pb.batch.scales[pb.batch.output_scale].slices_per_frustum,
+            140
+        );
         for (i, s) in pb.samples.iter().enumerate() {
             flipped += s.frame.mirrored as usize;
             let gt = s.target.as_ref().unwrap().object;
-            let k = (0..140).find(|&k| t.labels[i * 140 + k] == 1).unwrap();
-            let pc: [f64; 3] =
-                std::array::from_fn(|j| pos.slice_centers[3 * (i * 140 + k) + j] as f64);
-            let off: [f64; 3] = std::array::from_fn(|j| t.center[3 * i + j] as f64 - pc[j]);
-            let sr: [f64; 3] = std::array::from_fn(|j| t.size_residual[3 * i + j] as f64);
-            let out = decode_box(
-                pc,
-                off,
-                t.heading_bin[i] as usize,
-                t.heading_residual[i] as f64,
-                t.size_cluster[i] as usize,
-                sr,
-                &s.frame,
-            );
+            let out = decode_at_first_positive(&pb, i);
             for (a, g) in [
                 (out.x, gt.x),
                 (out.y, gt.y),
@@ -405,25 +415,10 @@ fn depth_guided_batches_follow_the_contract_and_decode() {
             let near = s.scales[0].slices[0];
             near_ends.push(near.center + near.half_length);
         }
-        let t = b.targets.as_ref().unwrap();
-        assert_eq!(t.labels.len(), 5 * 120);
-        let pos = &b.scales[b.output_scale];
+        assert_eq!(b.targets.as_ref().unwrap().labels.len(), 5 * 120);
         for (i, s) in pb.samples.iter().enumerate() {
             let gt = s.target.as_ref().unwrap().object;
-            let k = (0..120).find(|&k| t.labels[i * 120 + k] == 1).unwrap();
-            let pc: [f64; 3] =
-                std::array::from_fn(|j| pos.slice_centers[3 * (i * 120 + k) + j] as f64);
-            let off: [f64; 3] = std::array::from_fn(|j| t.center[3 * i + j] as f64 - pc[j]);
-            let sr: [f64; 3] = std::array::from_fn(|j| t.size_residual[3 * i + j] as f64);
-            let out = decode_box(
-                pc,
-                off,
-                t.heading_bin[i] as usize,
-                t.heading_residual[i] as f64,
-                t.size_cluster[i] as usize,
-                sr,
-                &s.frame,
-            );
+            let out = decode_at_first_positive(pb, i);
             for (a, g) in [(out.x, gt.x), (out.y, gt.y), (out.z, gt.z), (out.l, gt.l)] {
                 assert!((a - g).abs() < 1e-4, "{out:?} vs {gt:?}");
             }
