@@ -3,12 +3,9 @@
 //! `fusiondet bench` prints it; the ablation reports its frames/s the same way.
 
 use crate::config::ExperimentConfig;
-use crate::detect::{StageTimes, detect_frames};
+use crate::detect::{DetectInputs, StageTimes, detect_frames, load_detect_inputs};
 use crate::error::Result;
-use crate::trainer::load_split;
-use burn::prelude::*;
 use fusiondet_frustum::FrameSource;
-use fusiondet_kitti::{DatasetDir, read_detections2d};
 use std::fmt;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -58,12 +55,7 @@ impl DetectBench {
 
     /// Median total time of a run (frustums + network + decoding and NMS).
     pub fn median_total(&self) -> Duration {
-        median(
-            self.runs
-                .iter()
-                .map(|t| t.frustums + t.network + t.decode_nms)
-                .collect(),
-        )
+        median(self.runs.iter().map(StageTimes::compute).collect())
     }
 
     pub fn frames_per_second(&self) -> f64 {
@@ -108,14 +100,19 @@ impl fmt::Display for DetectBench {
 /// timings of all but the first.
 pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
     let cfg = &options.config;
-    let device = Device::flex();
-    let model = fusiondet_models::load_checkpoint(&cfg.model, &options.checkpoint, &device)?;
-    let frames = load_split(&options.data_dir, &options.split, options.max_frames, false)?;
-    let det_path = options
-        .detections
-        .clone()
-        .unwrap_or_else(|| DatasetDir::new(&options.data_dir).rgb_detections(&options.split));
-    let detections = read_detections2d(&det_path)?;
+    let DetectInputs {
+        model,
+        device,
+        frames,
+        detections,
+    } = load_detect_inputs(
+        cfg,
+        &options.checkpoint,
+        &options.data_dir,
+        &options.split,
+        options.detections.as_deref(),
+        options.max_frames,
+    )?;
     let mut runs = Vec::with_capacity(options.repeats);
     let mut frustums = 0;
     for run in 0..=options.repeats {
@@ -142,8 +139,7 @@ pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
 
 /// Frames/s of a finished detection run (disk reads left out), for one-off reports.
 pub fn frames_per_second(frames: usize, timing: &StageTimes) -> f64 {
-    let compute = timing.frustums + timing.network + timing.decode_nms;
-    frames as f64 / compute.as_secs_f64().max(1e-9)
+    frames as f64 / timing.compute().as_secs_f64().max(1e-9)
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@ use crate::config::ExperimentConfig;
 use crate::error::{Result, TrainError};
 use crate::trainer::load_split;
 use burn::prelude::*;
-use fusiondet_frustum::{FrameSource, FrustumDataset, SkipCounts, decode_box};
+use fusiondet_frustum::{FrameSource, FrustumDataset, InMemoryFrames, SkipCounts, decode_box};
 use fusiondet_geometry::nms_3d;
 use fusiondet_kitti::{DatasetDir, Detection2d, Object, read_detections2d, write_objects};
 use fusiondet_models::{FConvNet, decode};
@@ -44,6 +44,13 @@ pub struct StageTimes {
     pub frustums: Duration,
     pub network: Duration,
     pub decode_nms: Duration,
+}
+
+impl StageTimes {
+    /// Everything but loading from disk: what frames/s is measured over.
+    pub fn compute(&self) -> Duration {
+        self.frustums + self.network + self.decode_nms
+    }
 }
 
 /// Runs detection on in-memory frames and returns each frame's result objects
@@ -111,20 +118,57 @@ pub fn detect_frames<S: FrameSource>(
     Ok((results, dataset.skips(), dataset.len()))
 }
 
+/// What detection runs on: the model (on the CPU), the split's frames and the 2D detections.
+pub(crate) struct DetectInputs {
+    pub model: FConvNet,
+    pub device: Device,
+    pub frames: InMemoryFrames,
+    pub detections: Vec<Detection2d>,
+}
+
+/// Loads a checkpoint, the first `max_frames` frames of a split (0 = all) and the 2D
+/// detections (`detections`, or the dataset's own file for the split).
+pub(crate) fn load_detect_inputs(
+    config: &ExperimentConfig,
+    checkpoint: &Path,
+    data_dir: &Path,
+    split: &str,
+    detections: Option<&Path>,
+    max_frames: usize,
+) -> Result<DetectInputs> {
+    let device = Device::flex();
+    let model = fusiondet_models::load_checkpoint(&config.model, checkpoint, &device)?;
+    let frames = load_split(data_dir, split, max_frames, false)?;
+    let det_path = detections
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| DatasetDir::new(data_dir).rgb_detections(split));
+    Ok(DetectInputs {
+        model,
+        device,
+        frames,
+        detections: read_detections2d(&det_path)?,
+    })
+}
+
 /// Loads the split, runs detection and writes one KITTI result file per frame of the
 /// split (empty when nothing was detected), atomically.
 pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
     let cfg = &options.config;
     let mut timing = StageTimes::default();
     let t = Instant::now();
-    let device = Device::flex();
-    let model = fusiondet_models::load_checkpoint(&cfg.model, &options.checkpoint, &device)?;
-    let frames = load_split(&options.data_dir, &options.split, 0, false)?;
-    let det_path = options
-        .detections
-        .clone()
-        .unwrap_or_else(|| DatasetDir::new(&options.data_dir).rgb_detections(&options.split));
-    let detections = read_detections2d(&det_path)?;
+    let DetectInputs {
+        model,
+        device,
+        frames,
+        detections,
+    } = load_detect_inputs(
+        cfg,
+        &options.checkpoint,
+        &options.data_dir,
+        &options.split,
+        options.detections.as_deref(),
+        0,
+    )?;
     timing.load += t.elapsed();
     let num_frames = frames.len();
     let (results, skipped, frustums) =

@@ -12,7 +12,7 @@ use fusiondet_eval::{
     AblationRow, Difficulty, EvalConfig, Metric, ablation_breakdown_table, ablation_table,
     count_lidar_points, evaluate, evaluate_breakdown, frame_ids, load_dirs, write_ablation_json,
 };
-use fusiondet_kitti::{DatasetDir, ObjectClass};
+use fusiondet_kitti::DatasetDir;
 use fusiondet_models::info::parameter_count;
 use fusiondet_train::{DetectOptions, ExperimentConfig, detect, frames_per_second};
 use std::path::{Path, PathBuf};
@@ -69,14 +69,11 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
         );
     }
     let classes = configs[0].1.frustum.classes.clone();
-    if let Some((p, _)) = configs.iter().find(|(_, c)| c.frustum.classes != classes) {
+    if let Some((p, c)) = configs.iter().find(|(_, c)| c.frustum.classes != classes) {
         bail!(
             "{}: detects {:?} but {} detects {:?}; an ablation compares models of the same classes",
             p.display(),
-            configs
-                .iter()
-                .find(|(q, _)| q == p)
-                .map(|(_, c)| &c.frustum.classes),
+            c.frustum.classes,
             args.configs[0].display(),
             classes
         );
@@ -92,7 +89,6 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
         entries.push(run_one(&args, path, config, &label_dir, &ids)?);
     }
 
-    let eval_classes: Vec<ObjectClass> = classes.clone();
     let rows: Vec<AblationRow> = entries
         .iter()
         .map(|e| AblationRow {
@@ -108,7 +104,7 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
         args.data.display(),
         ids.len()
     );
-    for &class in &eval_classes {
+    for &class in &classes {
         text += &format!("## {class}\n\n");
         text += &ablation_table(&rows, class, 0);
         text +=

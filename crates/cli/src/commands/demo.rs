@@ -177,12 +177,11 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     };
 
     // 3. Detect and evaluate: simulated val split, then the real KITTI frames.
-    let summary_model = model;
     let results = out.join("results");
     detect_and_evaluate(
         "simulated val split",
         &config,
-        &summary_model,
+        &model,
         &sim,
         &results.join("sim"),
         &out.join("eval-sim.json"),
@@ -190,7 +189,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     detect_and_evaluate(
         "bundled KITTI frames (val split, F-PointNet 2D detections)",
         &config,
-        &summary_model,
+        &model,
         kitti,
         &results.join("kitti"),
         &out.join("eval-kitti.json"),

@@ -3,8 +3,10 @@
 use fusiondet_train::{DetectOptions, ExperimentConfig, detect};
 use std::path::{Path, PathBuf};
 
+/// The arguments `detect` and `bench` share: a model, its configuration, the frames and
+/// 2D detections to run it on, and the test-time point count.
 #[derive(clap::Args)]
-pub struct DetectArgs {
+pub struct ModelOnSplit {
     /// Trained weights (a run's model.bpk, or a shipped model under models/).
     #[arg(long)]
     pub checkpoint: PathBuf,
@@ -17,9 +19,6 @@ pub struct DetectArgs {
     pub data: PathBuf,
     #[arg(long, default_value = "val")]
     pub split: String,
-    /// Result directory: one KITTI result file per frame.
-    #[arg(long)]
-    pub out: PathBuf,
     /// 2D detections (F-PointNet format); default DATA/rgb_detections/rgb_detection_<split>.txt.
     #[arg(long)]
     pub detections: Option<PathBuf>,
@@ -29,8 +28,28 @@ pub struct DetectArgs {
     pub points: Option<usize>,
 }
 
+impl ModelOnSplit {
+    /// The checkpoint's configuration with `--points` applied.
+    pub fn experiment_config(&self) -> anyhow::Result<ExperimentConfig> {
+        let config = config_for_checkpoint(&self.checkpoint, self.config.as_deref())?;
+        Ok(match self.points {
+            Some(_) => config.with_test_points(self.points)?,
+            None => config,
+        })
+    }
+}
+
+#[derive(clap::Args)]
+pub struct DetectArgs {
+    #[command(flatten)]
+    pub input: ModelOnSplit,
+    /// Result directory: one KITTI result file per frame.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
 /// The configuration that belongs to a checkpoint.
-pub fn config_for_checkpoint(
+fn config_for_checkpoint(
     checkpoint: &Path,
     explicit: Option<&Path>,
 ) -> anyhow::Result<ExperimentConfig> {
@@ -51,17 +70,15 @@ pub fn config_for_checkpoint(
 }
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
-    let mut config = config_for_checkpoint(&args.checkpoint, args.config.as_deref())?;
-    if args.points.is_some() {
-        config = config.with_test_points(args.points)?;
-    }
+    let config = args.input.experiment_config()?;
+    let input = args.input;
     let s = detect(&DetectOptions {
         config,
-        checkpoint: args.checkpoint,
-        data_dir: args.data,
-        split: args.split,
+        checkpoint: input.checkpoint,
+        data_dir: input.data,
+        split: input.split,
         out_dir: args.out.clone(),
-        detections: args.detections,
+        detections: input.detections,
     })?;
     let skipped = s.skipped;
     println!(
