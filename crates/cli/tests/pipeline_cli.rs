@@ -10,6 +10,16 @@ fn fusiondet(args: &[&str]) -> Output {
     common::run(args[0], &args[1..])
 }
 
+/// Simulates a 6-frame dataset into `dir/sim` with the extra `simulate` arguments.
+fn simulate_six_frames(dir: &std::path::Path, extra: &[&str]) -> std::path::PathBuf {
+    let data = dir.join("sim");
+    let mut args = vec!["simulate", "--out", data.to_str().unwrap(), "--frames", "6"];
+    args.extend_from_slice(extra);
+    let o = fusiondet(&args);
+    assert!(o.status.success(), "{}", text(&o));
+    data
+}
+
 fn configs() -> std::path::PathBuf {
     common::repo_root().join("configs")
 }
@@ -152,17 +162,7 @@ fn train_and_detect_report_bad_input_clearly() {
 #[test]
 fn train_then_detect_from_the_command_line() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("sim");
-    let o = fusiondet(&[
-        "simulate",
-        "--out",
-        data.to_str().unwrap(),
-        "--frames",
-        "6",
-        "--seed",
-        "3",
-    ]);
-    assert!(o.status.success(), "{}", text(&o));
+    let data = simulate_six_frames(dir.path(), &["--seed", "3"]);
     let run = dir.path().join("run");
     let tiny = configs().join("tiny.toml");
     let o = fusiondet(&[
@@ -240,19 +240,7 @@ fn train_then_detect_from_the_command_line() {
 #[test]
 fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("sim");
-    let o = fusiondet(&[
-        "simulate",
-        "--out",
-        data.to_str().unwrap(),
-        "--frames",
-        "6",
-        "--seed",
-        "4",
-        "--traffic-scale",
-        "2",
-    ]);
-    assert!(o.status.success(), "{}", text(&o));
+    let data = simulate_six_frames(dir.path(), &["--seed", "4", "--traffic-scale", "2"]);
     let out = dir.path().join("ablation");
     let c = configs();
     let args = [
