@@ -7,6 +7,7 @@
 //! in a process of its own (two in one process share rayon's pool), and a finished run is
 //! resumed rather than repeated, so an interrupted ablation continues where it stopped.
 
+use crate::commands::train::TrainOverrides;
 use anyhow::{Context, bail};
 use fusiondet_eval::{
     AblationRow, Difficulty, EvalConfig, Metric, ablation_breakdown_table, ablation_table,
@@ -34,15 +35,9 @@ pub struct AblationArgs {
     /// Output directory.
     #[arg(long)]
     pub out: PathBuf,
-    /// Override train.epochs of every configuration.
-    #[arg(long)]
-    pub epochs: Option<usize>,
-    /// Override train.max_frames of every configuration (0 = the whole train split).
-    #[arg(long)]
-    pub max_frames: Option<usize>,
-    /// Override train.seed of every configuration.
-    #[arg(long)]
-    pub seed: Option<u64>,
+    /// Applied to every configuration.
+    #[command(flatten)]
+    pub overrides: TrainOverrides,
 }
 
 /// One configuration's results.
@@ -164,15 +159,7 @@ fn run_one(
     if run_dir.join("state.json").exists() {
         train.arg("--resume");
     }
-    for (flag, value) in [
-        ("--epochs", args.epochs.map(|v| v.to_string())),
-        ("--max-frames", args.max_frames.map(|v| v.to_string())),
-        ("--seed", args.seed.map(|v| v.to_string())),
-    ] {
-        if let Some(v) = value {
-            train.arg(flag).arg(v);
-        }
-    }
+    train.args(args.overrides.to_args());
     eprintln!("== {}: training ({})", config.name, path.display());
     let status = train.status().context("cannot start `fusiondet train`")?;
     if !status.success() {

@@ -18,6 +18,13 @@ pub struct TrainArgs {
     /// Continue the run in --out from its last finished epoch.
     #[arg(long)]
     pub resume: bool,
+    #[command(flatten)]
+    pub overrides: TrainOverrides,
+}
+
+/// `[train]` values given on the command line (`train`, and `ablation` for every config).
+#[derive(clap::Args)]
+pub struct TrainOverrides {
     /// Override train.epochs.
     #[arg(long)]
     pub epochs: Option<usize>,
@@ -29,17 +36,36 @@ pub struct TrainArgs {
     pub max_frames: Option<usize>,
 }
 
+impl TrainOverrides {
+    pub fn apply(&self, config: &mut ExperimentConfig) {
+        if let Some(e) = self.epochs {
+            config.train.epochs = e;
+        }
+        if let Some(s) = self.seed {
+            config.train.seed = s;
+        }
+        if let Some(m) = self.max_frames {
+            config.train.max_frames = m;
+        }
+    }
+
+    /// The same overrides as `fusiondet train` flags.
+    pub fn to_args(&self) -> Vec<String> {
+        [
+            ("--epochs", self.epochs.map(|v| v.to_string())),
+            ("--seed", self.seed.map(|v| v.to_string())),
+            ("--max-frames", self.max_frames.map(|v| v.to_string())),
+        ]
+        .into_iter()
+        .filter_map(|(flag, value)| Some([flag.to_string(), value?]))
+        .flatten()
+        .collect()
+    }
+}
+
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let mut config = ExperimentConfig::from_file(&args.config)?;
-    if let Some(e) = args.epochs {
-        config.train.epochs = e;
-    }
-    if let Some(s) = args.seed {
-        config.train.seed = s;
-    }
-    if let Some(m) = args.max_frames {
-        config.train.max_frames = m;
-    }
+    args.overrides.apply(&mut config);
     let summary = train(&TrainOptions {
         config,
         data_dir: args.data,
