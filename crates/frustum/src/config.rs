@@ -3,6 +3,7 @@
 //! published F-ConvNet Car configuration), so a table only lists what it changes.
 
 use crate::error::{FrustumError, Result};
+use crate::proposal::ProposalCrop;
 use crate::slicing::{DepthGuidedSlicing, SliceStrategy, Slicing, UniformSlicing};
 use crate::targets::size_cluster_of;
 use fusiondet_kitti::ObjectClass;
@@ -39,6 +40,10 @@ pub struct FrustumConfig {
     pub min_object_points: usize,
     /// Training-time augmentation.
     pub augment: AugmentConfig,
+    /// Set for a refinement (second) stage: frustums are cut around first-stage 3D
+    /// boxes and `depth_range` is relative to each box's centre.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub proposal_crop: Option<ProposalCrop>,
 }
 
 /// Training-time augmentation. The 2D jitter is drawn once, when the training set is
@@ -119,6 +124,23 @@ impl FrustumConfig {
             min_box_height_test: 5.0,
             min_object_points: 1,
             augment: AugmentConfig::default(),
+            proposal_crop: None,
+        }
+    }
+
+    /// F-ConvNet's refinement stage for cars: 512 points from the first-stage box
+    /// enlarged 1.2×, strides 0.1/0.2/0.4/0.8 m over ±3.2 m about its centre
+    /// (64/32/16/8 sub-frustums), output at the second scale.
+    pub fn car_refinement() -> Self {
+        FrustumConfig {
+            points_per_frustum: 512,
+            depth_range: [-3.2, 3.2],
+            slicing: Slicing::Uniform(UniformSlicing::with_double_lengths(
+                &[0.1, 0.2, 0.4, 0.8],
+                &[32, 64, 64, 128],
+            )),
+            proposal_crop: Some(ProposalCrop::default()),
+            ..FrustumConfig::car()
         }
     }
 
@@ -171,10 +193,29 @@ impl FrustumConfig {
             ));
         }
         let [lo, hi] = self.depth_range;
-        if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi > lo) {
-            return bad(format!(
-                "`depth_range` [{lo}, {hi}] must satisfy 0 <= min < max"
-            ));
+        match &self.proposal_crop {
+            None if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi > lo) => {
+                return bad(format!(
+                    "`depth_range` [{lo}, {hi}] must satisfy 0 <= min < max"
+                ));
+            }
+            Some(_) if !(lo.is_finite() && hi.is_finite() && lo < 0.0 && hi > 0.0) => {
+                return bad(format!(
+                    "`depth_range` [{lo}, {hi}] of a refinement stage is relative to the \
+                     proposal's centre and must satisfy min < 0 < max (e.g. [-3.2, 3.2])"
+                ));
+            }
+            _ => {}
+        }
+        if let Some(crop) = &self.proposal_crop {
+            crop.validate().map_err(FrustumError::Config)?;
+            if !matches!(self.slicing, Slicing::Uniform(_)) {
+                return bad(
+                    "a refinement stage (`proposal_crop`) needs `slicing.kind = \"uniform\"`: \
+                     depth-guided slicing reads the depth from a 2D box"
+                        .into(),
+                );
+            }
         }
         self.slicing.validate(self.depth_range)?;
         let scales = self.slicing.num_scales();

@@ -7,10 +7,11 @@ use crate::config::FrustumConfig;
 use crate::error::{FrustumError, Result, SkipCounts, SkipReason};
 use crate::frame::{Frame, FrameSource};
 use crate::frustum::extract_frustum;
+use crate::proposal::{extract_proposal_frustum, match_proposal};
 use crate::rng::{SampleRng, derive_rng, domain, shuffle, uniform_in};
 use crate::sample::{Augmentation, FrustumSample, SampleSource, build_sample};
 use fusiondet_geometry::count_points_in_box;
-use fusiondet_kitti::{Box2d, Detection2d, ObjectClass};
+use fusiondet_kitti::{Box2d, Box3d, Detection2d, Object, ObjectClass};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
 
@@ -28,6 +29,8 @@ pub struct FrustumSpec {
     pub object: Option<usize>,
     /// Which copy of the object this is (0 for detections).
     pub copy: usize,
+    /// The first-stage 3D box (camera frame) of a refinement frustum.
+    pub proposal: Option<Box3d>,
 }
 
 /// A batch with the samples it was made from (their frames, scores and 2D boxes
@@ -117,6 +120,7 @@ fn label_specs(
                 score: None,
                 object: Some(oi),
                 copy,
+                proposal: None,
             });
         }
     }
@@ -197,6 +201,7 @@ impl<S: FrameSource> FrustumDataset<S> {
                                 score: Some(d.score),
                                 object: None,
                                 copy: 0,
+                                proposal: None,
                             }),
                         )
                     })
@@ -211,6 +216,91 @@ impl<S: FrameSource> FrustumDataset<S> {
                 Ok(s) => specs.push(s),
                 Err(reason) => skips.add(reason),
             }
+        }
+        Ok(FrustumDataset {
+            source,
+            config,
+            specs,
+            skips,
+        })
+    }
+
+    /// Refinement frustums around first-stage results (`proposals`: frame id → result
+    /// objects, as detection returns them), in frame-id then result order. The config
+    /// must have a `proposal_crop`. With `train`, each proposal is matched to the
+    /// ground truth it learns from ([`match_proposal`]); unmatched ones are counted
+    /// and left out. Proposals of other classes are ignored; those of frames the
+    /// source does not hold, outside the image or without points are counted.
+    pub fn from_proposals(
+        source: S,
+        proposals: &BTreeMap<String, Vec<Object>>,
+        config: FrustumConfig,
+        train: bool,
+    ) -> Result<Self> {
+        config.validate()?;
+        let Some(crop) = config.proposal_crop.clone() else {
+            return Err(FrustumError::Config(
+                "frustums around proposals need `[frustum.proposal_crop]` (a refinement stage)"
+                    .into(),
+            ));
+        };
+        let index: HashMap<&str, usize> =
+            (0..source.len()).map(|i| (source.frame_id(i), i)).collect();
+        let mut skips = SkipCounts::default();
+        let mut groups: Vec<(usize, &[Object])> = Vec::new();
+        for (id, objects) in proposals {
+            match index.get(id.as_str()) {
+                Some(&fi) => groups.push((fi, objects)),
+                None => objects
+                    .iter()
+                    .filter(|o| config.wants(o.class))
+                    .for_each(|_| skips.add(SkipReason::UnknownFrame)),
+            }
+        }
+        let per_frame = groups
+            .par_iter()
+            .map(|&(fi, objects)| {
+                let frame = source.frame(fi)?;
+                let mut specs = Vec::new();
+                let mut skips = SkipCounts::default();
+                for p in objects.iter().filter(|o| config.wants(o.class)) {
+                    let object = if train {
+                        match match_proposal(p, &frame.objects, crop.match_iou) {
+                            Some(o) => Some(o),
+                            None => {
+                                skips.add(SkipReason::Unmatched);
+                                continue;
+                            }
+                        }
+                    } else {
+                        None
+                    };
+                    match extract_proposal_frustum(
+                        &frame,
+                        &p.box3d,
+                        &p.bbox,
+                        &crop,
+                        config.depth_range,
+                    ) {
+                        Ok(_) => specs.push(FrustumSpec {
+                            frame: fi,
+                            class: p.class,
+                            box2d: p.bbox,
+                            score: p.score,
+                            object,
+                            copy: 0,
+                            proposal: Some(p.box3d),
+                        }),
+                        Err(reason) => skips.add(reason),
+                    }
+                }
+                Ok((specs, skips))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut specs = Vec::new();
+        for (s, k) in per_frame {
+            specs.extend(s);
+            skips.merge(&k);
         }
         Ok(FrustumDataset {
             source,
@@ -254,8 +344,13 @@ impl<S: FrameSource> FrustumDataset<S> {
             index,
             reason,
         };
-        let fp =
-            extract_frustum(&frame, &spec.box2d, self.config.depth_range, 0.0).map_err(stale)?;
+        let fp = match (&spec.proposal, &self.config.proposal_crop) {
+            (Some(p), Some(crop)) => {
+                extract_proposal_frustum(&frame, p, &spec.box2d, crop, self.config.depth_range)
+            }
+            _ => extract_frustum(&frame, &spec.box2d, self.config.depth_range, 0.0),
+        }
+        .map_err(stale)?;
         let object = match spec.object {
             Some(o) => Some(
                 &frame

@@ -41,6 +41,9 @@ pub enum SkipReason {
     NoObjectPoints,
     /// Detections only: the detection names a frame the data set does not hold.
     UnknownFrame,
+    /// Refinement training only: the proposal overlaps no ground truth of its class
+    /// enough (`proposal_crop.match_iou`).
+    Unmatched,
 }
 
 impl std::fmt::Display for SkipReason {
@@ -51,6 +54,7 @@ impl std::fmt::Display for SkipReason {
             SkipReason::NoPoints => "no LiDAR points in the frustum",
             SkipReason::NoObjectPoints => "no LiDAR points inside the ground-truth box",
             SkipReason::UnknownFrame => "frame not in the data set",
+            SkipReason::Unmatched => "proposal matches no ground truth",
         })
     }
 }
@@ -63,6 +67,7 @@ pub struct SkipCounts {
     pub no_points: usize,
     pub no_object_points: usize,
     pub unknown_frame: usize,
+    pub unmatched: usize,
 }
 
 impl SkipCounts {
@@ -77,6 +82,7 @@ impl SkipCounts {
             SkipReason::NoPoints => self.no_points,
             SkipReason::NoObjectPoints => self.no_object_points,
             SkipReason::UnknownFrame => self.unknown_frame,
+            SkipReason::Unmatched => self.unmatched,
         }
     }
 
@@ -87,6 +93,7 @@ impl SkipCounts {
             SkipReason::NoPoints => &mut self.no_points,
             SkipReason::NoObjectPoints => &mut self.no_object_points,
             SkipReason::UnknownFrame => &mut self.unknown_frame,
+            SkipReason::Unmatched => &mut self.unmatched,
         }
     }
 
@@ -96,6 +103,7 @@ impl SkipCounts {
         self.no_points += other.no_points;
         self.no_object_points += other.no_object_points;
         self.unknown_frame += other.unknown_frame;
+        self.unmatched += other.unmatched;
     }
 
     pub fn total(&self) -> usize {
@@ -104,6 +112,7 @@ impl SkipCounts {
             + self.no_points
             + self.no_object_points
             + self.unknown_frame
+            + self.unmatched
     }
 }
 
@@ -111,13 +120,17 @@ impl std::fmt::Display for SkipCounts {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} skipped ({} outside image, {} too small, {} without points, {} without object points, {} unknown frame)",
+            "{} skipped ({} outside image, {} too small, {} without points, {} without object points, {} unknown frame",
             self.total(),
             self.outside_image,
             self.too_small,
             self.no_points,
             self.no_object_points,
             self.unknown_frame
-        )
+        )?;
+        if self.unmatched > 0 {
+            write!(f, ", {} unmatched proposals", self.unmatched)?;
+        }
+        f.write_str(")")
     }
 }

@@ -23,6 +23,11 @@
 //! (−π, π]), the same relation as the observation angle alpha = ry − atan2(x, z) with
 //! the frustum ray in place of the box-centre ray.
 //!
+//! A frustum cut around a 3D proposal (the refinement stage) moves the frame's origin
+//! along the axis: z_f is then measured from `depth_origin` (the proposal centre's
+//! depth), so that every proposal sits at depth 0 and one fixed depth range tiles all
+//! of them. Image frustums have `depth_origin` = 0.
+//!
 //! Training augmentation extends the frame by two operations applied after the
 //! rotation, so that [`FrustumFrame::to_rect`] is always the exact inverse and a
 //! network output decodes to the camera frame whatever was done to the sample:
@@ -49,6 +54,9 @@ pub struct FrustumFrame {
     pub mirrored: bool,
     /// Metres added to the frustum depth (training depth shift).
     pub depth_shift: f64,
+    /// Depth along the ray (from C) that is z_f = 0: 0 for image frustums, the proposal
+    /// centre's depth for refinement frustums. Part of the base frame, not augmentation.
+    pub depth_origin: f64,
 }
 
 impl FrustumFrame {
@@ -64,6 +72,15 @@ impl FrustumFrame {
             ray_slope: d[1] / horizontal,
             mirrored: false,
             depth_shift: 0.0,
+            depth_origin: 0.0,
+        }
+    }
+
+    /// The same frame with z_f = 0 at depth `depth` along the ray.
+    pub fn with_depth_origin(&self, depth: f64) -> FrustumFrame {
+        FrustumFrame {
+            depth_origin: depth,
+            ..*self
         }
     }
 
@@ -91,17 +108,18 @@ impl FrustumFrame {
     pub fn to_frustum(&self, p: [f64; 3]) -> [f64; 3] {
         let (s, c) = self.azimuth.sin_cos();
         let (dx, dz) = (p[0] - self.origin[0], p[2] - self.origin[2]);
-        self.augment([c * dx - s * dz, p[1], s * dx + c * dz])
+        self.augment([c * dx - s * dz, p[1], s * dx + c * dz - self.depth_origin])
     }
 
     /// Frustum frame → rectified camera frame (the inverse of [`Self::to_frustum`]).
     pub fn to_rect(&self, q: [f64; 3]) -> [f64; 3] {
         let (s, c) = self.azimuth.sin_cos();
         let q = self.unaugment(q);
+        let z = q[2] + self.depth_origin;
         [
-            c * q[0] + s * q[2] + self.origin[0],
+            c * q[0] + s * z + self.origin[0],
             q[1],
-            -s * q[0] + c * q[2] + self.origin[2],
+            -s * q[0] + c * z + self.origin[2],
         ]
     }
 
@@ -122,11 +140,8 @@ impl FrustumFrame {
         let (s, c) = self.azimuth.sin_cos();
         let m = if self.mirrored { -1.0 } else { 1.0 };
         let a = [[c * m, 0.0, s], [0.0, 1.0, 0.0], [-s * m, 0.0, c]];
-        let t = [
-            self.origin[0] - s * self.depth_shift,
-            0.0,
-            self.origin[2] - c * self.depth_shift,
-        ];
+        let along = self.depth_origin - self.depth_shift;
+        let t = [self.origin[0] + s * along, 0.0, self.origin[2] + c * along];
         let mut out = [0.0; 12];
         for r in 0..3 {
             for col in 0..3 {
@@ -179,7 +194,8 @@ impl FrustumFrame {
     /// points, independent of the training augmentation (as in F-ConvNet, where the
     /// reference centres are not moved by the depth shift; the mirror keeps x = 0).
     pub fn ray_point(&self, depth: f64) -> [f64; 3] {
-        [0.0, self.origin[1] + self.ray_slope * depth, depth]
+        let from_camera = depth + self.depth_origin;
+        [0.0, self.origin[1] + self.ray_slope * from_camera, depth]
     }
 }
 
@@ -254,8 +270,12 @@ mod tests {
     #[test]
     fn image_projection_equals_to_rect_then_p2() {
         let cam = sample_camera();
-        let base = FrustumFrame::through_pixel(&cam, 300.0, 200.0);
-        for (mirrored, shift) in [(false, 0.0), (true, 0.0), (false, 1.3), (true, -0.7)] {
+        let ray = FrustumFrame::through_pixel(&cam, 300.0, 200.0);
+        let cases = [(false, 0.0), (true, 0.0), (false, 1.3), (true, -0.7)];
+        for (base, (mirrored, shift)) in [ray, ray.with_depth_origin(14.5)]
+            .into_iter()
+            .flat_map(|b| cases.map(|c| (b, c)))
+        {
             let f = base.with_augmentation(mirrored, shift);
             let m = f.image_projection(&cam.p2_rows());
             for q in [[0.3, 0.8, 12.0], [-2.0, -1.0, 30.5], [1.0, 1.5, 4.0]] {
@@ -293,6 +313,12 @@ mod tests {
                 );
                 let (pu, pv, _) = cam.rect_to_image(f.to_rect(f.ray_point(depth)));
                 assert!((pu - u).abs() < 1e-6 && (pv - v).abs() < 1e-6);
+                // Moving the origin along the axis shifts depths and keeps the ray.
+                let g = f.with_depth_origin(12.5);
+                let r = g.to_frustum(p);
+                assert!(close(r, [q[0], q[1], q[2] - 12.5], 1e-9), "{r:?} vs {q:?}");
+                assert!(close(g.ray_point(r[2]), r, 1e-9));
+                assert!(close(g.to_rect(r), p, 1e-9));
             }
         }
         // A box to the right of the image centre looks right: positive azimuth.
@@ -317,9 +343,18 @@ mod tests {
     }
 
     fn arb_frame() -> impl Strategy<Value = FrustumFrame> {
-        (0.0..1242.0f64, 0.0..375.0f64, any::<bool>(), -3.0..3.0f64).prop_map(|(u, v, m, s)| {
-            FrustumFrame::through_pixel(&sample_camera(), u, v).with_augmentation(m, s)
-        })
+        (
+            0.0..1242.0f64,
+            0.0..375.0f64,
+            any::<bool>(),
+            -3.0..3.0f64,
+            prop_oneof![Just(0.0), 0.0..40.0f64],
+        )
+            .prop_map(|(u, v, m, s, o)| {
+                FrustumFrame::through_pixel(&sample_camera(), u, v)
+                    .with_depth_origin(o)
+                    .with_augmentation(m, s)
+            })
     }
 
     fn arb_box() -> impl Strategy<Value = Box3d> {

@@ -21,6 +21,7 @@ pub mod error;
 pub mod frame;
 pub mod frustum;
 pub mod omega_study;
+pub mod proposal;
 pub mod rng;
 pub mod sample;
 pub mod slicing;
@@ -35,6 +36,9 @@ pub use frame::{DiskFrames, Frame, FrameSource, InMemoryFrames, ProjectedCloud};
 pub use frustum::{FrustumFrame, FrustumPoints, clip_box, extract_frustum};
 pub use omega_study::{
     DEFAULT_OMEGAS, MAX_OBJECT_LOSS, OmegaRow, OmegaStudy, omega_study, omega_study_from_labels,
+};
+pub use proposal::{
+    ProposalCrop, enlarged, extract_proposal_frustum, match_proposal, proposal_frame,
 };
 pub use sample::{
     Augmentation, FrustumSample, SampleScale, SampleSource, SampleTarget, build_sample,

@@ -430,3 +430,98 @@ fn depth_guided_batches_follow_the_contract_and_decode() {
     near_ends.dedup();
     assert!(near_ends.len() > 10, "{near_ends:?}");
 }
+
+/// The labelled cars of the bundled frames as first-stage results, one of them moved
+/// 6 m sideways (it overlaps nothing).
+fn car_proposals(
+    frames: &InMemoryFrames,
+) -> std::collections::BTreeMap<String, Vec<fusiondet_kitti::Object>> {
+    let mut out = std::collections::BTreeMap::new();
+    for i in 0..frames.len() {
+        let f = frames.frame(i).unwrap();
+        let cars: Vec<_> = f
+            .objects
+            .iter()
+            .filter(|o| o.class == ObjectClass::Car)
+            .map(|o| fusiondet_kitti::Object {
+                score: Some(0.9),
+                ..o.clone()
+            })
+            .collect();
+        out.insert(f.id.clone(), cars);
+    }
+    let first = out.values_mut().find(|v| !v.is_empty()).unwrap();
+    first[0].box3d.x += 6.0;
+    out
+}
+
+#[test]
+fn refinement_frustums_are_cut_around_proposals_and_matched_for_training() {
+    let source = frames(&ALL);
+    let proposals = car_proposals(&source);
+    let total: usize = proposals.values().map(Vec::len).sum();
+    let config = FrustumConfig::car_refinement();
+    let train =
+        FrustumDataset::from_proposals(source.clone(), &proposals, config.clone(), true).unwrap();
+    // Every proposal but the moved one matches its own ground truth; none is lost
+    // otherwise (a distant car may have no points and be skipped as such).
+    let skips = train.skips();
+    assert_eq!(skips.get(SkipReason::Unmatched), 1, "{skips}");
+    assert_eq!(train.len() + skips.total(), total);
+    assert!(
+        train.len() >= total - 3,
+        "{} of {total}: {skips}",
+        train.len()
+    );
+    for (i, spec) in train.specs().iter().enumerate() {
+        assert!(spec.proposal.is_some() && spec.object.is_some());
+        let s = train.sample(i, 3, 0).unwrap();
+        assert_eq!(s.points.len(), 512);
+        let shift = s.frame.depth_shift;
+        assert!(s.points.iter().all(|p| (p[2] - shift).abs() <= 3.2 + 1e-9));
+        // The proposal is the ground truth: its centre is the origin of the sample
+        // (up to the training depth shift), and some output position is positive.
+        let t = s.target.as_ref().unwrap();
+        assert!(t.in_frustum.x.abs() < 1e-9, "{}", t.in_frustum.x);
+        assert!(
+            (t.in_frustum.z - s.frame.depth_shift).abs() < 1e-9,
+            "{} vs shift {}",
+            t.in_frustum.z,
+            s.frame.depth_shift
+        );
+        assert!(t.labels.contains(&1));
+        let back = s.frame.box_to_rect(&t.in_frustum);
+        assert!((back.x - t.object.x).abs() < 1e-9 && (back.z - t.object.z).abs() < 1e-9);
+    }
+    // At test time nothing is matched: the moved proposal is kept if it holds points.
+    let test = FrustumDataset::from_proposals(source.clone(), &proposals, config, false).unwrap();
+    assert_eq!(test.skips().get(SkipReason::Unmatched), 0);
+    assert_eq!(test.len() + test.skips().total(), total);
+    assert!(test.len() >= train.len());
+    assert!(test.specs().iter().all(|s| s.object.is_none()));
+    assert_eq!(test.specs()[0].score, Some(0.9));
+    // A first-stage configuration cannot cut around proposals.
+    let err = FrustumDataset::from_proposals(source, &proposals, FrustumConfig::car(), false)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(err.contains("proposal_crop"), "{err}");
+}
+
+#[test]
+fn refinement_configs_need_a_relative_depth_range_and_uniform_slicing() {
+    let mut c = FrustumConfig::car_refinement();
+    c.depth_range = [0.0, 3.2];
+    assert!(
+        c.validate()
+            .unwrap_err()
+            .to_string()
+            .contains("min < 0 < max")
+    );
+    let mut c = FrustumConfig::car_refinement();
+    c.slicing = FrustumConfig::saf_car().slicing;
+    assert!(c.validate().unwrap_err().to_string().contains("uniform"));
+    let mut c = FrustumConfig::car();
+    c.depth_range = [-1.0, 70.0];
+    assert!(c.validate().is_err());
+}
