@@ -109,6 +109,23 @@ fn info_prints_the_published_parameter_count() {
 }
 
 #[test]
+fn info_counts_both_stages_of_the_refinement_model() {
+    let refine = configs().join("fconvnet-refine-car.toml");
+    let o = fusiondet(&["info", "--config", refine.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    assert!(
+        t.contains("First stage") && t.contains("Refinement stage"),
+        "{t}"
+    );
+    assert!(
+        t.trim_end()
+            .ends_with("Both stages: 6633554 parameters (3316777 + 3316777)"),
+        "{t}"
+    );
+}
+
+#[test]
 fn train_and_detect_report_bad_input_clearly() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.toml");
@@ -243,10 +260,22 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
     let data = simulate_six_frames(dir.path(), &["--seed", "4", "--traffic-scale", "2"]);
     let out = dir.path().join("ablation");
     let c = configs();
+    // The tiny refinement stage (refining the `tiny` row) with generous matching, as the
+    // 1-epoch first stage places its boxes roughly.
+    let refine = dir.path().join("tiny-fconvnet-refine.toml");
+    let shipped = std::fs::read_to_string(c.join("tiny-fconvnet-refine.toml")).unwrap();
+    std::fs::write(
+        &refine,
+        shipped
+            .replace("match_iou = 0.1", "match_iou = 0.02")
+            .replace("batch_size = 8", "batch_size = 2"),
+    )
+    .unwrap();
     let args = [
         "ablation",
         "--configs",
         c.join("tiny.toml").to_str().unwrap(),
+        refine.to_str().unwrap(),
         c.join("tiny-fcam.toml").to_str().unwrap(),
         c.join("tiny-saf.toml").to_str().unwrap(),
         "--data",
@@ -261,10 +290,17 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
     let o = fusiondet(&args);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
-    for name in ["tiny", "tiny-fcam", "tiny-saf"] {
+    for name in ["tiny", "tiny-fconvnet-refine", "tiny-fcam", "tiny-saf"] {
         assert!(t.contains(&format!("| {name} ")), "{name} row missing\n{t}");
         assert!(out.join("runs").join(name).join("model.bpk").is_file());
     }
+    // The refinement row refined the `tiny` row's model and counts both stages.
+    let first = std::fs::read(out.join("runs/tiny/model.bpk")).unwrap();
+    let copy = std::fs::read(out.join("runs/tiny-fconvnet-refine/first-stage.bpk")).unwrap();
+    assert!(
+        first == copy,
+        "the refinement stage used another first stage"
+    );
     assert!(t.contains("3D Easy") && t.contains("Occl. 1"), "{t}");
     for f in [
         "ablation.md",
@@ -276,7 +312,13 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
     }
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("ablation.json")).unwrap()).unwrap();
-    assert_eq!(json["configurations"].as_array().unwrap().len(), 3);
+    let rows = json["configurations"].as_array().unwrap();
+    assert_eq!(rows.len(), 4);
+    assert_eq!(
+        rows[1]["params"].as_u64().unwrap(),
+        2 * rows[0]["params"].as_u64().unwrap(),
+        "{json}"
+    );
     // A re-run resumes the finished trainings instead of repeating them.
     let o = fusiondet(&args);
     assert!(o.status.success(), "{}", text(&o));
@@ -298,6 +340,22 @@ fn ablation_and_omega_study_reject_bad_input() {
     ]);
     assert!(!o.status.success());
     assert!(text(&o).contains("same classes"), "{}", text(&o));
+    let o = fusiondet(&[
+        "ablation",
+        "--configs",
+        c.join("tiny-fconvnet-refine.toml").to_str().unwrap(),
+        c.join("tiny.toml").to_str().unwrap(),
+        "--data",
+        "/nonexistent",
+        "--out",
+        "/tmp/unused-ablation",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("first stage listed before it"),
+        "{}",
+        text(&o)
+    );
     let o = fusiondet(&[
         "omega-study",
         "--config",
@@ -331,4 +389,85 @@ fn omega_study_runs_on_the_bundled_frames() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("0.85"), "{}", text(&o));
+}
+
+#[test]
+fn a_refinement_stage_trains_and_detects_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = simulate_six_frames(dir.path(), &["--seed", "4"]);
+    let first = dir.path().join("first");
+    let train = |config: &std::path::Path, out: &std::path::Path, extra: &[&str]| {
+        let mut args = vec![
+            "train",
+            "--config",
+            config.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        fusiondet(&args)
+    };
+    let o = train(&configs().join("tiny.toml"), &first, &["--epochs", "2"]);
+    assert!(o.status.success(), "{}", text(&o));
+    // The shipped tiny refinement config, with this first stage and generous matching
+    // (a config of the test's own, beside the first stage it names relatively).
+    let shipped = std::fs::read_to_string(configs().join("tiny-fconvnet-refine.toml")).unwrap();
+    let config = dir.path().join("tiny-fconvnet-refine.toml");
+    std::fs::write(
+        &config,
+        shipped
+            .replace("../runs/tiny/model.bpk", "first/model.bpk")
+            .replace("match_iou = 0.1", "match_iou = 0.02")
+            .replace("batch_size = 8", "batch_size = 2"),
+    )
+    .unwrap();
+    let refine = dir.path().join("refine");
+    let o = train(&config, &refine, &["--epochs", "1"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(refine.join("first-stage.bpk").is_file());
+    // --first-stage overrides the config; a first-stage config refuses it.
+    let o = train(
+        &config,
+        &dir.path().join("r2"),
+        &["--epochs", "1", "--first-stage", "/no/first.bpk"],
+    );
+    assert!(!o.status.success());
+    assert!(text(&o).contains("/no/first"), "{}", text(&o));
+    let o = train(
+        &configs().join("tiny.toml"),
+        &dir.path().join("r3"),
+        &["--first-stage", "x.bpk"],
+    );
+    assert!(!o.status.success());
+    assert!(text(&o).contains("no [refine] table"), "{}", text(&o));
+    // Detection runs both stages from the self-contained run directory.
+    std::fs::remove_dir_all(&first).unwrap();
+    let results = dir.path().join("results");
+    let o = fusiondet(&[
+        "detect",
+        "--checkpoint",
+        refine.join("model.bpk").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        results.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let ids = std::fs::read_to_string(data.join("ImageSets/val.txt")).unwrap();
+    for id in ids.lines() {
+        assert!(results.join(format!("{id}.txt")).is_file(), "{id}");
+    }
+    let o = fusiondet(&[
+        "bench",
+        "--checkpoint",
+        refine.join("model.bpk").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--repeats",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("frames/s"), "{}", text(&o));
 }

@@ -24,7 +24,7 @@ pub struct AblationRow {
     pub report: EvalReport,
     /// Rows of [`evaluate_breakdown`](crate::evaluate_breakdown), if it was run.
     pub breakdown: Option<Vec<BreakdownRow>>,
-    /// Trainable parameters of the network.
+    /// Trainable parameters of the network (both stages' for a refinement model).
     pub params: Option<usize>,
     /// Inference speed, frames per second.
     pub frames_per_second: Option<f64>,

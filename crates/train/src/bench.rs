@@ -3,7 +3,7 @@
 //! `fusiondet bench` prints it; the ablation reports its frames/s the same way.
 
 use crate::config::ExperimentConfig;
-use crate::detect::{DetectInputs, StageTimes, detect_frames, load_detect_inputs};
+use crate::detect::{DetectInputs, StageTimes, load_detect_inputs};
 use crate::error::Result;
 use fusiondet_frustum::FrameSource;
 use std::fmt;
@@ -101,7 +101,7 @@ impl fmt::Display for DetectBench {
 pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
     let cfg = &options.config;
     let DetectInputs {
-        model,
+        detector,
         device,
         frames,
         detections,
@@ -117,15 +117,9 @@ pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
     let mut frustums = 0;
     for run in 0..=options.repeats {
         let mut timing = StageTimes::default();
-        let (_, _, n) = detect_frames(
-            &model,
-            &device,
-            cfg,
-            frames.clone(),
-            &detections,
-            &mut timing,
-        )?;
-        frustums = n;
+        frustums = detector
+            .detect_frames(&device, frames.clone(), &detections, &mut timing)?
+            .frustums;
         if run > 0 {
             runs.push(timing);
         }

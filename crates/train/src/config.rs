@@ -8,7 +8,7 @@ use crate::schedule::StepDecay;
 use fusiondet_frustum::FrustumConfig;
 use fusiondet_models::{FConvNetConfig, LossConfig, ModelConfig};
 use serde::{Deserialize, Serialize};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -20,6 +20,20 @@ pub struct ExperimentConfig {
     pub loss: LossConfig,
     pub train: TrainConfig,
     pub detect: DetectConfig,
+    /// Set for F-ConvNet's refinement stage (with `frustum.proposal_crop`): the model
+    /// whose boxes this one refines.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refine: Option<RefineConfig>,
+}
+
+/// The first stage of a refinement model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RefineConfig {
+    /// The first-stage checkpoint; its configuration is found as for `detect`
+    /// (`<name>.toml` beside it, else the run's `config.toml`). A relative path is
+    /// relative to the directory of the file that names it.
+    pub first_stage: PathBuf,
 }
 
 /// Training as published for F-ConvNet: Adam, lr 1e-3, weight decay 1e-4, batch 32,
@@ -64,6 +78,7 @@ impl Default for ExperimentConfig {
             loss: LossConfig::default(),
             train: TrainConfig::default(),
             detect: DetectConfig::default(),
+            refine: None,
         }
     }
 }
@@ -99,13 +114,45 @@ impl Default for DetectConfig {
 }
 
 impl ExperimentConfig {
+    /// Parses and validates `text`, read from `path` (relative paths in it are
+    /// resolved against `path`'s directory).
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Self> {
-        let config: ExperimentConfig = toml::from_str(text).map_err(|e| TrainError::Config {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })?;
+        let mut config: ExperimentConfig =
+            toml::from_str(text).map_err(|e| TrainError::Config {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })?;
+        if let Some(r) = &mut config.refine
+            && r.first_stage.is_relative()
+        {
+            let dir = path.parent().unwrap_or(Path::new(""));
+            r.first_stage = dir.join(&r.first_stage);
+        }
         config.validate(path)?;
         Ok(config)
+    }
+
+    /// The configuration that belongs to a checkpoint: `explicit` if given, else
+    /// `<checkpoint>.toml` (a shipped model), else `config.toml` beside it (a run).
+    pub fn for_checkpoint(checkpoint: &Path, explicit: Option<&Path>) -> Result<Self> {
+        if let Some(path) = explicit {
+            return Self::from_file(path);
+        }
+        let beside = checkpoint.with_extension("toml");
+        let run_config = checkpoint.parent().map(|d| d.join("config.toml"));
+        for candidate in [Some(beside), run_config].into_iter().flatten() {
+            if candidate.is_file() {
+                return Self::from_file(&candidate);
+            }
+        }
+        Err(TrainError::Config {
+            path: checkpoint.with_extension("toml"),
+            message: format!(
+                "no configuration found for {}: pass --config, or keep the run's config.toml \
+                 (or <name>.toml) beside it",
+                checkpoint.display()
+            ),
+        })
     }
 
     pub fn from_file(path: &Path) -> Result<Self> {
@@ -184,6 +231,23 @@ impl ExperimentConfig {
                         .into(),
                 );
             }
+        }
+        match (&self.refine, &self.frustum.proposal_crop) {
+            (Some(_), None) => {
+                return bad(
+                    "[refine] needs [frustum.proposal_crop]: a refinement stage cuts its \
+                     frustums around the first stage's boxes"
+                        .into(),
+                );
+            }
+            (None, Some(_)) => {
+                return bad(
+                    "[frustum.proposal_crop] needs [refine] first_stage = \"<checkpoint>\": \
+                     the model whose boxes are refined"
+                        .into(),
+                );
+            }
+            _ => {}
         }
         if let Some(lfa) = &self.model.lfa {
             let n = self.frustum.points_per_frustum;
@@ -296,6 +360,9 @@ mod shipped_configs {
                     SliceEncoderKind::PointNet
                 };
                 assert_eq!(c.model.slice_encoder, encoder, "{stem}: encoder");
+                let refine = parts.contains(&"refine");
+                assert_eq!(c.refine.is_some(), refine, "{stem}: refine");
+                assert_eq!(c.frustum.proposal_crop.is_some(), refine, "{stem}: crop");
                 if stem.ends_with("-people") {
                     use fusiondet_kitti::ObjectClass::{Cyclist, Pedestrian};
                     assert_eq!(c.frustum.classes, [Pedestrian, Cyclist], "{stem}");
@@ -307,6 +374,7 @@ mod shipped_configs {
         // Every row of the seeds' tables, for Car and for Pedestrian + Cyclist.
         for row in [
             "fconvnet",
+            "fconvnet-refine",
             "fcam-cbam",
             "fcam",
             "saf",
@@ -351,6 +419,33 @@ mod shipped_configs {
             err.contains("sliced_points") && err.contains("1024"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn a_refinement_config_names_its_first_stage_relative_to_itself() {
+        let c = load("fconvnet-refine-car.toml");
+        let first = &c.refine.as_ref().unwrap().first_stage;
+        assert!(
+            first.ends_with("configs/../models/fconvnet-car.bpk"),
+            "{first:?}"
+        );
+        assert!(first.is_file(), "the shipped first stage {first:?}");
+        assert_eq!(c.frustum.points_per_frustum, 512);
+        // The crop and [refine] come together.
+        let err = ExperimentConfig::from_toml_str(
+            "[frustum]\ndepth_range = [-2.0, 2.0]\n[frustum.proposal_crop]\n",
+            Path::new("r.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("[refine]"), "{err}");
+        let err = ExperimentConfig::from_toml_str(
+            "[refine]\nfirst_stage = \"a.bpk\"\n",
+            Path::new("r.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("proposal_crop"), "{err}");
     }
 
     #[test]

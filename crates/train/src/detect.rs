@@ -1,6 +1,7 @@
 //! Detection: 2D detections → frustums → network → one 3D box per frustum → per-frame
 //! 3D NMS → KITTI result files. Score = 3D object probability + 2D detection score,
-//! as F-ConvNet reports it.
+//! as F-ConvNet reports it. A refinement model runs its first stage, then its own
+//! network on frustums cut around the first stage's boxes.
 
 use crate::config::ExperimentConfig;
 use crate::error::{Result, TrainError};
@@ -53,22 +54,125 @@ impl StageTimes {
     }
 }
 
-/// Runs detection on in-memory frames and returns each frame's result objects
-/// (frames without detections map to an empty list). `model` must live on `device`.
-pub fn detect_frames<S: FrameSource>(
+/// A trained detector: one network, or a refinement network with the first stage whose
+/// boxes it refines.
+pub struct Detector {
+    pub model: FConvNet,
+    pub config: ExperimentConfig,
+    pub first_stage: Option<Box<Detector>>,
+}
+
+/// What one detection pass over a set of frames produced.
+#[derive(Debug, Clone, Default)]
+pub struct FrameResults {
+    /// Result objects of every frame (empty lists for frames without detections).
+    pub objects: BTreeMap<String, Vec<Object>>,
+    /// Frustums left out, by reason (both stages' for a refinement model).
+    pub skipped: SkipCounts,
+    /// Frustums the network ran on (the last stage's).
+    pub frustums: usize,
+}
+
+impl Detector {
+    /// Loads the checkpoint trained with `config` onto `device`, and for a refinement
+    /// configuration its first stage (`refine.first_stage`).
+    pub fn load(config: ExperimentConfig, checkpoint: &Path, device: &Device) -> Result<Self> {
+        let model = fusiondet_models::load_checkpoint(&config.model, checkpoint, device)?;
+        let first_stage = match &config.refine {
+            Some(r) => {
+                let first = ExperimentConfig::for_checkpoint(&r.first_stage, None)?;
+                if first.refine.is_some() {
+                    return Err(TrainError::Config {
+                        path: r.first_stage.clone(),
+                        message: "the first stage is itself a refinement model; name a \
+                                  first-stage (2D-box frustum) checkpoint"
+                            .into(),
+                    });
+                }
+                Some(Box::new(Detector::load(first, &r.first_stage, device)?))
+            }
+            None => None,
+        };
+        Ok(Detector {
+            model,
+            config,
+            first_stage,
+        })
+    }
+
+    /// Runs detection on in-memory frames: 2D detections → frustums → network → one box
+    /// per frustum → per-frame 3D NMS; a refinement model then cuts a frustum around
+    /// each first-stage box and runs its own network and NMS on those. A refined box
+    /// scores the first-stage score plus the refinement network's object probability.
+    pub fn detect_frames<S: FrameSource + Clone>(
+        &self,
+        device: &Device,
+        frames: S,
+        detections: &[Detection2d],
+        timing: &mut StageTimes,
+    ) -> Result<FrameResults> {
+        let ids: Vec<String> = (0..frames.len())
+            .map(|i| frames.frame_id(i).to_string())
+            .collect();
+        let mut skipped = SkipCounts::default();
+        let t = Instant::now();
+        let dataset = match &self.first_stage {
+            Some(first) => {
+                timing.frustums += t.elapsed();
+                let proposals = first.detect_frames(device, frames.clone(), detections, timing)?;
+                skipped.merge(&proposals.skipped);
+                let t = Instant::now();
+                let d = FrustumDataset::from_proposals(
+                    frames,
+                    &proposals.objects,
+                    self.config.detect_frustum(),
+                    false,
+                )?;
+                timing.frustums += t.elapsed();
+                d
+            }
+            None => {
+                let d = FrustumDataset::from_detections(
+                    frames,
+                    detections,
+                    self.config.detect_frustum(),
+                )?;
+                timing.frustums += t.elapsed();
+                d
+            }
+        };
+        skipped.merge(&dataset.skips());
+        let candidates = run_network(&self.model, device, &self.config, &dataset, ids, timing)?;
+        let t = Instant::now();
+        let objects = candidates
+            .into_iter()
+            .map(|(id, objects)| {
+                let boxes: Vec<_> = objects.iter().map(|o| o.box3d).collect();
+                let scores: Vec<f64> = objects.iter().map(|o| o.score.unwrap_or(0.0)).collect();
+                let keep = nms_3d(&boxes, &scores, self.config.detect.nms_iou);
+                (id, keep.into_iter().map(|k| objects[k].clone()).collect())
+            })
+            .collect();
+        timing.decode_nms += t.elapsed();
+        Ok(FrameResults {
+            objects,
+            skipped,
+            frustums: dataset.len(),
+        })
+    }
+}
+
+/// One box per frustum of `dataset`, by frame (before NMS). Score = the network's
+/// object probability + the frustum's own score (the 2D detection's, or the
+/// first-stage box's), as F-ConvNet reports it.
+fn run_network<S: FrameSource>(
     model: &FConvNet,
     device: &Device,
     config: &ExperimentConfig,
-    frames: S,
-    detections: &[Detection2d],
+    dataset: &FrustumDataset<S>,
+    ids: Vec<String>,
     timing: &mut StageTimes,
-) -> Result<(BTreeMap<String, Vec<Object>>, SkipCounts, usize)> {
-    let ids: Vec<String> = (0..frames.len())
-        .map(|i| frames.frame_id(i).to_string())
-        .collect();
-    let t = Instant::now();
-    let dataset = FrustumDataset::from_detections(frames, detections, config.detect_frustum())?;
-    timing.frustums += t.elapsed();
+) -> Result<BTreeMap<String, Vec<Object>>> {
     let mut candidates: BTreeMap<String, Vec<Object>> =
         ids.into_iter().map(|id| (id, Vec::new())).collect();
     let mut batches = dataset.in_order(config.detect.seed, config.detect.batch_size);
@@ -104,30 +208,21 @@ pub fn detect_frames<S: FrameSource>(
         }
         timing.decode_nms += t.elapsed();
     }
-    let t = Instant::now();
-    let results = candidates
-        .into_iter()
-        .map(|(id, objects)| {
-            let boxes: Vec<_> = objects.iter().map(|o| o.box3d).collect();
-            let scores: Vec<f64> = objects.iter().map(|o| o.score.unwrap_or(0.0)).collect();
-            let keep = nms_3d(&boxes, &scores, config.detect.nms_iou);
-            (id, keep.into_iter().map(|k| objects[k].clone()).collect())
-        })
-        .collect();
-    timing.decode_nms += t.elapsed();
-    Ok((results, dataset.skips(), dataset.len()))
+    Ok(candidates)
 }
 
-/// What detection runs on: the model (on the CPU), the split's frames and the 2D detections.
+/// What detection runs on: the detector (on the CPU), the split's frames and the 2D
+/// detections.
 pub(crate) struct DetectInputs {
-    pub model: FConvNet,
+    pub detector: Detector,
     pub device: Device,
     pub frames: InMemoryFrames,
     pub detections: Vec<Detection2d>,
 }
 
-/// Loads a checkpoint, the first `max_frames` frames of a split (0 = all) and the 2D
-/// detections (`detections`, or the dataset's own file for the split).
+/// Loads a checkpoint (with its first stage for a refinement model), the first
+/// `max_frames` frames of a split (0 = all) and the 2D detections (`detections`, or
+/// the dataset's own file for the split).
 pub(crate) fn load_detect_inputs(
     config: &ExperimentConfig,
     checkpoint: &Path,
@@ -137,13 +232,13 @@ pub(crate) fn load_detect_inputs(
     max_frames: usize,
 ) -> Result<DetectInputs> {
     let device = Device::flex();
-    let model = fusiondet_models::load_checkpoint(&config.model, checkpoint, &device)?;
+    let detector = Detector::load(config.clone(), checkpoint, &device)?;
     let frames = load_split(data_dir, split, max_frames, false)?;
     let det_path = detections
         .map(Path::to_path_buf)
         .unwrap_or_else(|| DatasetDir::new(data_dir).rgb_detections(split));
     Ok(DetectInputs {
-        model,
+        detector,
         device,
         frames,
         detections: read_detections2d(&det_path)?,
@@ -157,7 +252,7 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
     let mut timing = StageTimes::default();
     let t = Instant::now();
     let DetectInputs {
-        model,
+        detector,
         device,
         frames,
         detections,
@@ -171,15 +266,14 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
     )?;
     timing.load += t.elapsed();
     let num_frames = frames.len();
-    let (results, skipped, frustums) =
-        detect_frames(&model, &device, cfg, frames, &detections, &mut timing)?;
-    write_results(&options.out_dir, &results)?;
+    let results = detector.detect_frames(&device, frames, &detections, &mut timing)?;
+    write_results(&options.out_dir, &results.objects)?;
     Ok(DetectSummary {
         frames: num_frames,
         detections_2d: detections.len(),
-        frustums,
-        skipped,
-        boxes_written: results.values().map(Vec::len).sum(),
+        frustums: results.frustums,
+        skipped: results.skipped,
+        boxes_written: results.objects.values().map(Vec::len).sum(),
         timing,
     })
 }

@@ -12,7 +12,9 @@ pub mod schedule;
 pub mod trainer;
 
 pub use bench::{BenchOptions, DetectBench, bench_detect, frames_per_second};
-pub use config::{DetectConfig, ExperimentConfig, TrainConfig};
-pub use detect::{DetectOptions, DetectSummary, StageTimes, detect, detect_frames, write_results};
+pub use config::{DetectConfig, ExperimentConfig, RefineConfig, TrainConfig};
+pub use detect::{
+    DetectOptions, DetectSummary, Detector, FrameResults, StageTimes, detect, write_results,
+};
 pub use error::{Result, TrainError};
 pub use trainer::{TrainOptions, TrainSummary, load_split, train};

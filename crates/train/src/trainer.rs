@@ -2,7 +2,8 @@
 //! prepares the next batch while the network trains on the current one, per-epoch
 //! checkpoints (weights and optimizer state) and metrics, and exact resume.
 
-use crate::config::ExperimentConfig;
+use crate::config::{ExperimentConfig, RefineConfig};
+use crate::detect::{Detector, FrameResults, StageTimes};
 use crate::error::{Result, TrainError};
 use crate::metrics_log::MetricsLog;
 use crate::run_dir::{RunDir, RunState};
@@ -10,7 +11,7 @@ use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, OptimizerRecord};
 use burn::prelude::*;
 use fusiondet_frustum::{FrustumDataset, InMemoryFrames, PreparedBatch};
-use fusiondet_kitti::{DatasetDir, read_split};
+use fusiondet_kitti::{DatasetDir, read_detections2d, read_split, write_atomic};
 use fusiondet_models::{FConvNet, LossTargets, fconvnet_loss, load_checkpoint, save_checkpoint};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -88,18 +89,67 @@ pub fn seeded_network(cfg: &ExperimentConfig, device: &Device) -> Result<FConvNe
     Ok(FConvNet::new(&cfg.model, device)?)
 }
 
+/// A refinement run keeps its first stage beside its own model (`first-stage.bpk` and
+/// `first-stage.toml`), and its `config.toml` names that copy: the run directory is
+/// self-contained and can be moved.
+pub const FIRST_STAGE_FILE: &str = "first-stage.bpk";
+
+/// Copies the first stage named by `refine` into the run directory (atomically).
+fn copy_first_stage(refine: &RefineConfig, run: &RunDir) -> Result<()> {
+    let first = ExperimentConfig::for_checkpoint(&refine.first_stage, None)?;
+    let bytes = std::fs::read(&refine.first_stage).map_err(|e| TrainError::RunDir {
+        path: refine.first_stage.clone(),
+        message: format!("cannot read the first-stage checkpoint: {e}"),
+    })?;
+    let dest = run.root.join(FIRST_STAGE_FILE);
+    write_atomic(&dest, &bytes)?;
+    write_atomic(
+        &dest.with_extension("toml"),
+        first.to_toml_string().as_bytes(),
+    )?;
+    Ok(())
+}
+
+/// The first stage's results on the training frames (from the split's 2D detections):
+/// the proposals a refinement stage learns to correct.
+fn training_proposals(
+    first_stage: &Path,
+    options: &TrainOptions,
+    frames: &InMemoryFrames,
+) -> Result<FrameResults> {
+    let device = Device::flex();
+    let config = ExperimentConfig::for_checkpoint(first_stage, None)?;
+    let detector = Detector::load(config, first_stage, &device)?;
+    let split = &options.config.train.split;
+    let detections = read_detections2d(&DatasetDir::new(&options.data_dir).rgb_detections(split))?;
+    let mut timing = StageTimes::default();
+    detector.detect_frames(&device, frames.clone(), &detections, &mut timing)
+}
+
 pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     let cfg = &options.config;
     let run = RunDir::new(&options.run_dir);
+    // The stored configuration names the run's own copy of a first stage.
+    let mut stored = cfg.clone();
+    if let Some(r) = &mut stored.refine {
+        r.first_stage = PathBuf::from(FIRST_STAGE_FILE);
+    }
     // A resumed run may be given more (or fewer) epochs; everything else must match.
     let compatible = |stored: &str| {
         ExperimentConfig::from_toml_str(stored, &run.config()).is_ok_and(|mut old| {
             old.train.epochs = cfg.train.epochs;
+            old.refine.clone_from(&cfg.refine);
             old == *cfg
         })
     };
-    let resumed = run.open(&cfg.to_toml_string(), options.resume, &compatible)?;
+    let resumed = run.open(&stored.to_toml_string(), options.resume, &compatible)?;
     let log = MetricsLog::new(run.metrics());
+    let first_stage = run.root.join(FIRST_STAGE_FILE);
+    if let Some(r) = &cfg.refine
+        && (resumed.is_none() || !first_stage.is_file())
+    {
+        copy_first_stage(r, &run)?;
+    }
 
     let frames = load_split(
         &options.data_dir,
@@ -108,7 +158,19 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         true,
     )?;
     let num_frames = fusiondet_frustum::FrameSource::len(&frames);
-    let dataset = FrustumDataset::from_labels(frames, cfg.frustum.clone(), cfg.train.seed)?;
+    let dataset = match &cfg.refine {
+        None => FrustumDataset::from_labels(frames, cfg.frustum.clone(), cfg.train.seed)?,
+        Some(_) => {
+            let proposals = training_proposals(&first_stage, options, &frames)?;
+            if options.progress {
+                eprintln!(
+                    "first stage: {} boxes on {num_frames} training frames",
+                    proposals.objects.values().map(Vec::len).sum::<usize>()
+                );
+            }
+            FrustumDataset::from_proposals(frames, &proposals.objects, cfg.frustum.clone(), true)?
+        }
+    };
     if dataset.len() < cfg.train.batch_size {
         return Err(TrainError::Data(format!(
             "{} training frustums (skipped: {:?}) are fewer than one batch of {}; use more frames or a smaller train.batch_size",

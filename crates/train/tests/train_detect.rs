@@ -5,7 +5,7 @@ use fusiondet_frustum::{FrustumConfig, InMemoryFrames};
 use fusiondet_kitti::{DatasetDir, read_detections2d, read_split};
 use fusiondet_models::{ModelConfig, load_checkpoint};
 use fusiondet_train::{
-    DetectOptions, ExperimentConfig, TrainOptions, detect, detect_frames, train,
+    DetectOptions, Detector, ExperimentConfig, RefineConfig, TrainOptions, detect, train,
 };
 use std::path::Path;
 use std::sync::OnceLock;
@@ -71,14 +71,21 @@ fn train_run(dir: &Path, epochs: usize, resume: bool) -> fusiondet_train::TrainS
 fn fingerprint(model_path: &Path) -> Vec<f64> {
     let cfg = tiny(1);
     let device = Device::flex();
-    let model = load_checkpoint(&cfg.model, model_path, &device).unwrap();
+    let detector = Detector {
+        model: load_checkpoint(&cfg.model, model_path, &device).unwrap(),
+        config: cfg,
+        first_stage: None,
+    };
     let ds = DatasetDir::new(dataset());
     let ids = read_split(&ds.split("val")).unwrap();
     let frames = InMemoryFrames::load(&ds.training(), &ids, false).unwrap();
     let dets = read_detections2d(&ds.rgb_detections("val")).unwrap();
     let mut timing = Default::default();
-    let (results, _, _) = detect_frames(&model, &device, &cfg, frames, &dets, &mut timing).unwrap();
+    let results = detector
+        .detect_frames(&device, frames, &dets, &mut timing)
+        .unwrap();
     results
+        .objects
         .values()
         .flatten()
         .flat_map(|o| {
@@ -196,4 +203,119 @@ fn a_checkpoint_from_another_config_is_refused() {
     .unwrap_err()
     .to_string();
     assert!(err.contains("another model configuration"), "{err}");
+}
+
+/// A tiny refinement stage over the first stage trained in `first`.
+fn tiny_refinement(first: &Path) -> ExperimentConfig {
+    let mut c = tiny(1);
+    c.name = "tiny-refine".into();
+    c.frustum = FrustumConfig {
+        points_per_frustum: 128,
+        ..FrustumConfig::car_refinement()
+    };
+    // The 1-epoch first stage places boxes roughly: match generously.
+    if let Some(crop) = &mut c.frustum.proposal_crop {
+        crop.match_iou = 0.05;
+    }
+    c.train.split = "train".into();
+    c.refine = Some(RefineConfig {
+        first_stage: first.join("model.bpk"),
+    });
+    c
+}
+
+#[test]
+fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stages() {
+    let _turn = one_at_a_time();
+    let first = tempfile::tempdir().unwrap();
+    let mut first_cfg = tiny(2);
+    first_cfg.train.split = "train".into();
+    train(&TrainOptions {
+        config: first_cfg,
+        data_dir: dataset().to_path_buf(),
+        run_dir: first.path().to_path_buf(),
+        resume: false,
+        progress: false,
+    })
+    .unwrap();
+    let second = tempfile::tempdir().unwrap();
+    let run = second.path().join("refine");
+    let summary = train(&TrainOptions {
+        config: tiny_refinement(first.path()),
+        data_dir: dataset().to_path_buf(),
+        run_dir: run.clone(),
+        resume: false,
+        progress: false,
+    })
+    .unwrap();
+    assert!(summary.frustums >= 4, "{summary:?}");
+    // The run holds its own copy of the first stage and its config names the copy.
+    assert!(run.join("first-stage.bpk").is_file());
+    assert!(run.join("first-stage.toml").is_file());
+    let stored = ExperimentConfig::for_checkpoint(&run.join("model.bpk"), None).unwrap();
+    assert_eq!(
+        stored.refine.as_ref().unwrap().first_stage,
+        run.join("first-stage.bpk")
+    );
+    // Detection runs both stages: one refined box per first-stage box at most.
+    drop(first);
+    let out = second.path().join("results");
+    let refined = detect(&DetectOptions {
+        config: stored,
+        checkpoint: run.join("model.bpk"),
+        data_dir: dataset().to_path_buf(),
+        split: "val".into(),
+        out_dir: out.clone(),
+        detections: None,
+    })
+    .unwrap();
+    assert!(refined.frustums > 0, "{refined:?}");
+    assert!(refined.boxes_written > 0 && refined.boxes_written <= refined.frustums);
+    let first_only = detect(&DetectOptions {
+        config: ExperimentConfig::for_checkpoint(&run.join("first-stage.bpk"), None).unwrap(),
+        checkpoint: run.join("first-stage.bpk"),
+        data_dir: dataset().to_path_buf(),
+        split: "val".into(),
+        out_dir: second.path().join("first"),
+        detections: None,
+    })
+    .unwrap();
+    // Every first-stage box became a refinement frustum or was skipped (the summary's
+    // skips are both stages').
+    let second_stage_skips = refined.skipped.total() - first_only.skipped.total();
+    assert_eq!(
+        refined.frustums + second_stage_skips,
+        first_only.boxes_written
+    );
+    let read_all = |dir: &Path| {
+        let ids = read_split(&DatasetDir::new(dataset()).split("val")).unwrap();
+        ids.iter()
+            .map(|id| std::fs::read_to_string(dir.join(format!("{id}.txt"))).unwrap())
+            .collect::<Vec<_>>()
+    };
+    assert_ne!(
+        read_all(&out),
+        read_all(&second.path().join("first")),
+        "refinement changed no box"
+    );
+}
+
+#[test]
+fn a_refinement_config_without_its_first_stage_is_a_clear_error() {
+    let _turn = one_at_a_time();
+    let missing = tempfile::tempdir().unwrap();
+    let run = tempfile::tempdir().unwrap();
+    let err = train(&TrainOptions {
+        config: tiny_refinement(&missing.path().join("nowhere")),
+        data_dir: dataset().to_path_buf(),
+        run_dir: run.path().join("r"),
+        resume: false,
+        progress: false,
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("nowhere") && err.contains("model.bpk"),
+        "{err}"
+    );
 }

@@ -27,6 +27,7 @@ OUT/ablation.md (the tables), OUT/ablation.json and OUT/pr-<class>-3d.png / -bev
 without reading files from disk (frustums + network + decoding and NMS), divided into frames.")]
 pub struct AblationArgs {
     /// Configurations to compare (TOML files), in table order; the first is the baseline.
+    /// A refinement config (`[refine]`) refines the nearest first-stage config before it.
     #[arg(long, num_args = 1.., required = true)]
     pub configs: Vec<PathBuf>,
     /// Dataset root with training/, ImageSets/{train,val}.txt and rgb_detections/.
@@ -73,6 +74,13 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
             classes
         );
     }
+    if let Some((p, _)) = configs.first().filter(|(_, c)| c.refine.is_some()) {
+        bail!(
+            "{}: a refinement stage needs its first stage listed before it in --configs \
+             (e.g. fconvnet-car.toml fconvnet-refine-car.toml)",
+            p.display()
+        );
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create", args.out.display()))?;
     let dataset = DatasetDir::new(&args.data);
@@ -80,8 +88,14 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
     let ids = frame_ids(&label_dir, Some(&dataset.split("val")))?;
 
     let mut entries = Vec::new();
+    // A refinement row refines the boxes of the nearest first-stage row above it.
+    let mut first_stage: Option<PathBuf> = None;
     for (path, config) in &configs {
-        entries.push(run_one(&args, path, config, &label_dir, &ids)?);
+        let first = config.refine.as_ref().and(first_stage.as_deref());
+        entries.push(run_one(&args, path, config, first, &label_dir, &ids)?);
+        if config.refine.is_none() {
+            first_stage = Some(run_dir_of(&args, config).join("model.bpk"));
+        }
     }
 
     let rows: Vec<AblationRow> = entries
@@ -137,15 +151,21 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Trains (in a child process), detects on the val split and evaluates one configuration.
+fn run_dir_of(args: &AblationArgs, config: &ExperimentConfig) -> PathBuf {
+    args.out.join("runs").join(&config.name)
+}
+
+/// Trains (in a child process; a refinement stage over `first_stage`), detects on the
+/// val split and evaluates one configuration.
 fn run_one(
     args: &AblationArgs,
     path: &Path,
     config: &ExperimentConfig,
+    first_stage: Option<&Path>,
     label_dir: &Path,
     ids: &[String],
 ) -> anyhow::Result<Entry> {
-    let run_dir = args.out.join("runs").join(&config.name);
+    let run_dir = run_dir_of(args, config);
     let exe = std::env::current_exe().context("cannot locate the fusiondet binary")?;
     let mut train = Command::new(exe);
     train
@@ -160,6 +180,9 @@ fn run_one(
         train.arg("--resume");
     }
     train.args(args.overrides.to_args());
+    if let Some(first) = first_stage {
+        train.arg("--first-stage").arg(first);
+    }
     eprintln!("== {}: training ({})", config.name, path.display());
     let status = train.status().context("cannot start `fusiondet train`")?;
     if !status.success() {
@@ -199,7 +222,14 @@ fn run_one(
         &training.root.join("calib"),
     )?;
     let breakdown = evaluate_breakdown(&frames.gt, &frames.det, &eval_config, Some(&points))?;
-    let params = parameter_count(&trained.model)?;
+    // A refinement row counts both stages, as the papers do.
+    let params = parameter_count(&trained.model)?
+        + match &trained.refine {
+            Some(r) => {
+                parameter_count(&ExperimentConfig::for_checkpoint(&r.first_stage, None)?.model)?
+            }
+            None => 0,
+        };
     eprintln!(
         "== {}: {} frames, {} boxes, {frames_per_second:.1} frames/s, {params} parameters",
         config.name, summary.frames, summary.boxes_written

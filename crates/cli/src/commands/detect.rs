@@ -1,7 +1,7 @@
 //! `fusiondet detect`: runs a trained frustum detector on a split and writes KITTI results.
 
 use fusiondet_train::{DetectOptions, ExperimentConfig, detect};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// The arguments `detect` and `bench` share: a model, its configuration, the frames and
 /// 2D detections to run it on, and the test-time point count.
@@ -31,7 +31,7 @@ pub struct ModelOnSplit {
 impl ModelOnSplit {
     /// The checkpoint's configuration with `--points` applied.
     pub fn experiment_config(&self) -> anyhow::Result<ExperimentConfig> {
-        let config = config_for_checkpoint(&self.checkpoint, self.config.as_deref())?;
+        let config = ExperimentConfig::for_checkpoint(&self.checkpoint, self.config.as_deref())?;
         Ok(match self.points {
             Some(_) => config.with_test_points(self.points)?,
             None => config,
@@ -46,27 +46,6 @@ pub struct DetectArgs {
     /// Result directory: one KITTI result file per frame.
     #[arg(long)]
     pub out: PathBuf,
-}
-
-/// The configuration that belongs to a checkpoint.
-fn config_for_checkpoint(
-    checkpoint: &Path,
-    explicit: Option<&Path>,
-) -> anyhow::Result<ExperimentConfig> {
-    if let Some(path) = explicit {
-        return Ok(ExperimentConfig::from_file(path)?);
-    }
-    let beside = checkpoint.with_extension("toml");
-    let run_config = checkpoint.parent().map(|d| d.join("config.toml"));
-    for candidate in [Some(beside), run_config].into_iter().flatten() {
-        if candidate.is_file() {
-            return Ok(ExperimentConfig::from_file(&candidate)?);
-        }
-    }
-    anyhow::bail!(
-        "no configuration found for {}: pass --config, or keep the run's config.toml beside it",
-        checkpoint.display()
-    )
 }
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {

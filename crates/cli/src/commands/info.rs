@@ -1,17 +1,49 @@
-//! `fusiondet info`: the network's configuration summary and per-module parameter table.
+//! `fusiondet info`: the network's configuration summary and per-module parameter table;
+//! for a refinement configuration, its first stage's too and the total of both.
 
+use fusiondet_models::info::parameter_count;
+use fusiondet_models::{FConvNetConfig, render_info};
+use fusiondet_train::ExperimentConfig;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct InfoArgs {
     /// Model configuration: TOML with `[model]` and `[loss]` tables (missing keys take the
-    /// published F-ConvNet Car values; other tables are ignored).
+    /// published F-ConvNet Car values; other tables are ignored, except `[refine]`).
     #[arg(long)]
     pub config: PathBuf,
 }
 
 pub fn run(args: InfoArgs) -> anyhow::Result<()> {
-    let config = fusiondet_models::FConvNetConfig::from_toml_file(&args.config)?;
-    println!("{}", fusiondet_models::render_info(&config)?);
+    let config = FConvNetConfig::from_toml_file(&args.config)?;
+    let text = std::fs::read_to_string(&args.config)?;
+    let names_a_first_stage = toml::from_str::<toml::Table>(&text)
+        .ok()
+        .is_some_and(|t| t.contains_key("refine"));
+    if !names_a_first_stage {
+        println!("{}", render_info(&config)?);
+        return Ok(());
+    }
+    let experiment = ExperimentConfig::from_file(&args.config)?;
+    let first_path = &experiment
+        .refine
+        .as_ref()
+        .expect("a [refine] table was parsed")
+        .first_stage;
+    let first = ExperimentConfig::for_checkpoint(first_path, None).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: the first stage's configuration is needed to count its parameters: {e}",
+            args.config.display()
+        )
+    })?;
+    println!("First stage ({}):", first_path.display());
+    println!("{}", render_info(&first.network())?);
+    println!("Refinement stage ({}):", args.config.display());
+    println!("{}", render_info(&config)?);
+    let (a, b) = (
+        parameter_count(&first.model)?,
+        parameter_count(&config.model)?,
+    );
+    println!("Both stages: {} parameters ({a} + {b})", a + b);
     Ok(())
 }

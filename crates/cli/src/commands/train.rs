@@ -20,6 +20,10 @@ pub struct TrainArgs {
     pub resume: bool,
     #[command(flatten)]
     pub overrides: TrainOverrides,
+    /// Refinement configs: the first-stage checkpoint whose boxes are refined
+    /// (overrides refine.first_stage).
+    #[arg(long)]
+    pub first_stage: Option<PathBuf>,
 }
 
 /// `[train]` values given on the command line (`train`, and `ablation` for every config).
@@ -66,6 +70,15 @@ impl TrainOverrides {
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let mut config = ExperimentConfig::from_file(&args.config)?;
     args.overrides.apply(&mut config);
+    if let Some(path) = args.first_stage {
+        let Some(refine) = &mut config.refine else {
+            anyhow::bail!(
+                "--first-stage: {} has no [refine] table; only a refinement stage has a first stage",
+                args.config.display()
+            );
+        };
+        refine.first_stage = path;
+    }
     let summary = train(&TrainOptions {
         config,
         data_dir: args.data,
