@@ -1,12 +1,14 @@
 //! `fusiondet demo`: the whole pipeline on data that ships with the repository —
-//! simulate a small street dataset, run the shipped F-ConvNet Car model (built into the
-//! binary) on its validation split and on the bundled real KITTI frames, evaluate both
-//! with the official protocol and draw pictures. `--train-tiny` instead trains the tiny
-//! network on the simulated frames first (seconds) and detects with it.
+//! simulate a small street dataset, run a shipped Car model (F-ConvNet, built into the
+//! binary; `--model` picks SAF, FCAM or F-ConvNet with its refinement stage from the
+//! clone's `models/`) on its validation split and on the bundled real KITTI frames,
+//! evaluate both with the official protocol and draw pictures. `--train-tiny` instead
+//! trains the tiny network on the simulated frames first (seconds) and detects with it.
 
 use anyhow::{Context, bail};
 use fusiondet_eval::{EvalConfig, evaluate_dirs};
 use fusiondet_kitti::{DatasetDir, read_split};
+use fusiondet_models::info::parameter_count;
 use fusiondet_train::{DetectOptions, ExperimentConfig, TrainOptions, detect, train};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -14,6 +16,8 @@ use std::time::Instant;
 
 /// The bundled KITTI sample frames (in the source tree; a clone has them).
 const KITTI_SAMPLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/kitti-sample");
+/// The shipped checkpoints (in the source tree; a clone has them).
+const MODELS_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models");
 /// The tiny network's configuration, as shipped in `configs/tiny.toml`.
 const TINY_CONFIG: &str = include_str!("../../../../configs/tiny.toml");
 /// The shipped Car model and the configuration it was trained with (see the README for
@@ -34,13 +38,87 @@ pub struct DemoArgs {
     /// Seed of the simulated world (and of training, with --train-tiny).
     #[arg(long, default_value_t = 2026)]
     pub seed: u64,
+    /// Which shipped Car model detects (all trained on simulated data; see the README).
+    #[arg(long, value_enum, default_value_t = ShippedModel::Fconvnet)]
+    pub model: ShippedModel,
     /// Train the tiny network on the simulated train split and detect with it instead of
-    /// the shipped model.
-    #[arg(long)]
+    /// a shipped model.
+    #[arg(long, conflicts_with = "model")]
     pub train_tiny: bool,
     /// Training epochs of the tiny network (with --train-tiny).
     #[arg(long, default_value_t = 8)]
     pub epochs: usize,
+}
+
+/// The shipped Car models: `models/<stem>.bpk` with the configuration it was trained
+/// with, `models/<stem>.toml`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ShippedModel {
+    /// F-ConvNet (built into the binary).
+    Fconvnet,
+    /// F-ConvNet with its refinement stage (two networks).
+    FconvnetRefine,
+    /// FCAM: F-ConvNet with the improved CBAM.
+    Fcam,
+    /// SAF: depth-guided slicing, LFA and the projection loss.
+    Saf,
+}
+
+impl ShippedModel {
+    fn stem(self) -> &'static str {
+        match self {
+            ShippedModel::Fconvnet => "fconvnet-car",
+            ShippedModel::FconvnetRefine => "fconvnet-refine-car",
+            ShippedModel::Fcam => "fcam-car",
+            ShippedModel::Saf => "saf-car",
+        }
+    }
+
+    fn title(self) -> &'static str {
+        match self {
+            ShippedModel::Fconvnet => "F-ConvNet",
+            ShippedModel::FconvnetRefine => "F-ConvNet + refinement",
+            ShippedModel::Fcam => "FCAM",
+            ShippedModel::Saf => "SAF",
+        }
+    }
+
+    /// `models/<stem>.bpk` and `.toml` in the clone.
+    fn paths(self) -> [PathBuf; 2] {
+        let dir = Path::new(MODELS_DIR);
+        ["bpk", "toml"].map(|ext| dir.join(format!("{}.{ext}", self.stem())))
+    }
+
+    /// Fails (before any work) when the model's files are not in the clone.
+    fn ensure_available(self) -> anyhow::Result<()> {
+        if self == ShippedModel::Fconvnet {
+            return Ok(());
+        }
+        for p in self.paths() {
+            if !p.is_file() {
+                bail!(
+                    "{}: the shipped {} model is missing; run the demo from a clone of the repository",
+                    p.display(),
+                    self.title()
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// The checkpoint and configuration files: built in for F-ConvNet, read from the
+    /// clone's `models/` for the others.
+    fn files(self) -> anyhow::Result<(Vec<u8>, String)> {
+        if self == ShippedModel::Fconvnet {
+            return Ok((SHIPPED_MODEL.to_vec(), SHIPPED_CONFIG.to_string()));
+        }
+        let [bpk, toml] = self.paths();
+        let read_err = |p: &Path| format!("{}: cannot read", p.display());
+        Ok((
+            std::fs::read(&bpk).with_context(|| read_err(&bpk))?,
+            std::fs::read_to_string(&toml).with_context(|| read_err(&toml))?,
+        ))
+    }
 }
 
 /// Creates `out`, or clears the demo's own sub-directories from an earlier run.
@@ -137,6 +215,9 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     if args.frames < 4 {
         bail!("--frames must be at least 4 (the demo needs both a train and a val split)");
     }
+    if !args.train_tiny {
+        args.model.ensure_available()?;
+    }
     let out = &args.out;
     prepare_out(out)?;
     let kitti = Path::new(KITTI_SAMPLE);
@@ -173,7 +254,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let (config, model) = if args.train_tiny {
         train_tiny(&args, &sim)?
     } else {
-        shipped_model(out)?
+        shipped_model(out, args.model)?
     };
 
     // 3. Detect and evaluate: simulated val split, then the real KITTI frames.
@@ -205,9 +286,12 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         println!("   {}", p.display());
     }
     let what = if args.train_tiny {
-        "a tiny network trained for seconds: the numbers show the pipeline, not F-ConvNet's accuracy"
+        "a tiny network trained for seconds: the numbers show the pipeline, not F-ConvNet's accuracy".to_string()
     } else {
-        "the shipped F-ConvNet Car model, trained on simulated data only; see the README for its full evaluation"
+        format!(
+            "the shipped {} Car model, trained on simulated data only; see the README for its full evaluation",
+            args.model.title()
+        )
     };
     println!(
         "\ndemo finished in {:.1} s ({what})",
@@ -216,19 +300,32 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes the built-in Car model and its configuration to `out/model/`.
-fn shipped_model(out: &Path) -> anyhow::Result<(ExperimentConfig, PathBuf)> {
+/// Writes a shipped Car model and its configuration to `out/model/` (with its first
+/// stage, for the refinement model).
+fn shipped_model(out: &Path, which: ShippedModel) -> anyhow::Result<(ExperimentConfig, PathBuf)> {
     let dir = out.join("model");
     std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
-    let config_path = dir.join("fconvnet-car.toml");
-    let model = dir.join("fconvnet-car.bpk");
-    fusiondet_kitti::write_atomic(&config_path, SHIPPED_CONFIG.as_bytes())?;
-    fusiondet_kitti::write_atomic(&model, SHIPPED_MODEL)?;
-    let config = ExperimentConfig::from_toml_str(SHIPPED_CONFIG, &config_path)?;
+    let write = |m: ShippedModel| -> anyhow::Result<(PathBuf, PathBuf, usize)> {
+        let (bytes, toml) = m.files()?;
+        let config_path = dir.join(format!("{}.toml", m.stem()));
+        let model = dir.join(format!("{}.bpk", m.stem()));
+        fusiondet_kitti::write_atomic(&config_path, toml.as_bytes())?;
+        fusiondet_kitti::write_atomic(&model, &bytes)?;
+        Ok((config_path, model, bytes.len()))
+    };
+    let mut params = 0;
+    if which == ShippedModel::FconvnetRefine {
+        // Its configuration names the first stage beside it.
+        let (config_path, _, _) = write(ShippedModel::Fconvnet)?;
+        params += parameter_count(&ExperimentConfig::from_file(&config_path)?.model)?;
+    }
+    let (config_path, model, size) = write(which)?;
+    let config = ExperimentConfig::from_file(&config_path)?;
+    params += parameter_count(&config.model)?;
     println!(
-        "== the shipped F-ConvNet Car model ({:.1} MB, {} parameters) -> {}",
-        SHIPPED_MODEL.len() as f64 / 1e6,
-        fusiondet_models::info::parameter_count(&config.model)?,
+        "== the shipped {} Car model ({:.1} MB, {params} parameters) -> {}",
+        which.title(),
+        size as f64 / 1e6,
         model.display()
     );
     Ok((config, model))
