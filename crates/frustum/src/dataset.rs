@@ -141,18 +141,32 @@ impl<S: FrameSource> FrustumDataset<S> {
             .into_par_iter()
             .map(|i| Ok(label_specs(i, &*source.frame(i)?, &config, seed)))
             .collect::<Result<Vec<_>>>()?;
+        Ok(Self::from_frames(
+            source,
+            config,
+            per_frame,
+            SkipCounts::default(),
+        ))
+    }
+
+    /// The data set of per-frame specs and skips (in frame order) plus earlier `skips`.
+    fn from_frames(
+        source: S,
+        config: FrustumConfig,
+        per_frame: Vec<(Vec<FrustumSpec>, SkipCounts)>,
+        mut skips: SkipCounts,
+    ) -> Self {
         let mut specs = Vec::new();
-        let mut skips = SkipCounts::default();
         for (s, k) in per_frame {
             specs.extend(s);
             skips.merge(&k);
         }
-        Ok(FrustumDataset {
+        FrustumDataset {
             source,
             config,
             specs,
             skips,
-        })
+        }
     }
 
     /// Frustums from 2D detections of the configured classes, in file order. Boxes
@@ -297,17 +311,7 @@ impl<S: FrameSource> FrustumDataset<S> {
                 Ok((specs, skips))
             })
             .collect::<Result<Vec<_>>>()?;
-        let mut specs = Vec::new();
-        for (s, k) in per_frame {
-            specs.extend(s);
-            skips.merge(&k);
-        }
-        Ok(FrustumDataset {
-            source,
-            config,
-            specs,
-            skips,
-        })
+        Ok(Self::from_frames(source, config, per_frame, skips))
     }
 
     pub fn len(&self) -> usize {

@@ -211,6 +211,24 @@ pub struct FrustumPoints {
     pub points: Vec<[f64; 3]>,
 }
 
+impl FrustumPoints {
+    /// The frustum, or [`SkipReason::NoPoints`] when `points` is empty.
+    pub fn non_empty(
+        box2d: Box2d,
+        frame: FrustumFrame,
+        points: Vec<[f64; 3]>,
+    ) -> Result<FrustumPoints, SkipReason> {
+        if points.is_empty() {
+            return Err(SkipReason::NoPoints);
+        }
+        Ok(FrustumPoints {
+            box2d,
+            frame,
+            points,
+        })
+    }
+}
+
 /// Clips a 2D box to the image `[0, width] × [0, height]`; `None` when nothing is left.
 pub fn clip_box(b: &Box2d, image_size: [f64; 2]) -> Option<Box2d> {
     let c = Box2d {
@@ -246,14 +264,7 @@ pub fn extract_frustum(
             }
         }
     }
-    if points.is_empty() {
-        return Err(SkipReason::NoPoints);
-    }
-    Ok(FrustumPoints {
-        box2d: b,
-        frame: ff,
-        points,
-    })
+    FrustumPoints::non_empty(b, ff, points)
 }
 
 #[cfg(test)]

@@ -106,14 +106,7 @@ pub fn extract_proposal_frustum(
         .map(|(r, _)| ff.to_frustum(*r))
         .filter(|q| q[2] >= depth_range[0] && q[2] <= depth_range[1])
         .collect();
-    if points.is_empty() {
-        return Err(SkipReason::NoPoints);
-    }
-    Ok(FrustumPoints {
-        box2d: b,
-        frame: ff,
-        points,
-    })
+    FrustumPoints::non_empty(b, ff, points)
 }
 
 /// The ground truth a training proposal learns from: among `objects` of the
