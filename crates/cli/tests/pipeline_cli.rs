@@ -126,6 +126,24 @@ fn info_counts_both_stages_of_the_refinement_model() {
 }
 
 #[test]
+fn info_counts_the_refinement_stage_alone_before_its_first_stage_is_trained() {
+    // fconvnet-refine-people.toml names runs/fconvnet-people/model.bpk, made by training.
+    let refine = configs().join("fconvnet-refine-people.toml");
+    let o = fusiondet(&["info", "--config", refine.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    assert!(
+        t.contains("Refinement stage") && t.contains("parameters: 3316777"),
+        "{t}"
+    );
+    assert!(
+        t.contains("First stage not counted") && t.contains("fconvnet-people"),
+        "{t}"
+    );
+    assert!(!t.contains("Both stages"), "{t}");
+}
+
+#[test]
 fn train_and_detect_report_bad_input_clearly() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.toml");

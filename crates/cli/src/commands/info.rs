@@ -30,12 +30,20 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
         .as_ref()
         .expect("a [refine] table was parsed")
         .first_stage;
-    let first = ExperimentConfig::for_checkpoint(first_path, None).map_err(|e| {
-        anyhow::anyhow!(
-            "{}: the first stage's configuration is needed to count its parameters: {e}",
-            args.config.display()
-        )
-    })?;
+    // A first stage that is not trained yet (e.g. `runs/fconvnet-people/model.bpk`) has no
+    // configuration to count: the refinement stage's own table still answers.
+    let first = match ExperimentConfig::for_checkpoint(first_path, None) {
+        Ok(first) => first,
+        Err(e) => {
+            println!("Refinement stage ({}):", args.config.display());
+            println!("{}", render_info(&config)?);
+            println!(
+                "First stage not counted: {e}
+(train it first, or point refine.first_stage at a trained checkpoint)"
+            );
+            return Ok(());
+        }
+    };
     println!("First stage ({}):", first_path.display());
     println!("{}", render_info(&first.network())?);
     println!("Refinement stage ({}):", args.config.display());
