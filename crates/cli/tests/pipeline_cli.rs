@@ -87,7 +87,10 @@ fn demo_runs_each_shipped_variant_from_the_clone() {
         assert!(t.contains(&format!("the shipped {title} Car model")), "{t}");
         assert!(t.contains("Car AP_R40@0.70, 0.70, 0.70"), "{t}");
         for stem in written {
-            assert!(out.join(format!("model/{stem}.bpk")).is_file(), "{stem}: {t}");
+            assert!(
+                out.join(format!("model/{stem}.bpk")).is_file(),
+                "{stem}: {t}"
+            );
         }
         assert_eq!(
             std::fs::read(out.join(format!("model/{stem}.bpk"))).unwrap(),
