@@ -60,17 +60,8 @@ fn demo_runs_the_shipped_model_and_can_be_rerun() {
 
 #[test]
 fn demo_runs_each_shipped_variant_from_the_clone() {
-    // (--model, file stem, title printed, files written to model/)
-    for (model, stem, title, written) in [
-        ("fcam", "fcam-car", "FCAM", &["fcam-car"][..]),
-        ("saf", "saf-car", "SAF", &["saf-car"][..]),
-        (
-            "fconvnet-refine",
-            "fconvnet-refine-car",
-            "F-ConvNet + refinement",
-            &["fconvnet-car", "fconvnet-refine-car"][..],
-        ),
-    ] {
+    // (--model, file stem, title printed)
+    for (model, stem, title) in [("fcam", "fcam-car", "FCAM"), ("saf", "saf-car", "SAF")] {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("demo");
         let o = fusiondet(&[
@@ -86,12 +77,6 @@ fn demo_runs_each_shipped_variant_from_the_clone() {
         assert!(o.status.success(), "{model}: {t}");
         assert!(t.contains(&format!("the shipped {title} Car model")), "{t}");
         assert!(t.contains("Car AP_R40@0.70, 0.70, 0.70"), "{t}");
-        for stem in written {
-            assert!(
-                out.join(format!("model/{stem}.bpk")).is_file(),
-                "{stem}: {t}"
-            );
-        }
         assert_eq!(
             std::fs::read(out.join(format!("model/{stem}.bpk"))).unwrap(),
             std::fs::read(common::repo_root().join(format!("models/{stem}.bpk"))).unwrap()

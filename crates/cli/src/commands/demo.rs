@@ -1,7 +1,6 @@
 //! `fusiondet demo`: the whole pipeline on data that ships with the repository —
 //! simulate a small street dataset, run a shipped Car model (F-ConvNet, built into the
-//! binary; `--model` picks SAF, FCAM or F-ConvNet with its refinement stage from the
-//! clone's `models/`) on its validation split and on the bundled real KITTI frames,
+//! binary; `--model` picks SAF or FCAM from the clone's `models/`) on its validation split and on the bundled real KITTI frames,
 //! evaluate both with the official protocol and draw pictures. `--train-tiny` instead
 //! trains the tiny network on the simulated frames first (seconds) and detects with it.
 
@@ -56,8 +55,6 @@ pub struct DemoArgs {
 pub enum ShippedModel {
     /// F-ConvNet (built into the binary).
     Fconvnet,
-    /// F-ConvNet with its refinement stage (two networks).
-    FconvnetRefine,
     /// FCAM: F-ConvNet with the improved CBAM.
     Fcam,
     /// SAF: depth-guided slicing, LFA and the projection loss.
@@ -68,7 +65,6 @@ impl ShippedModel {
     fn stem(self) -> &'static str {
         match self {
             ShippedModel::Fconvnet => "fconvnet-car",
-            ShippedModel::FconvnetRefine => "fconvnet-refine-car",
             ShippedModel::Fcam => "fcam-car",
             ShippedModel::Saf => "saf-car",
         }
@@ -77,7 +73,6 @@ impl ShippedModel {
     fn title(self) -> &'static str {
         match self {
             ShippedModel::Fconvnet => "F-ConvNet",
-            ShippedModel::FconvnetRefine => "F-ConvNet + refinement",
             ShippedModel::Fcam => "FCAM",
             ShippedModel::Saf => "SAF",
         }
@@ -300,28 +295,18 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes a shipped Car model and its configuration to `out/model/` (with its first
-/// stage, for the refinement model).
+/// Writes a shipped Car model and its configuration to `out/model/`.
 fn shipped_model(out: &Path, which: ShippedModel) -> anyhow::Result<(ExperimentConfig, PathBuf)> {
     let dir = out.join("model");
     std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
-    let write = |m: ShippedModel| -> anyhow::Result<(PathBuf, PathBuf, usize)> {
-        let (bytes, toml) = m.files()?;
-        let config_path = dir.join(format!("{}.toml", m.stem()));
-        let model = dir.join(format!("{}.bpk", m.stem()));
-        fusiondet_kitti::write_atomic(&config_path, toml.as_bytes())?;
-        fusiondet_kitti::write_atomic(&model, &bytes)?;
-        Ok((config_path, model, bytes.len()))
-    };
-    let mut params = 0;
-    if which == ShippedModel::FconvnetRefine {
-        // Its configuration names the first stage beside it.
-        let (config_path, _, _) = write(ShippedModel::Fconvnet)?;
-        params += parameter_count(&ExperimentConfig::from_file(&config_path)?.model)?;
-    }
-    let (config_path, model, size) = write(which)?;
+    let (bytes, toml) = which.files()?;
+    let config_path = dir.join(format!("{}.toml", which.stem()));
+    let model = dir.join(format!("{}.bpk", which.stem()));
+    fusiondet_kitti::write_atomic(&config_path, toml.as_bytes())?;
+    fusiondet_kitti::write_atomic(&model, &bytes)?;
+    let size = bytes.len();
     let config = ExperimentConfig::from_file(&config_path)?;
-    params += parameter_count(&config.model)?;
+    let params = parameter_count(&config.model)?;
     println!(
         "== the shipped {} Car model ({:.1} MB, {params} parameters) -> {}",
         which.title(),
