@@ -135,6 +135,9 @@ fn centred_text(img: &mut RgbImage, cx: f64, y: i32, text: &str, scale: u32) {
 }
 
 /// Draws one panel with its top-left corner at (ox, oy).
+/// Legends with more entries than this are drawn one text scale smaller.
+const LARGE_LEGEND_ROWS: usize = 5;
+
 fn draw_panel(
     img: &mut RgbImage,
     (ox, oy): (i32, i32),
@@ -219,10 +222,17 @@ fn draw_panel(
     }
 
     // Legend in the lower left, where precision–recall curves rarely run, on a mostly
-    // opaque backdrop so a curve passing beneath stays faintly visible.
+    // opaque backdrop so a curve passing beneath stays faintly visible. A long legend
+    // (an ablation's rows) uses a smaller font so it stays in the lower half.
     if curves.is_empty() {
         return;
     }
+    let s = if curves.len() > LARGE_LEGEND_ROWS {
+        (s - 1).max(1)
+    } else {
+        s
+    };
+    let g = (GLYPH * s) as i32;
     let header = format!("{} in %", opts.legend_ap.label());
     let texts: Vec<String> = curves
         .iter()
@@ -473,6 +483,32 @@ mod tests {
         assert!(!swatch.is_empty());
         assert!(swatch.iter().all(|&(x, y)| x > x0 && y < y1 && y > y1 - 60));
         assert!(count_colour(&with, PLOT_TEXT) > count_colour(&blank, PLOT_TEXT));
+    }
+
+    #[test]
+    fn an_ablations_eleven_row_legend_stays_in_the_lower_half_in_distinct_colours() {
+        let o = PrPlotOptions::default();
+        let flat = constant(0.9);
+        let names: Vec<String> = (0..11).map(|i| format!("tiny-saf-slicing-{i}")).collect();
+        let curves: Vec<(&str, &PrCurve)> = names.iter().map(|n| (n.as_str(), &flat)).collect();
+        let img = render_pr_curves("", &curves, &o);
+        let area = PlotArea::of_panel(o.panel_size.0, o.panel_size.1, o.text_scale);
+        let band = 2 * GLYPH * o.text_scale;
+        let (x0, top) = area.to_pixel(0.0, 1.0);
+        let (x1, half) = area.to_pixel(1.0, 0.5);
+        // Legend text is the only black ink inside the plot frame.
+        let text_above_half = img
+            .enumerate_pixels()
+            .filter(|(x, y, p)| {
+                let (x, y) = (*x as f64, *y as f64 - band as f64);
+                **p == PLOT_TEXT && x > x0 && x < x1 && y > top && y < half
+            })
+            .count();
+        assert_eq!(text_above_half, 0);
+        for i in 0..11 {
+            assert!((0..i).all(|j| series_colour(i) != series_colour(j)), "{i}");
+            assert!(count_colour(&img, series_colour(i)) > 0, "{i}");
+        }
     }
 
     #[test]

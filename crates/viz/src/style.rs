@@ -67,9 +67,10 @@ pub const PLOT_GRID: Rgb<u8> = Rgb([226, 226, 226]);
 /// Titles and legend text of a plot.
 pub const PLOT_TEXT: Rgb<u8> = Rgb([0, 0, 0]);
 
-/// One colour per curve of a plot, well apart in hue (the common "tab10" set);
-/// none is grey or black, so a curve never reads as an axis or a grid line.
-pub const SERIES: [Rgb<u8>; 9] = [
+/// One colour per curve of a plot, well apart in hue (the common "tab10" set without its
+/// grey, then three dark tones), so the seeds' largest ablation tables (11 rows) need no
+/// colour twice; none is grey or black, so a curve never reads as an axis or a grid line.
+pub const SERIES: [Rgb<u8>; 12] = [
     Rgb([31, 119, 180]),
     Rgb([255, 127, 14]),
     Rgb([44, 160, 44]),
@@ -79,6 +80,9 @@ pub const SERIES: [Rgb<u8>; 9] = [
     Rgb([227, 119, 194]),
     Rgb([188, 189, 34]),
     Rgb([23, 190, 207]),
+    Rgb([0, 0, 128]),
+    Rgb([128, 0, 0]),
+    Rgb([0, 110, 110]),
 ];
 
 /// The colour of the `i`-th curve; colours repeat after [`SERIES`]'s length.
