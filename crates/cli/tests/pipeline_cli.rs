@@ -24,6 +24,13 @@ fn configs() -> std::path::PathBuf {
     common::repo_root().join("configs")
 }
 
+/// `fusiondet demo --out OUT --frames FRAMES EXTRA…`.
+fn demo(out: &std::path::Path, frames: &str, extra: &[&str]) -> std::process::Output {
+    let mut args = vec!["demo", "--out", out.to_str().unwrap(), "--frames", frames];
+    args.extend_from_slice(extra);
+    fusiondet(&args)
+}
+
 #[test]
 fn demo_runs_the_shipped_model_and_can_be_rerun() {
     let dir = tempfile::tempdir().unwrap();
@@ -64,15 +71,7 @@ fn demo_runs_each_shipped_variant_from_the_clone() {
     for (model, stem, title) in [("fcam", "fcam-car", "FCAM"), ("saf", "saf-car", "SAF")] {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("demo");
-        let o = fusiondet(&[
-            "demo",
-            "--out",
-            out.to_str().unwrap(),
-            "--frames",
-            "6",
-            "--model",
-            model,
-        ]);
+        let o = demo(&out, "6", &["--model", model]);
         let t = text(&o);
         assert!(o.status.success(), "{model}: {t}");
         assert!(t.contains(&format!("the shipped {title} Car model")), "{t}");
@@ -89,16 +88,7 @@ fn demo_runs_each_shipped_variant_from_the_clone() {
 fn demo_can_train_the_tiny_network_instead() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
-    let o = fusiondet(&[
-        "demo",
-        "--out",
-        out.to_str().unwrap(),
-        "--frames",
-        "8",
-        "--train-tiny",
-        "--epochs",
-        "1",
-    ]);
+    let o = demo(&out, "8", &["--train-tiny", "--epochs", "1"]);
     assert!(o.status.success(), "{}", text(&o));
     let t = text(&o);
     assert!(t.contains("trained the tiny F-ConvNet"), "{t}");
@@ -123,28 +113,32 @@ fn demo_refuses_a_directory_it_did_not_write() {
     );
 }
 
+/// `fusiondet info` on a shipped config: must succeed; returns its output.
+fn info_of(config: &str) -> String {
+    let path = configs().join(config);
+    let o = fusiondet(&["info", "--config", path.to_str().unwrap()]);
+    let t = text(&o);
+    assert!(o.status.success(), "{config}: {t}");
+    t
+}
+
+/// Fails unless `text` contains every one of `parts`.
+fn assert_mentions(text: &str, parts: &[&str]) {
+    for part in parts {
+        assert!(text.contains(part), "no {part:?} in:\n{text}");
+    }
+}
+
 #[test]
 fn info_prints_the_published_parameter_count() {
-    let car = configs().join("fconvnet-car.toml");
-    let o = fusiondet(&["info", "--config", car.to_str().unwrap()]);
-    assert!(o.status.success(), "{}", text(&o));
-    assert!(
-        text(&o).trim_end().ends_with("parameters: 3316777"),
-        "{}",
-        text(&o)
-    );
+    let t = info_of("fconvnet-car.toml");
+    assert!(t.trim_end().ends_with("parameters: 3316777"), "{t}");
 }
 
 #[test]
 fn info_counts_both_stages_of_the_refinement_model() {
-    let refine = configs().join("fconvnet-refine-car.toml");
-    let o = fusiondet(&["info", "--config", refine.to_str().unwrap()]);
-    assert!(o.status.success(), "{}", text(&o));
-    let t = text(&o);
-    assert!(
-        t.contains("First stage") && t.contains("Refinement stage"),
-        "{t}"
-    );
+    let t = info_of("fconvnet-refine-car.toml");
+    assert_mentions(&t, &["First stage", "Refinement stage"]);
     assert!(
         t.trim_end()
             .ends_with("Both stages: 6633554 parameters (3316777 + 3316777)"),
@@ -155,17 +149,15 @@ fn info_counts_both_stages_of_the_refinement_model() {
 #[test]
 fn info_counts_the_refinement_stage_alone_before_its_first_stage_is_trained() {
     // fconvnet-refine-people.toml names runs/fconvnet-people/model.bpk, made by training.
-    let refine = configs().join("fconvnet-refine-people.toml");
-    let o = fusiondet(&["info", "--config", refine.to_str().unwrap()]);
-    assert!(o.status.success(), "{}", text(&o));
-    let t = text(&o);
-    assert!(
-        t.contains("Refinement stage") && t.contains("parameters: 3316777"),
-        "{t}"
-    );
-    assert!(
-        t.contains("First stage not counted") && t.contains("fconvnet-people"),
-        "{t}"
+    let t = info_of("fconvnet-refine-people.toml");
+    assert_mentions(
+        &t,
+        &[
+            "Refinement stage",
+            "parameters: 3316777",
+            "First stage not counted",
+            "fconvnet-people",
+        ],
     );
     assert!(!t.contains("Both stages"), "{t}");
 }
