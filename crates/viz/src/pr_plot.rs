@@ -134,10 +134,10 @@ fn centred_text(img: &mut RgbImage, cx: f64, y: i32, text: &str, scale: u32) {
     );
 }
 
-/// Draws one panel with its top-left corner at (ox, oy).
 /// Legends with more entries than this are drawn one text scale smaller.
 const LARGE_LEGEND_ROWS: usize = 5;
 
+/// Draws one panel with its top-left corner at (ox, oy).
 fn draw_panel(
     img: &mut RgbImage,
     (ox, oy): (i32, i32),

@@ -1,7 +1,8 @@
 //! `fusiondet demo`: the whole pipeline on data that ships with the repository —
 //! simulate a small street dataset, run a shipped Car model (F-ConvNet, built into the
-//! binary; `--model` picks SAF or FCAM from the clone's `models/`) on its validation split and on the bundled real KITTI frames,
-//! evaluate both with the official protocol and draw pictures. `--train-tiny` instead
+//! binary; `--model` picks SAF or FCAM from the clone's `models/`) on its validation split
+//! and on the bundled real KITTI frames, evaluate both with the official protocol and draw
+//! pictures. `--train-tiny` instead
 //! trains the tiny network on the simulated frames first (seconds) and detects with it.
 
 use anyhow::{Context, bail};
