@@ -28,7 +28,7 @@ use crate::evaluate::{EvalConfig, tasks_for, validate};
 use crate::frames::{FrameDet, FrameGt};
 use crate::protocol::{Metric, is_evaluated, neighbour_class};
 use crate::report::PrCurve;
-use fusiondet_geometry::{CameraModel, count_points_in_box};
+use fusiondet_geometry::count_points_in_box;
 use fusiondet_kitti::{Box3d, FormatError, Object, ObjectClass, read_calib, read_velodyne};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -124,7 +124,8 @@ pub fn count_lidar_points(
         .map(|(g, d)| {
             let calib_path = calib_dir.join(format!("{}.txt", g.id));
             let calib = read_calib(&calib_path).map_err(EvalError::Breakdown)?;
-            let cam = CameraModel::from_calib(&calib)
+            let cam = calib
+                .camera_model()
                 .map_err(|m| EvalError::Breakdown(FormatError::file(&calib_path, m)))?;
             let scan = read_velodyne(&velodyne_dir.join(format!("{}.bin", g.id)))
                 .map_err(EvalError::Breakdown)?;

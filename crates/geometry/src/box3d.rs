@@ -1,8 +1,8 @@
 //! 3D boxes in KITTI's camera convention: corners, bird's-eye footprints,
 //! projection to the image, and the alpha ↔ rotation_y relation.
 
+use crate::boxes::{Box2d, Box3d};
 use crate::camera::CameraModel;
-use fusiondet_kitti::{Box2d, Box3d};
 use std::f64::consts::PI;
 
 /// Wraps an angle to (-pi, pi].
@@ -149,7 +149,7 @@ pub fn count_points_in_box(b: &Box3d, points: &[[f64; 3]]) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::tests::sample_calib;
+    use crate::camera::tests::sample_camera;
 
     fn car() -> Box3d {
         Box3d {
@@ -211,13 +211,21 @@ mod tests {
     fn projection_matches_kitti_label_box() {
         // KITTI 000001 Car: 387.63 181.54 423.81 203.12, dims 1.67 1.87 3.69, loc -16.53 2.39 58.49,
         // ry 1.57, with that frame's P2 (only P2 matters in the rectified frame).
-        let mut calib = sample_calib();
-        calib.p[2] = [
-            [721.5377, 0.0, 609.5593, 44.85728],
-            [0.0, 721.5377, 172.854, 0.2163791],
-            [0.0, 0.0, 1.0, 0.002745884],
-        ];
-        let cam = CameraModel::from_calib(&calib).unwrap();
+        let mut cam = sample_camera();
+        cam.p2 = nalgebra::Matrix3x4::from_row_slice(&[
+            721.5377,
+            0.0,
+            609.5593,
+            44.85728, //
+            0.0,
+            721.5377,
+            172.854,
+            0.2163791, //
+            0.0,
+            0.0,
+            1.0,
+            0.002745884,
+        ]);
         let b = Box3d {
             h: 1.67,
             w: 1.87,
@@ -240,7 +248,7 @@ mod tests {
 
     #[test]
     fn box_behind_camera_projects_to_nothing() {
-        let cam = CameraModel::from_calib(&sample_calib()).unwrap();
+        let cam = sample_camera();
         let b = Box3d { z: -10.0, ..car() };
         assert!(project_to_image(&b, &cam, 1242.0, 375.0).is_none());
     }

@@ -1,7 +1,6 @@
 //! Transforms between the LiDAR frame, the rectified camera frame and the image
 //! of the left colour camera (P2): the KITTI chain `y = P2 · R0_rect · Tr_velo_to_cam · x`.
 
-use fusiondet_kitti::Calib;
 use nalgebra::{Matrix3, Matrix3x4, Matrix4, Vector3, Vector4};
 
 /// The calibration of one frame, prepared for fast transforms.
@@ -20,20 +19,25 @@ fn mat34(m: &[[f64; 4]; 3]) -> Matrix3x4<f64> {
 }
 
 impl CameraModel {
-    /// Builds the model; fails only if the extrinsics are singular.
-    pub fn from_calib(calib: &Calib) -> Result<CameraModel, String> {
-        let r0 = Matrix3::from_fn(|r, c| calib.r0_rect[r][c]);
+    /// Builds the model from P2 (rectified camera → image), R0_rect and
+    /// Tr_velo_to_cam; fails only if the extrinsics are singular.
+    pub fn new(
+        p2: &[[f64; 4]; 3],
+        r0_rect: &[[f64; 3]; 3],
+        tr_velo_to_cam: &[[f64; 4]; 3],
+    ) -> Result<CameraModel, String> {
+        let r0 = Matrix3::from_fn(|r, c| r0_rect[r][c]);
         let mut r0_h = Matrix4::identity();
         r0_h.fixed_view_mut::<3, 3>(0, 0).copy_from(&r0);
         let mut tr = Matrix4::identity();
         tr.fixed_view_mut::<3, 4>(0, 0)
-            .copy_from(&mat34(&calib.tr_velo_to_cam));
+            .copy_from(&mat34(tr_velo_to_cam));
         let velo_to_rect = r0_h * tr;
         let rect_to_velo = velo_to_rect
             .try_inverse()
             .ok_or("R0_rect · Tr_velo_to_cam is not invertible")?;
         Ok(CameraModel {
-            p2: mat34(&calib.p[2]),
+            p2: mat34(p2),
             velo_to_rect,
             rect_to_velo,
         })
@@ -93,52 +97,31 @@ impl CameraModel {
 pub(crate) mod tests {
     use super::*;
 
-    /// Frame 000000's calibration (KITTI, CC BY-NC-SA 3.0).
-    pub(crate) fn sample_calib() -> Calib {
-        Calib {
-            p: [
-                [
-                    [707.0493, 0.0, 604.0814, 0.0],
-                    [0.0, 707.0493, 180.5066, 0.0],
-                    [0.0, 0.0, 1.0, 0.0],
-                ],
-                [
-                    [707.0493, 0.0, 604.0814, -379.7842],
-                    [0.0, 707.0493, 180.5066, 0.0],
-                    [0.0, 0.0, 1.0, 0.0],
-                ],
-                [
-                    [707.0493, 0.0, 604.0814, 45.75831],
-                    [0.0, 707.0493, 180.5066, -0.3454157],
-                    [0.0, 0.0, 1.0, 0.004981016],
-                ],
-                [
-                    [707.0493, 0.0, 604.0814, -334.1081],
-                    [0.0, 707.0493, 180.5066, 2.33066],
-                    [0.0, 0.0, 1.0, 0.003201153],
-                ],
+    /// Frame 000000's P2, R0_rect and Tr_velo_to_cam (KITTI, CC BY-NC-SA 3.0).
+    pub(crate) fn sample_camera() -> CameraModel {
+        CameraModel::new(
+            &[
+                [707.0493, 0.0, 604.0814, 45.75831],
+                [0.0, 707.0493, 180.5066, -0.3454157],
+                [0.0, 0.0, 1.0, 0.004981016],
             ],
-            r0_rect: [
+            &[
                 [0.9999128, 0.01009263, -0.008511932],
                 [-0.01012729, 0.9999406, -0.004037671],
                 [0.008470675, 0.004123522, 0.9999556],
             ],
-            tr_velo_to_cam: [
+            &[
                 [0.006927964, -0.9999722, -0.002757829, -0.02457729],
                 [-0.001162982, 0.002749836, -0.9999955, -0.06127237],
                 [0.9999753, 0.006931141, -0.001143899, -0.3321029],
             ],
-            tr_imu_to_velo: [
-                [0.9999976, 0.0007553071, -0.002035826, -0.8086759],
-                [-0.0007854027, 0.9998898, -0.01482298, 0.3195559],
-                [0.002024406, 0.01482454, 0.9998881, -0.7997231],
-            ],
-        }
+        )
+        .unwrap()
     }
 
     #[test]
     fn velo_rect_round_trip() {
-        let cam = CameraModel::from_calib(&sample_calib()).unwrap();
+        let cam = sample_camera();
         let p = [12.3, -4.5, -1.2];
         let back = cam.rect_to_velo(cam.velo_to_rect(p));
         for k in 0..3 {
@@ -151,7 +134,7 @@ pub(crate) mod tests {
 
     #[test]
     fn image_round_trip() {
-        let cam = CameraModel::from_calib(&sample_calib()).unwrap();
+        let cam = sample_camera();
         let p = [2.0, 1.5, 20.0];
         let (u, v, d) = cam.rect_to_image(p);
         let back = cam.image_to_rect(u, v, d);

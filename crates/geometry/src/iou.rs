@@ -6,7 +6,7 @@
 //! their robustness for identical footprints is not what we need to guarantee.
 
 use crate::box3d::bev_polygon;
-use fusiondet_kitti::{Box2d, Box3d};
+use crate::boxes::{Box2d, Box3d};
 
 /// What an overlap is divided by, as in the KITTI devkit's `criterion` argument.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -1,7 +1,7 @@
 //! Greedy non-maximum suppression in 2D, bird's-eye view and 3D.
 
+use crate::boxes::{Box2d, Box3d};
 use crate::iou::{iou_2d, iou_3d, iou_bev};
-use fusiondet_kitti::{Box2d, Box3d};
 
 /// Greedy NMS: visits items by descending score and keeps one unless it overlaps a
 /// kept item by more than `threshold`. Returns kept indices, best first. Ties in

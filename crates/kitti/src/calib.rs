@@ -31,6 +31,14 @@ const KEYS: [(&str, &[&str], usize); 7] = [
     ("Tr_imu_to_velo", &["Tr_imu_velo"], 12),
 ];
 
+impl Calib {
+    /// The camera model of the left colour camera (P2) with this frame's extrinsics;
+    /// fails only if R0_rect · Tr_velo_to_cam is singular.
+    pub fn camera_model(&self) -> std::result::Result<fusiondet_geometry::CameraModel, String> {
+        fusiondet_geometry::CameraModel::new(&self.p[2], &self.r0_rect, &self.tr_velo_to_cam)
+    }
+}
+
 fn to_mat34(v: &[f64]) -> Mat34 {
     let mut m = [[0.0; 4]; 3];
     for (i, x) in v.iter().enumerate() {

@@ -204,7 +204,7 @@ mod tests {
     #[test]
     fn pixel_rays_reproject_to_their_pixels() {
         let calib = sample_calib(&mut Sampler::new(2));
-        let cam = CameraModel::from_calib(&calib).unwrap();
+        let cam = calib.camera_model().unwrap();
         let rays = PixelRays::new(&cam);
         for (u, v) in [(0.0, 0.0), (600.0, 180.0), (1241.0, 374.0), (100.0, 300.0)] {
             let p = rays.origin + rays.dir(u, v).normalized() * 23.0;
@@ -227,7 +227,7 @@ mod tests {
                 calib.p[2][row][c] /= 6.0;
             }
         }
-        let cam = CameraModel::from_calib(&calib).unwrap();
+        let cam = calib.camera_model().unwrap();
         let spec = CameraSpec {
             width: 207,
             height: 62,

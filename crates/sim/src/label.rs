@@ -276,7 +276,7 @@ mod tests {
                 [0.0, 0.0, 1.0, 0.0],
             ],
         };
-        let cam = CameraModel::from_calib(&calib).unwrap();
+        let cam = calib.camera_model().unwrap();
         let actor = Actor {
             class: ObjectClass::Car,
             bottom_center: v3(20.0, 2.0, -1.73),

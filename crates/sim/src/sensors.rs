@@ -259,7 +259,7 @@ mod tests {
         let mut s = Sampler::new(1);
         for _ in 0..20 {
             let c = sample_calib(&mut s);
-            let cam = CameraModel::from_calib(&c).unwrap();
+            let cam = c.camera_model().unwrap();
             assert!(cam.fu() > 700.0 && cam.fu() < 725.0);
             // LiDAR forward is camera depth, the LiDAR origin is ~0.27–0.33 m behind the camera.
             let r = cam.velo_to_rect([10.0, 0.0, 0.0]);

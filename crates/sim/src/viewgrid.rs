@@ -451,7 +451,7 @@ mod tests {
     #[test]
     fn camera_grid_gives_the_bvh_answer() {
         let (scene, _) = build_scene(&mut Sampler::new(22), &LayoutConfig::default());
-        let cam = CameraModel::from_calib(&sample_calib(&mut Sampler::new(22))).unwrap();
+        let cam = sample_calib(&mut Sampler::new(22)).camera_model().unwrap();
         let rays = PixelRays::new(&cam);
         let grid = CameraGrid::new(&scene, &cam, &rays, 1242, 375, 8);
         let mut s = Sampler::new(4);

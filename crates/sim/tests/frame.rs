@@ -66,7 +66,7 @@ fn frame_is_kitti_like() {
 #[test]
 fn points_project_onto_the_surface_they_hit() {
     let f = frame();
-    let cam = CameraModel::from_calib(&f.calib).unwrap();
+    let cam = f.calib.camera_model().unwrap();
     let (mut same_obj, mut obj) = (0, 0);
     let (mut same_kind, mut all) = (0, 0);
     for (p, info) in f.points.iter().zip(&f.point_info) {

@@ -15,7 +15,7 @@ pub fn sample_dir() -> FrameDir {
 /// The camera of bundled frame 000001.
 pub fn camera() -> CameraModel {
     let calib = read_calib(&sample_dir().calib("000001")).unwrap();
-    CameraModel::from_calib(&calib).unwrap()
+    calib.camera_model().unwrap()
 }
 
 pub fn count_colour(img: &RgbImage, c: Rgb<u8>) -> usize {
