@@ -5,8 +5,8 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use fusiondet_frustum::{
-    Augmentation, Frame, FrustumConfig, SampleSource, build_sample, collate, extract_frustum,
-    rng::derive_rng,
+    Augmentation, FrustumConfig, ProjectedFrame, SampleSource, build_sample, collate,
+    extract_frustum, rng::Sampler,
 };
 use fusiondet_kitti::{FrameDir, read_calib, read_detections2d, read_velodyne};
 use std::hint::black_box;
@@ -35,10 +35,10 @@ fn bench(c: &mut Criterion) {
     );
 
     c.bench_function("project frame", |b| {
-        b.iter(|| Frame::new(id, &calib, black_box(&lidar), image_size, vec![]).unwrap())
+        b.iter(|| ProjectedFrame::new(id, &calib, black_box(&lidar), image_size, vec![]).unwrap())
     });
 
-    let frame = Frame::new(id, &calib, &lidar, image_size, vec![]).unwrap();
+    let frame = ProjectedFrame::new(id, &calib, &lidar, image_size, vec![]).unwrap();
     c.bench_function("extract frustums (all boxes)", |b| {
         b.iter(|| {
             dets.iter()
@@ -64,7 +64,7 @@ fn bench(c: &mut Criterion) {
             p2: frame.camera.p2_rows(),
             object: None,
         };
-        let mut rng = derive_rng(2, &[]);
+        let mut rng = Sampler::from_path(2, &[]);
         b.iter(|| {
             build_sample(
                 &source,
@@ -76,8 +76,8 @@ fn bench(c: &mut Criterion) {
         })
     });
 
-    let frame_pipeline = |frame: &Frame, boxes: usize| {
-        let mut rng = derive_rng(1, &[]);
+    let frame_pipeline = |frame: &ProjectedFrame, boxes: usize| {
+        let mut rng = Sampler::from_path(1, &[]);
         let samples: Vec<_> = dets
             .iter()
             .take(boxes)
@@ -110,14 +110,15 @@ fn bench(c: &mut Criterion) {
         );
         c.bench_function(&name, |b| {
             b.iter(|| {
-                let frame = Frame::new(id, &calib, black_box(&lidar), image_size, vec![]).unwrap();
+                let frame =
+                    ProjectedFrame::new(id, &calib, black_box(&lidar), image_size, vec![]).unwrap();
                 frame_pipeline(&frame, boxes)
             })
         });
     }
     c.bench_function(
         "load frame from disk (read calib + velodyne, project)",
-        |b| b.iter(|| Frame::load(&dir, black_box(id), false).unwrap()),
+        |b| b.iter(|| ProjectedFrame::load(&dir, black_box(id), false).unwrap()),
     );
 }
 

@@ -5,10 +5,10 @@ use crate::batch::FrustumBatch;
 use crate::collate::collate;
 use crate::config::FrustumConfig;
 use crate::error::{FrustumError, Result, SkipCounts, SkipReason};
-use crate::frame::{Frame, FrameSource};
+use crate::frame::{FrustumFrames, ProjectedFrame};
 use crate::frustum::extract_frustum;
 use crate::proposal::{extract_proposal_frustum, match_proposal};
-use crate::rng::{SampleRng, derive_rng, domain, shuffle, uniform_in};
+use crate::rng::{Sampler, domain};
 use crate::sample::{Augmentation, FrustumSample, SampleSource, build_sample};
 use fusiondet_geometry::count_points_in_box;
 use fusiondet_kitti::{Box2d, Box3d, Detection2d, Object, ObjectClass};
@@ -44,7 +44,7 @@ pub struct PreparedBatch {
 }
 
 /// A set of frustums over a [`FrameSource`].
-pub struct FrustumDataset<S: FrameSource> {
+pub struct FrustumDataset<S: FrustumFrames> {
     source: S,
     config: FrustumConfig,
     specs: Vec<FrustumSpec>,
@@ -61,16 +61,16 @@ fn id_hash(id: &str) -> u64 {
 
 /// F-PointNet's 2D box jitter: centre moved by up to ±r·(w, h), width and height
 /// scaled by a factor in [1 − r, 1 + r], all uniform.
-pub fn jitter_box(b: &Box2d, r: f64, rng: &mut SampleRng) -> Box2d {
+pub fn jitter_box(b: &Box2d, r: f64, rng: &mut Sampler) -> Box2d {
     if r == 0.0 {
         return *b;
     }
     let (w, h) = (b.width(), b.height());
     let (cx, cy) = b.center();
-    let cx = cx + w * uniform_in(rng, -r, r);
-    let cy = cy + h * uniform_in(rng, -r, r);
-    let w = w * uniform_in(rng, 1.0 - r, 1.0 + r);
-    let h = h * uniform_in(rng, 1.0 - r, 1.0 + r);
+    let cx = cx + w * rng.range(-r, r);
+    let cy = cy + h * rng.range(-r, r);
+    let w = w * rng.range(1.0 - r, 1.0 + r);
+    let h = h * rng.range(1.0 - r, 1.0 + r);
     Box2d {
         x1: cx - 0.5 * w,
         y1: cy - 0.5 * h,
@@ -82,7 +82,7 @@ pub fn jitter_box(b: &Box2d, r: f64, rng: &mut SampleRng) -> Box2d {
 /// The training frustums of one frame, and what was skipped.
 fn label_specs(
     frame_index: usize,
-    frame: &Frame,
+    frame: &ProjectedFrame,
     config: &FrustumConfig,
     seed: u64,
 ) -> (Vec<FrustumSpec>, SkipCounts) {
@@ -93,7 +93,7 @@ fn label_specs(
             continue;
         }
         for copy in 0..config.augment.copies {
-            let mut rng = derive_rng(
+            let mut rng = Sampler::from_path(
                 seed,
                 &[domain::JITTER, id_hash(&frame.id), oi as u64, copy as u64],
             );
@@ -127,7 +127,7 @@ fn label_specs(
     (specs, skips)
 }
 
-impl<S: FrameSource> FrustumDataset<S> {
+impl<S: FrustumFrames> FrustumDataset<S> {
     /// Frustums from the ground-truth 2D boxes of the configured classes, `copies`
     /// per object, each with its own jitter drawn from `seed` (and the frame id, object
     /// and copy). Boxes that are outside the image, shorter than
@@ -365,7 +365,7 @@ impl<S: FrameSource> FrustumDataset<S> {
             ),
             None => None,
         };
-        let mut rng = derive_rng(seed, &[domain::SAMPLE, epoch, index as u64]);
+        let mut rng = Sampler::from_path(seed, &[domain::SAMPLE, epoch, index as u64]);
         let augmentation = match object {
             Some(gt) => Augmentation::draw(
                 &self.config.augment,
@@ -410,7 +410,7 @@ impl<S: FrameSource> FrustumDataset<S> {
     /// in batches of exactly `batch_size` (a last, smaller batch is dropped).
     pub fn epoch(&self, seed: u64, epoch: u64, batch_size: usize) -> Batches<'_, S> {
         let mut order: Vec<usize> = (0..self.len()).collect();
-        shuffle(&mut derive_rng(seed, &[domain::ORDER, epoch]), &mut order);
+        Sampler::from_path(seed, &[domain::ORDER, epoch]).shuffle(&mut order);
         Batches::new(self, order, seed, epoch, batch_size, true)
     }
 
@@ -422,7 +422,7 @@ impl<S: FrameSource> FrustumDataset<S> {
 }
 
 /// Iterator over the batches of an epoch; each batch is prepared when asked for.
-pub struct Batches<'a, S: FrameSource> {
+pub struct Batches<'a, S: FrustumFrames> {
     dataset: &'a FrustumDataset<S>,
     order: Vec<usize>,
     seed: u64,
@@ -432,7 +432,7 @@ pub struct Batches<'a, S: FrameSource> {
     end: usize,
 }
 
-impl<'a, S: FrameSource> Batches<'a, S> {
+impl<'a, S: FrustumFrames> Batches<'a, S> {
     fn new(
         dataset: &'a FrustumDataset<S>,
         order: Vec<usize>,
@@ -464,7 +464,7 @@ impl<'a, S: FrameSource> Batches<'a, S> {
     }
 }
 
-impl<S: FrameSource> Iterator for Batches<'_, S> {
+impl<S: FrustumFrames> Iterator for Batches<'_, S> {
     type Item = Result<PreparedBatch>;
 
     fn next(&mut self) -> Option<Self::Item> {
@@ -483,4 +483,4 @@ impl<S: FrameSource> Iterator for Batches<'_, S> {
     }
 }
 
-impl<S: FrameSource> ExactSizeIterator for Batches<'_, S> {}
+impl<S: FrustumFrames> ExactSizeIterator for Batches<'_, S> {}

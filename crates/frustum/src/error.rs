@@ -9,6 +9,8 @@ use fusiondet_kitti::FormatError;
 pub enum FrustumError {
     #[error(transparent)]
     Format(#[from] FormatError),
+    #[error(transparent)]
+    Data(#[from] fusiondet_dataset::DataError),
     /// The calibration of a frame cannot be used.
     #[error("frame {frame}: {message}")]
     Calib { frame: String, message: String },

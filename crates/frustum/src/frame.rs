@@ -1,17 +1,13 @@
-//! One KITTI frame prepared for frustum extraction: the LiDAR points projected into
+//! A frame prepared for frustum extraction: the LiDAR points projected into
 //! the image once (rectified camera coordinates and pixels), so that every 2D box of
 //! the frame is only a filter over these arrays.
 
-use crate::error::{FrustumError, Result};
+use crate::error::Result;
+use fusiondet_dataset::{DerivedFrame, SensorFrame};
 use fusiondet_geometry::CameraModel;
-use fusiondet_kitti::{
-    Calib, FrameDir, LidarPoint, Object, read_calib, read_objects, read_velodyne,
-};
-use std::path::Path;
-use std::sync::Arc;
+use fusiondet_kitti::{Calib, FrameDir, LidarPoint, Object};
 
-/// KITTI's usual image size, used when a frame has no readable `image_2` PNG.
-pub const DEFAULT_IMAGE_SIZE: [f64; 2] = [1242.0, 375.0];
+pub use fusiondet_dataset::{DEFAULT_IMAGE_SIZE, FrameSource, png_size};
 
 /// Points closer than this (rectified depth, metres) are not projected.
 pub const NEAR_DEPTH: f64 = 0.1;
@@ -67,9 +63,10 @@ impl ProjectedCloud {
     }
 }
 
-/// A frame ready for frustum extraction.
+/// A frame ready for frustum extraction: what the frustum family keeps of a
+/// [`SensorFrame`] (the points in the image, projected once; no intensity, no image).
 #[derive(Debug, Clone)]
-pub struct Frame {
+pub struct ProjectedFrame {
     pub id: String,
     pub camera: CameraModel,
     /// Image width and height in pixels; 2D boxes are clipped to it.
@@ -79,129 +76,55 @@ pub struct Frame {
     pub objects: Vec<Object>,
 }
 
-impl Frame {
+impl ProjectedFrame {
+    /// Projects an in-memory scan (tests, simulated frames).
     pub fn new(
         id: &str,
         calib: &Calib,
         lidar: &[LidarPoint],
         image_size: [f64; 2],
         objects: Vec<Object>,
-    ) -> Result<Frame> {
-        let camera = CameraModel::from_calib(calib).map_err(|message| FrustumError::Calib {
-            frame: id.to_string(),
-            message,
-        })?;
-        let cloud = ProjectedCloud::new(lidar, &camera, image_size);
-        Ok(Frame {
-            id: id.to_string(),
-            camera,
-            image_size,
+    ) -> Result<ProjectedFrame> {
+        let frame = SensorFrame::new(id, calib.clone(), lidar.to_vec(), image_size, objects)?;
+        Ok(Self::project(frame))
+    }
+
+    /// Reads frame `id` (see [`SensorFrame::load`]) and projects it.
+    pub fn load(dir: &FrameDir, id: &str, with_labels: bool) -> Result<ProjectedFrame> {
+        Ok(Self::project(SensorFrame::load(dir, id, with_labels)?))
+    }
+
+    fn project(frame: SensorFrame) -> ProjectedFrame {
+        let cloud = ProjectedCloud::new(&frame.lidar, &frame.camera, frame.image_size);
+        ProjectedFrame {
+            id: frame.id,
+            camera: frame.camera,
+            image_size: frame.image_size,
             cloud,
-            objects,
-        })
-    }
-
-    /// Reads `velodyne`, `calib` and, when `with_labels`, `label_2` of frame `id`. The
-    /// image size comes from the `image_2` PNG header when the file exists (only its
-    /// first 24 bytes are read), else [`DEFAULT_IMAGE_SIZE`].
-    pub fn load(dir: &FrameDir, id: &str, with_labels: bool) -> Result<Frame> {
-        let calib = read_calib(&dir.calib(id))?;
-        let lidar = read_velodyne(&dir.velodyne(id))?;
-        let objects = if with_labels {
-            read_objects(&dir.label(id))?
-        } else {
-            Vec::new()
-        };
-        let image_size = png_size(&dir.image(id)).unwrap_or(DEFAULT_IMAGE_SIZE);
-        Frame::new(id, &calib, &lidar, image_size, objects)
-    }
-}
-
-/// Width and height from a PNG's IHDR chunk, or `None` if the file is missing or not a PNG.
-pub fn png_size(path: &Path) -> Option<[f64; 2]> {
-    use std::io::Read;
-    let mut head = [0u8; 24];
-    std::fs::File::open(path).ok()?.read_exact(&mut head).ok()?;
-    if head[..8] != *b"\x89PNG\r\n\x1a\n" || head[12..16] != *b"IHDR" {
-        return None;
-    }
-    let w = u32::from_be_bytes([head[16], head[17], head[18], head[19]]);
-    let h = u32::from_be_bytes([head[20], head[21], head[22], head[23]]);
-    (w > 0 && h > 0).then_some([w as f64, h as f64])
-}
-
-/// Where a data set gets its frames from, by index.
-pub trait FrameSource: Sync {
-    fn len(&self) -> usize;
-    fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-    fn frame_id(&self, index: usize) -> &str;
-    fn frame(&self, index: usize) -> Result<Arc<Frame>>;
-    /// The index of a frame id, if the source holds it.
-    fn index_of(&self, id: &str) -> Option<usize> {
-        (0..self.len()).find(|&i| self.frame_id(i) == id)
-    }
-}
-
-/// All frames held in memory (about 40 bytes per in-image point: ~0.8 MB per KITTI frame).
-#[derive(Debug, Clone, Default)]
-pub struct InMemoryFrames {
-    frames: Vec<Arc<Frame>>,
-}
-
-impl InMemoryFrames {
-    pub fn new(frames: Vec<Frame>) -> Self {
-        InMemoryFrames {
-            frames: frames.into_iter().map(Arc::new).collect(),
+            objects: frame.objects,
         }
     }
+}
 
-    /// Loads the frames in parallel; fails on the first unreadable one (in id order).
-    pub fn load(dir: &FrameDir, ids: &[String], with_labels: bool) -> Result<Self> {
-        use rayon::prelude::*;
-        let frames = ids
-            .par_iter()
-            .map(|id| Frame::load(dir, id, with_labels))
-            .collect::<Result<Vec<_>>>()?;
-        Ok(InMemoryFrames::new(frames))
+impl DerivedFrame for ProjectedFrame {
+    fn derive(frame: SensorFrame) -> fusiondet_dataset::Result<Self> {
+        Ok(Self::project(frame))
+    }
+    fn id(&self) -> &str {
+        &self.id
     }
 }
 
-impl FrameSource for InMemoryFrames {
-    fn len(&self) -> usize {
-        self.frames.len()
-    }
-    fn frame_id(&self, index: usize) -> &str {
-        &self.frames[index].id
-    }
-    fn frame(&self, index: usize) -> Result<Arc<Frame>> {
-        Ok(self.frames[index].clone())
-    }
-    fn index_of(&self, id: &str) -> Option<usize> {
-        self.frames.iter().position(|f| f.id == id)
-    }
-}
+/// A source of the frustum family's frames.
+pub trait FrustumFrames: FrameSource<Frame = ProjectedFrame> {}
+impl<S: FrameSource<Frame = ProjectedFrame>> FrustumFrames for S {}
 
-/// Frames read from disk on every request (nothing held; slower).
-#[derive(Debug, Clone)]
-pub struct DiskFrames {
-    pub dir: FrameDir,
-    pub ids: Vec<String>,
-    pub with_labels: bool,
-}
+/// The frustum family's frames held in memory (about 40 bytes per in-image point:
+/// ~0.8 MB per KITTI frame, a sixth of the full scan's).
+pub type InMemoryFrames = fusiondet_dataset::InMemoryFrames<ProjectedFrame>;
 
-impl FrameSource for DiskFrames {
-    fn len(&self) -> usize {
-        self.ids.len()
-    }
-    fn frame_id(&self, index: usize) -> &str {
-        &self.ids[index]
-    }
-    fn frame(&self, index: usize) -> Result<Arc<Frame>> {
-        Frame::load(&self.dir, &self.ids[index], self.with_labels).map(Arc::new)
-    }
-}
+/// The frustum family's frames read from disk on every request.
+pub type DiskFrames = fusiondet_dataset::DiskFrames<ProjectedFrame>;
 
 #[cfg(test)]
 mod tests {
@@ -210,7 +133,7 @@ mod tests {
 
     #[test]
     fn projection_keeps_only_points_in_the_image() {
-        let f = Frame::load(&sample_dir(), "000003", true).unwrap();
+        let f = ProjectedFrame::load(&sample_dir(), "000003", true).unwrap();
         assert_eq!(f.image_size, [1242.0, 375.0]);
         assert!(f.cloud.len() > 10_000, "{}", f.cloud.len());
         for (r, uv) in f.cloud.rect.iter().zip(&f.cloud.uv) {
@@ -220,8 +143,8 @@ mod tests {
             assert!((u - uv[0]).abs() < 1e-9 && (v - uv[1]).abs() < 1e-9);
         }
         // A point behind the camera and one far outside the image are dropped.
-        let calib = read_calib(&sample_dir().calib("000003")).unwrap();
-        let g = Frame::new(
+        let calib = fusiondet_kitti::read_calib(&sample_dir().calib("000003")).unwrap();
+        let g = ProjectedFrame::new(
             "x",
             &calib,
             &[
@@ -238,7 +161,7 @@ mod tests {
 
     #[test]
     fn missing_files_are_errors_naming_the_file() {
-        let err = Frame::load(&sample_dir(), "999999", true)
+        let err = ProjectedFrame::load(&sample_dir(), "999999", true)
             .unwrap_err()
             .to_string();
         assert!(err.contains("999999"), "{err}");

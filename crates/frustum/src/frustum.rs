@@ -34,7 +34,7 @@
 //! a mirror x_f → −x_f (headings ry_f → π − ry_f) and a depth shift z_f → z_f + s.
 
 use crate::error::SkipReason;
-use crate::frame::Frame;
+use crate::frame::ProjectedFrame;
 use fusiondet_geometry::{CameraModel, normalize_angle};
 use fusiondet_kitti::{Box2d, Box3d};
 use std::f64::consts::PI;
@@ -245,7 +245,7 @@ pub fn clip_box(b: &Box2d, image_size: [f64; 2]) -> Option<Box2d> {
 /// (else [`SkipReason::TooSmall`]), and the points with u ∈ [x1, x2), v ∈ [y1, y2) and
 /// frustum depth in `depth_range` (none → [`SkipReason::NoPoints`]).
 pub fn extract_frustum(
-    frame: &Frame,
+    frame: &ProjectedFrame,
     box2d: &Box2d,
     depth_range: [f64; 2],
     min_height: f64,

@@ -32,7 +32,9 @@ pub use collate::collate;
 pub use config::{AugmentConfig, DepthShift, FrustumConfig};
 pub use dataset::{Batches, FrustumDataset, FrustumSpec, PreparedBatch, jitter_box};
 pub use error::{FrustumError, Result, SkipCounts, SkipReason};
-pub use frame::{DiskFrames, Frame, FrameSource, InMemoryFrames, ProjectedCloud};
+pub use frame::{
+    DiskFrames, FrameSource, FrustumFrames, InMemoryFrames, ProjectedCloud, ProjectedFrame,
+};
 pub use frustum::{FrustumFrame, FrustumPoints, clip_box, extract_frustum};
 pub use omega_study::{
     DEFAULT_OMEGAS, MAX_OBJECT_LOSS, OmegaRow, OmegaStudy, omega_study, omega_study_from_labels,
@@ -55,7 +57,7 @@ pub use targets::{
 /// The bundled KITTI sample frames, for tests.
 #[cfg(test)]
 pub(crate) mod test_data {
-    use crate::frame::Frame;
+    use crate::frame::ProjectedFrame;
     use fusiondet_geometry::CameraModel;
     use fusiondet_kitti::{FrameDir, read_calib};
     use std::path::Path;
@@ -66,11 +68,14 @@ pub(crate) mod test_data {
         )
     }
 
-    pub fn sample_frame(id: &str) -> Frame {
-        Frame::load(&sample_dir(), id, true).unwrap()
+    pub fn sample_frame(id: &str) -> ProjectedFrame {
+        ProjectedFrame::load(&sample_dir(), id, true).unwrap()
     }
 
     pub fn sample_camera() -> CameraModel {
-        CameraModel::from_calib(&read_calib(&sample_dir().calib("000003")).unwrap()).unwrap()
+        read_calib(&sample_dir().calib("000003"))
+            .unwrap()
+            .camera_model()
+            .unwrap()
     }
 }

@@ -37,7 +37,7 @@
 use crate::config::FrustumConfig;
 use crate::dataset::{FrustumDataset, FrustumSpec};
 use crate::error::{FrustumError, Result, SkipCounts, SkipReason};
-use crate::frame::FrameSource;
+use crate::frame::FrustumFrames;
 use crate::frustum::extract_frustum;
 use crate::slicing::{DepthGuidedSlicing, MAX_NEAR_FRACTION, SliceContext, SliceStrategy, Slicing};
 use fusiondet_geometry::points_in_box;
@@ -185,7 +185,7 @@ fn depth_guided(config: &FrustumConfig) -> Result<&DepthGuidedSlicing> {
 
 /// Runs the study over the frustums of a labelled data set (the data set's config
 /// must use depth-guided slicing; its ω is replaced by each candidate in turn).
-pub fn omega_study<S: FrameSource>(
+pub fn omega_study<S: FrustumFrames>(
     dataset: &FrustumDataset<S>,
     omegas: &[f64],
 ) -> Result<OmegaStudy> {
@@ -264,7 +264,7 @@ pub fn omega_study<S: FrameSource>(
 
 /// [`omega_study`] over the frustums [`FrustumDataset::from_labels`] makes from
 /// `frames` with `config` and `seed` (the seed draws the 2D box jitter).
-pub fn omega_study_from_labels<S: FrameSource>(
+pub fn omega_study_from_labels<S: FrustumFrames>(
     frames: S,
     config: &FrustumConfig,
     seed: u64,
@@ -375,7 +375,7 @@ fn median(v: &mut [f64]) -> f64 {
 mod tests {
     use super::*;
     use crate::config::AugmentConfig;
-    use crate::frame::{Frame, InMemoryFrames, ProjectedCloud};
+    use crate::frame::{InMemoryFrames, ProjectedCloud, ProjectedFrame};
     use crate::frustum::FrustumFrame;
     use crate::test_data::sample_camera;
     use fusiondet_kitti::{Box3d, Object};
@@ -383,7 +383,7 @@ mod tests {
     /// One car whose 2D box makes L_depth exactly 20 m, 100 points on it at depths
     /// 19.355 + 0.01·k, 10 clutter points at 3–4 m, 50 occluder points at
     /// 8 + 0.03·k m (8–9.47) and 30 background points behind it.
-    fn synthetic_frame() -> Frame {
+    fn synthetic_frame() -> ProjectedFrame {
         let camera = sample_camera();
         let f = camera.fv();
         let h0 = f * 1.56 / 20.0;
@@ -429,7 +429,7 @@ mod tests {
                 [u, v]
             })
             .collect();
-        Frame {
+        ProjectedFrame {
             id: "synthetic".into(),
             camera,
             image_size: [1242.0, 375.0],

@@ -9,7 +9,7 @@
 //! projection loss work unchanged through the frame.
 
 use crate::error::SkipReason;
-use crate::frame::{Frame, NEAR_DEPTH};
+use crate::frame::{NEAR_DEPTH, ProjectedFrame};
 use crate::frustum::{FrustumFrame, FrustumPoints, clip_box};
 use fusiondet_geometry::{iou_bev, points_in_box};
 use fusiondet_kitti::{Box2d, Box3d, Object};
@@ -71,7 +71,7 @@ pub fn enlarged(b: &Box3d, factor: f64) -> Box3d {
 
 /// The frame of a proposal: the ray through the pixel of its centre, with z_f = 0 at
 /// the centre. `None` when the centre is not in front of the camera.
-pub fn proposal_frame(frame: &Frame, proposal: &Box3d) -> Option<FrustumFrame> {
+pub fn proposal_frame(frame: &ProjectedFrame, proposal: &Box3d) -> Option<FrustumFrame> {
     let centre = [proposal.x, proposal.y - 0.5 * proposal.h, proposal.z];
     let (u, v, depth) = frame.camera.rect_to_image(centre);
     if !(depth > NEAR_DEPTH && u.is_finite() && v.is_finite()) {
@@ -87,7 +87,7 @@ pub fn proposal_frame(frame: &Frame, proposal: &Box3d) -> Option<FrustumFrame> {
 /// box outside the image ([`SkipReason::OutsideImage`]), no points
 /// ([`SkipReason::NoPoints`]).
 pub fn extract_proposal_frustum(
-    frame: &Frame,
+    frame: &ProjectedFrame,
     proposal: &Box3d,
     box2d: &Box2d,
     crop: &ProposalCrop,
@@ -133,7 +133,7 @@ mod tests {
     use fusiondet_geometry::count_points_in_box;
     use fusiondet_kitti::ObjectClass;
 
-    fn first_car(frame: &Frame) -> Object {
+    fn first_car(frame: &ProjectedFrame) -> Object {
         frame
             .objects
             .iter()

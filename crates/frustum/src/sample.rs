@@ -4,7 +4,7 @@
 
 use crate::config::{AugmentConfig, FrustumConfig};
 use crate::frustum::{FrustumFrame, FrustumPoints};
-use crate::rng::{SampleRng, below, normal, shuffle, uniform};
+use crate::rng::Sampler;
 use crate::slicing::{SliceContext, SliceInterval, SliceStrategy, depth_order, slice_pairs};
 use crate::targets::{BoxEncoding, encode_box, position_labels, size_cluster_of};
 use fusiondet_geometry::{alpha_from_ry, corners};
@@ -83,13 +83,13 @@ impl Augmentation {
         depth_range: [f64; 2],
         frame: &FrustumFrame,
         gt: &Box3d,
-        rng: &mut SampleRng,
+        rng: &mut Sampler,
     ) -> Self {
-        let mirror = config.flip && uniform(rng) < 0.5;
+        let mirror = config.flip && rng.unit() < 0.5;
         let depth_shift = match config.depth_shift {
             Some(s) => {
                 let diag = gt.l.hypot(gt.w);
-                let shift = (normal(rng) * s.sigma * diag).clamp(-s.max * diag, s.max * diag);
+                let shift = (rng.normal() * s.sigma * diag).clamp(-s.max * diag, s.max * diag);
                 let z = frame.base().to_frustum([gt.x, gt.y, gt.z])[2];
                 (z + shift).clamp(depth_range[0], depth_range[1]) - z
             }
@@ -104,19 +104,19 @@ impl Augmentation {
 
 /// Indices of `n` points to take from `available`: all of them plus random repeats
 /// when there are fewer, a random subset otherwise; in random order.
-pub fn sample_indices(available: usize, n: usize, rng: &mut SampleRng) -> Vec<usize> {
+pub fn sample_indices(available: usize, n: usize, rng: &mut Sampler) -> Vec<usize> {
     assert!(available > 0, "cannot sample from an empty frustum");
     let mut idx: Vec<usize> = (0..available).collect();
     if available >= n {
         // Partial Fisher–Yates: a uniform random n-subset in random order.
         for i in 0..n {
-            let j = i + below(rng, available - i);
+            let j = i + rng.below(available - i);
             idx.swap(i, j);
         }
         idx.truncate(n);
     } else {
-        idx.extend((available..n).map(|_| below(rng, available)));
-        shuffle(rng, &mut idx);
+        idx.extend((available..n).map(|_| rng.below(available)));
+        rng.shuffle(&mut idx);
     }
     idx
 }
@@ -143,7 +143,7 @@ pub fn build_sample(
     frustum: &FrustumPoints,
     augmentation: Augmentation,
     config: &FrustumConfig,
-    rng: &mut SampleRng,
+    rng: &mut Sampler,
 ) -> FrustumSample {
     let frame = frustum
         .frame
@@ -285,7 +285,7 @@ mod tests {
     use super::*;
     use crate::error::SkipReason;
     use crate::frustum::extract_frustum;
-    use crate::rng::derive_rng;
+    use crate::rng::Sampler;
     use crate::targets::LABEL_POSITIVE;
     use crate::test_data::sample_frame;
     use fusiondet_geometry::points_in_box;
@@ -307,7 +307,13 @@ mod tests {
             p2: frame.camera.p2_rows(),
             object: Some(&obj.box3d),
         };
-        build_sample(&source, &fp, aug, config, &mut derive_rng(seed, &[]))
+        build_sample(
+            &source,
+            &fp,
+            aug,
+            config,
+            &mut Sampler::from_path(seed, &[]),
+        )
     }
 
     #[test]
@@ -392,7 +398,7 @@ mod tests {
 
     #[test]
     fn sampling_repeats_only_when_needed() {
-        let mut rng = derive_rng(5, &[]);
+        let mut rng = Sampler::from_path(5, &[]);
         let few = sample_indices(10, 1024, &mut rng);
         assert_eq!(few.len(), 1024);
         for i in 0..10 {

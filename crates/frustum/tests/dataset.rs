@@ -2,8 +2,8 @@
 //! (contract with the networks), determinism across seeds and thread counts.
 
 use fusiondet_frustum::{
-    AugmentConfig, DiskFrames, FrameSource, FrustumConfig, FrustumDataset, InMemoryFrames,
-    PreparedBatch, SkipReason, collate, decode_box,
+    AugmentConfig, DiskFrames, FrameSource, FrustumConfig, FrustumDataset, FrustumFrames,
+    InMemoryFrames, PreparedBatch, SkipReason, collate, decode_box,
 };
 use fusiondet_geometry::normalize_angle;
 use fusiondet_kitti::{Box2d, Detection2d, FrameDir, ObjectClass, read_detections2d};
@@ -26,7 +26,7 @@ fn val_detections() -> Vec<Detection2d> {
     read_detections2d(&root().join("rgb_detections/rgb_detection_val.txt")).unwrap()
 }
 
-fn batches<S: FrameSource>(
+fn batches<S: FrustumFrames>(
     d: &FrustumDataset<S>,
     seed: u64,
     epoch: u64,
@@ -329,11 +329,7 @@ fn detection_frustums_carry_scores_and_count_skips() {
 #[test]
 fn people_config_and_disk_frames() {
     let dir = FrameDir::new(root().join("training"));
-    let source = DiskFrames {
-        dir,
-        ids: vec!["000134".into(), "000000".into()],
-        with_labels: true,
-    };
+    let source = DiskFrames::new(dir, vec!["000134".into(), "000000".into()], true);
     let config = FrustumConfig {
         augment: AugmentConfig::none(),
         ..FrustumConfig::pedestrian_cyclist()

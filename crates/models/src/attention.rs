@@ -13,12 +13,13 @@
 //! The attended features `M_s ⊙ (M_c ⊙ F)` replace F as the next layer's input.
 
 use crate::config::AttentionConfig;
-use crate::inputs::{AttentionIndex, SlicePool};
+use crate::inputs::AttentionIndex;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{Linear, LinearConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 use burn::tensor::activation::{relu, sigmoid, tanh};
+use fusiondet_nn::SegmentPool;
 
 /// A channel MLP C → C/r → C without biases (CBAM's shared MLP).
 #[derive(Module, Debug)]
@@ -115,9 +116,9 @@ impl Cbam {
     }
 }
 
-/// Max over each frustum's pairs through the bucketed gather of [`SlicePool`] (a zero row
+/// Max over each frustum's pairs through the bucketed gather of [`SegmentPool`] (a zero row
 /// stands for frustums without pairs).
-fn pool_max(pool: &SlicePool, x: Tensor<2>) -> Tensor<2> {
+fn pool_max(pool: &SegmentPool, x: Tensor<2>) -> Tensor<2> {
     let [_, c] = x.dims();
     let device = x.device();
     pool.max_pool(Tensor::cat(vec![x, Tensor::zeros([1, c], &device)], 0))

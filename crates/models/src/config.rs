@@ -243,6 +243,15 @@ impl ModelConfig {
         }
     }
 
+    /// The settings of every layer followed by batch norm.
+    pub fn norm(&self) -> fusiondet_nn::NormConfig {
+        fusiondet_nn::NormConfig {
+            bias_before_norm: self.bias_before_norm,
+            momentum: self.batch_norm_momentum,
+            epsilon: self.batch_norm_epsilon,
+        }
+    }
+
     /// Input channels of the slice PointNets: relative coordinates plus LFA features.
     pub fn pointnet_input_channels(&self) -> usize {
         3 + self.lfa.as_ref().map_or(0, LfaConfig::out_channels)

@@ -5,11 +5,11 @@
 //! bring blocks 2–4 to the block-2 resolution and their outputs are concatenated.
 
 use crate::config::ModelConfig;
-use crate::pointnet::batch_norm;
 use burn::nn::conv::{Conv1d, Conv1dConfig, ConvTranspose1d, ConvTranspose1dConfig};
 use burn::nn::{BatchNorm, PaddingConfig1d};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+use fusiondet_nn::batch_norm;
 
 /// Conv1d + BatchNorm + ReLU.
 #[derive(Module, Debug)]
@@ -34,7 +34,7 @@ impl ConvBnRelu {
                 .with_padding(PaddingConfig1d::Explicit(padding, padding))
                 .with_bias(config.bias_before_norm)
                 .init(device),
-            norm: batch_norm(c_out, config, device),
+            norm: batch_norm(c_out, &config.norm(), device),
         }
     }
 
@@ -63,7 +63,7 @@ impl DeconvBnRelu {
                 .with_stride(stride)
                 .with_bias(config.bias_before_norm)
                 .init(device),
-            norm: batch_norm(c_out, config, device),
+            norm: batch_norm(c_out, &config.norm(), device),
         }
     }
 

@@ -9,6 +9,7 @@ use crate::error::ModelError;
 use crate::lfa::LfaInputs;
 use burn::prelude::*;
 use fusiondet_frustum::{BatchScale, FrustumBatch};
+use fusiondet_nn::SegmentPool;
 
 /// The output length of a kernel-3, padding-1 convolution with the given stride.
 pub fn conv3_output_len(len: usize, stride: usize) -> usize {
@@ -28,7 +29,7 @@ pub struct ScaleInputs {
     /// Pair coordinates relative to their slice centre, [num_pairs, 3].
     pub rel_coords: Tensor<2>,
     /// How the ragged form max-pools the pair features into slices.
-    pub pool: SlicePool,
+    pub pool: SegmentPool,
     /// Indices for FCAM's attention; built only when the encoder needs them.
     pub attention: Option<AttentionIndex>,
     /// [num_pairs]: each pair's row in the LFA feature tensor (SAF only).
@@ -36,102 +37,6 @@ pub struct ScaleInputs {
     /// Host copies, for building the padded form on demand.
     rel_host: Vec<f32>,
     slice_start: Vec<usize>,
-}
-
-/// Max-pooling of ragged pair rows into slices, by gather.
-///
-/// The pair features get a zero row appended (row `num_pairs`). Slices are grouped into
-/// buckets by their pair count rounded up to a power of two; a bucket of width w gathers
-/// [slices · w] rows — each slice's window repeats its own pairs (duplicates do not change
-/// a max), an empty slice points at the zero row — and takes the max over the window.
-/// Buckets keep the gathered volume under twice the pairs plus the slices, where one
-/// window as wide as the fullest slice would gather slices × cap rows. `restore` puts the
-/// bucket-ordered slices back in slice order.
-#[derive(Debug, Clone)]
-pub struct SlicePool {
-    pub buckets: Vec<PoolBucket>,
-    /// [num_slices]: row of each slice in the concatenated bucket outputs; `None` when
-    /// that is already slice order.
-    pub restore: Option<Tensor<1, Int>>,
-}
-
-#[derive(Debug, Clone)]
-pub struct PoolBucket {
-    pub width: usize,
-    pub num_slices: usize,
-    /// [num_slices · width] rows into the pair features (with the zero row).
-    pub index: Tensor<1, Int>,
-}
-
-impl SlicePool {
-    /// `counts[s]` pairs per slice, slice s's pairs starting at row `starts[s]`.
-    fn new(counts: &[usize], starts: &[usize], num_pairs: usize, device: &Device) -> Self {
-        let width = |c: usize| c.max(1).next_power_of_two();
-        let mut by_width: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
-        for (s, &c) in counts.iter().enumerate() {
-            by_width.entry(width(c)).or_default().push(s);
-        }
-        let mut restore = vec![0i64; counts.len()];
-        let mut next = 0;
-        let buckets = by_width
-            .into_iter()
-            .map(|(w, slices)| {
-                let mut index = Vec::with_capacity(slices.len() * w);
-                for &s in &slices {
-                    restore[s] = next;
-                    next += 1;
-                    let (start, n) = (starts[s], counts[s]);
-                    index.extend(
-                        (0..w).map(|j| if n == 0 { num_pairs } else { start + j % n } as i64),
-                    );
-                }
-                PoolBucket {
-                    width: w,
-                    num_slices: slices.len(),
-                    index: Tensor::from_data(TensorData::new(index, [slices.len() * w]), device),
-                }
-            })
-            .collect::<Vec<_>>();
-        let in_order = restore.iter().enumerate().all(|(i, &r)| r == i as i64);
-        let n = restore.len();
-        Self {
-            buckets,
-            restore: (!in_order).then(|| Tensor::from_data(TensorData::new(restore, [n]), device)),
-        }
-    }
-
-    /// Rows gathered in total (for diagnostics).
-    pub fn gathered_rows(&self) -> usize {
-        self.buckets.iter().map(|b| b.width * b.num_slices).sum()
-    }
-
-    /// Per-slice max of `features` ([num_pairs + 1, C], the last row zero) → [num_slices, C].
-    pub fn max_pool(&self, features: Tensor<2>) -> Tensor<2> {
-        let c = features.dims()[1];
-        let parts: Vec<Tensor<2>> = self
-            .buckets
-            .iter()
-            .map(|b| {
-                let rows = features.clone().select(0, b.index.clone());
-                if b.width == 1 {
-                    rows
-                } else {
-                    rows.reshape([b.num_slices, b.width, c])
-                        .max_dim(1)
-                        .reshape([b.num_slices, c])
-                }
-            })
-            .collect();
-        let pooled = if parts.len() == 1 {
-            parts.into_iter().next().unwrap()
-        } else {
-            Tensor::cat(parts, 0)
-        };
-        match &self.restore {
-            Some(r) => pooled.select(0, r.clone()),
-            None => pooled,
-        }
-    }
 }
 
 /// How CBAM reaches one scale's pairs per frustum (channel attention) and on the
@@ -147,7 +52,7 @@ pub struct AttentionIndex {
     /// [frustums, 1]: pairs per frustum, at least 1 (the mean's divisor).
     pub frustum_counts: Tensor<2>,
     /// Max-pools pair rows (plus a zero row) into frustums.
-    pub frustum_pool: SlicePool,
+    pub frustum_pool: SegmentPool,
     /// [frustums · slices · cap]: the pair in each grid cell, `pairs` (a zero row) if empty.
     pub grid_cell_pair: Tensor<1, Int>,
     /// [pairs]: the grid cell of each pair.
@@ -191,7 +96,7 @@ impl AttentionIndex {
             cap,
             pair_frustum: ints(pair_frustum),
             frustum_counts: Tensor::from_data(TensorData::new(counts_f, [frustums, 1]), device),
-            frustum_pool: SlicePool::new(&counts, &starts, num_pairs, device),
+            frustum_pool: SegmentPool::new(&counts, &starts, num_pairs, device),
             grid_cell_pair: ints(cell_pair),
             pair_grid_cell: ints(pair_cell),
         }
@@ -424,7 +329,7 @@ impl ScaleInputs {
         for c in &counts {
             slice_start.push(slice_start.last().unwrap() + c);
         }
-        let pool = SlicePool::new(&counts, &slice_start, num_pairs, device);
+        let pool = SegmentPool::new(&counts, &slice_start, num_pairs, device);
         let cap = s.max_points_per_slice.max(1);
         let attention = with_attention.then(|| {
             AttentionIndex::new(&slice_start, batch_size, s.slices_per_frustum, cap, device)

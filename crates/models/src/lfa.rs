@@ -17,8 +17,8 @@
 
 use crate::config::{LfaConfig, ModelConfig};
 use crate::error::ModelError;
-use crate::pointnet::MlpLayer;
 use burn::prelude::*;
+use fusiondet_nn::{MlpLayer, mlp_stack};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use std::num::NonZero;
 
@@ -153,18 +153,6 @@ pub struct LfaStage {
     pub point: Vec<MlpLayer>,
 }
 
-fn mlp(d_in: usize, widths: &[usize], config: &ModelConfig, device: &Device) -> Vec<MlpLayer> {
-    let mut d = d_in;
-    widths
-        .iter()
-        .map(|&w| {
-            let layer = MlpLayer::new(d, w, config, device);
-            d = w;
-            layer
-        })
-        .collect()
-}
-
 fn run(layers: &[MlpLayer], mut x: Tensor<2>) -> Tensor<2> {
     for layer in layers {
         x = layer.forward(x);
@@ -186,8 +174,8 @@ impl Lfa {
             .iter()
             .map(|s| {
                 let stage = LfaStage {
-                    local: mlp(10 + prev, &s.local, config, device),
-                    point: mlp(3 + prev, &s.point, config, device),
+                    local: mlp_stack(10 + prev, &s.local, &config.norm(), device),
+                    point: mlp_stack(3 + prev, &s.point, &config.norm(), device),
                 };
                 prev = s.out_channels();
                 stage

@@ -2,7 +2,7 @@
 //! max-pooled into one feature vector per sub-frustum.
 //!
 //! The ragged form runs the MLP on exactly the real pairs ([pairs, C]), then max-pools
-//! through gather indices (see [`SlicePool`](crate::inputs::SlicePool)); batch-norm
+//! through gather indices (see [`SegmentPool`](fusiondet_nn::SegmentPool)); batch-norm
 //! statistics are over the real pairs. The last ReLU is applied after the pool
 //! (max and ReLU commute, gradients included), on slices instead of pairs. The padded form (every slice padded to the cap, masked) computes the
 //! same function with far more work and exists to check the ragged one.
@@ -10,81 +10,9 @@
 use crate::attention::Cbam;
 use crate::config::{ModelConfig, SliceEncoderKind};
 use crate::inputs::{PaddedScaleInputs, ScaleInputs};
-use burn::nn::{BatchNorm, BatchNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-
-/// Linear + BatchNorm + ReLU on [rows, channels].
-#[derive(Module, Debug)]
-pub struct MlpLayer {
-    pub linear: Linear,
-    pub norm: BatchNorm,
-}
-
-impl MlpLayer {
-    pub fn new(d_in: usize, d_out: usize, config: &ModelConfig, device: &Device) -> Self {
-        Self {
-            linear: LinearConfig::new(d_in, d_out)
-                .with_bias(config.bias_before_norm)
-                .init(device),
-            norm: batch_norm(d_out, config, device),
-        }
-    }
-
-    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
-        relu(self.forward_pre_activation(x))
-    }
-
-    /// Linear + BatchNorm, without the ReLU.
-    pub fn forward_pre_activation(&self, x: Tensor<2>) -> Tensor<2> {
-        self.norm.forward(self.linear.forward(x))
-    }
-
-    /// Like [`forward`](Self::forward), with batch-norm statistics over the rows where
-    /// `valid` is 1 (in training mode; inference uses the running statistics either way).
-    pub fn forward_masked(&self, x: Tensor<2>, valid: &Tensor<2>, count: usize) -> Tensor<2> {
-        let x = self.linear.forward(x);
-        relu(masked_batch_norm(&self.norm, x, valid, count))
-    }
-}
-
-pub(crate) fn batch_norm(channels: usize, config: &ModelConfig, device: &Device) -> BatchNorm {
-    BatchNormConfig::new(channels)
-        .with_momentum(config.batch_norm_momentum)
-        .with_epsilon(config.batch_norm_epsilon)
-        .init(device)
-}
-
-/// Batch norm over [rows, C] whose statistics use only the rows where `valid` ([rows, 1]) is 1.
-/// Mirrors `BatchNorm::forward`: batch statistics (biased variance) and a running-statistics
-/// update when training on an autodiff device, the running statistics otherwise.
-fn masked_batch_norm(bn: &BatchNorm, x: Tensor<2>, valid: &Tensor<2>, count: usize) -> Tensor<2> {
-    if !(x.device().is_autodiff() && bn.training.is_enabled()) {
-        return bn.forward(x);
-    }
-    let [channels] = bn.gamma.shape().dims();
-    let n = count.max(1) as f64;
-    let mean = (x.clone() * valid.clone()).sum_dim(0).div_scalar(n); // [1, C]
-    let centered = x - mean.clone();
-    let var = (centered.clone().square() * valid.clone())
-        .sum_dim(0)
-        .div_scalar(n);
-    let out = centered / var.clone().add_scalar(bn.epsilon).sqrt()
-        * bn.gamma.val().reshape([1, channels])
-        + bn.beta.val().reshape([1, channels]);
-    let momentum = bn.momentum;
-    let update = |state: &burn::module::RunningState<Tensor<1>>, batch: Tensor<2>| {
-        let device = batch.device();
-        let old = state.value_sync().to_device(&device);
-        let new = old
-            .mul_scalar(1.0 - momentum)
-            .add(batch.detach().reshape([channels]).mul_scalar(momentum));
-        state.update(new.detach());
-    };
-    update(&bn.running_mean, mean);
-    update(&bn.running_var, var);
-    out
-}
+use fusiondet_nn::{MlpLayer, mlp_stack};
 
 /// The PointNet of F-ConvNet: a shared MLP on pair coordinates relative to the slice
 /// centre, max-pooled per slice (empty slices give zeros). FCAM's variants attend the
@@ -100,15 +28,12 @@ pub struct PointNet {
 
 impl PointNet {
     pub fn new(widths: &[usize], config: &ModelConfig, device: &Device) -> Self {
-        let mut d_in = config.pointnet_input_channels();
-        let layers = widths
-            .iter()
-            .map(|&w| {
-                let layer = MlpLayer::new(d_in, w, config, device);
-                d_in = w;
-                layer
-            })
-            .collect();
+        let layers = mlp_stack(
+            config.pointnet_input_channels(),
+            widths,
+            &config.norm(),
+            device,
+        );
         let attention_after = if config.slice_encoder.uses_attention() {
             config.attention.after_layers.clone()
         } else {
@@ -141,10 +66,7 @@ impl PointNet {
     }
 
     pub fn out_channels(&self) -> usize {
-        self.layers
-            .last()
-            .map(|l| l.norm.gamma.shape().dims::<1>()[0])
-            .unwrap_or(3)
+        self.layers.last().map_or(3, MlpLayer::out_channels)
     }
 
     /// Ragged form: [num_slices, C]. `point_features` ([points, C_f], SAF's LFA) are

@@ -2,7 +2,7 @@
 //! `cargo run --release -p fusiondet-sim --example sim_profile -- [frames]`.
 
 use fusiondet_geometry::CameraModel;
-use fusiondet_sim::rng::{Sampler, Stream, frame_key};
+use fusiondet_sim::rng::{Stream, frame_key, frame_sampler};
 use fusiondet_sim::{SimConfig, camera, label, layout, lidar, sensors};
 
 /// CPU time of this thread (ns), immune to other processes competing for the cores.
@@ -39,10 +39,10 @@ fn main() {
         for i in 0..n as u64 {
             let s0 = Instant::now();
             let (scene, _) =
-                layout::build_scene(&mut Sampler::for_frame(1, i, Stream::Layout), &cfg.layout);
+                layout::build_scene(&mut frame_sampler(1, i, Stream::Layout), &cfg.layout);
             prims += scene.prims.len();
-            let calib = sensors::sample_calib(&mut Sampler::for_frame(1, i, Stream::Calib));
-            let cam = CameraModel::from_calib(&calib).unwrap();
+            let calib = sensors::sample_calib(&mut frame_sampler(1, i, Stream::Calib));
+            let cam = calib.camera_model().unwrap();
             t[0] += s0.elapsed().as_secs_f64();
             let s1 = Instant::now();
             let scan = lidar::scan(&scene, &cfg.lidar, frame_key(1, i, Stream::Lidar));

@@ -75,7 +75,7 @@ use fusiondet_geometry::{CameraModel, points_in_box};
 use fusiondet_kitti::{Calib, Detection2d, LidarPoint, Object, ObjectClass, frame_id};
 use image::RgbImage;
 use rayon::prelude::*;
-use rng::{Sampler, Stream, frame_key};
+use rng::{Stream, frame_key, frame_sampler};
 
 /// Everything that shapes a simulated dataset besides the seed.
 #[derive(Debug, Clone, PartialEq)]
@@ -142,12 +142,12 @@ pub fn split_of(index: usize, val_fraction: f64) -> Split {
 /// Simulates frame `index` of the dataset with seed `seed`.
 pub fn simulate_frame(seed: u64, index: usize, cfg: &SimConfig) -> SimFrame {
     let idx = index as u64;
-    let (scene, layout) = layout::build_scene(
-        &mut Sampler::for_frame(seed, idx, Stream::Layout),
-        &cfg.layout,
-    );
-    let calib = sensors::sample_calib(&mut Sampler::for_frame(seed, idx, Stream::Calib));
-    let cam = CameraModel::from_calib(&calib).expect("simulated calibrations are invertible");
+    let (scene, layout) =
+        layout::build_scene(&mut frame_sampler(seed, idx, Stream::Layout), &cfg.layout);
+    let calib = sensors::sample_calib(&mut frame_sampler(seed, idx, Stream::Calib));
+    let cam = calib
+        .camera_model()
+        .expect("simulated calibrations are invertible");
     let lidar_key = frame_key(seed, idx, Stream::Lidar);
     let (scan, render) = rayon::join(
         || lidar::scan(&scene, &cfg.lidar, lidar_key),
@@ -159,7 +159,7 @@ pub fn simulate_frame(seed: u64, index: usize, cfg: &SimConfig) -> SimFrame {
     let id = frame_id(index);
     let detections = detector::detect(
         &cfg.detector,
-        &mut Sampler::for_frame(seed, idx, Stream::Detector),
+        &mut frame_sampler(seed, idx, Stream::Detector),
         &id,
         &views,
         &scene,

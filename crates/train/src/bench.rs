@@ -22,6 +22,8 @@ pub struct BenchOptions {
     pub repeats: usize,
     /// Use at most this many frames of the split (0 = all).
     pub max_frames: usize,
+    /// Where the network runs.
+    pub device: crate::device::ComputeDevice,
 }
 
 /// The timed runs of one model.
@@ -112,6 +114,7 @@ pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
         &options.split,
         options.detections.as_deref(),
         options.max_frames,
+        options.device,
     )?;
     let mut runs = Vec::with_capacity(options.repeats);
     let mut frustums = 0;

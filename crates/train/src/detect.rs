@@ -4,10 +4,13 @@
 //! network on frustums cut around the first stage's boxes.
 
 use crate::config::ExperimentConfig;
+use crate::device::ComputeDevice;
 use crate::error::{Result, TrainError};
 use crate::trainer::load_split;
 use burn::prelude::*;
-use fusiondet_frustum::{FrameSource, FrustumDataset, InMemoryFrames, SkipCounts, decode_box};
+use fusiondet_frustum::{
+    FrameSource, FrustumDataset, FrustumFrames, InMemoryFrames, SkipCounts, decode_box,
+};
 use fusiondet_geometry::nms_3d;
 use fusiondet_kitti::{DatasetDir, Detection2d, Object, read_detections2d, write_objects};
 use fusiondet_models::{FConvNet, decode};
@@ -25,6 +28,8 @@ pub struct DetectOptions {
     pub out_dir: PathBuf,
     /// 2D detections; `None` reads `DATA/rgb_detections/rgb_detection_<split>.txt`.
     pub detections: Option<PathBuf>,
+    /// Where the network runs.
+    pub device: ComputeDevice,
 }
 
 /// What a detection run did, with its time per stage.
@@ -104,7 +109,7 @@ impl Detector {
     /// per frustum → per-frame 3D NMS; a refinement model then cuts a frustum around
     /// each first-stage box and runs its own network and NMS on those. A refined box
     /// scores the first-stage score plus the refinement network's object probability.
-    pub fn detect_frames<S: FrameSource + Clone>(
+    pub fn detect_frames<S: FrustumFrames + Clone>(
         &self,
         device: &Device,
         frames: S,
@@ -165,7 +170,7 @@ impl Detector {
 /// One box per frustum of `dataset`, by frame (before NMS). Score = the network's
 /// object probability + the frustum's own score (the 2D detection's, or the
 /// first-stage box's), as F-ConvNet reports it.
-fn run_network<S: FrameSource>(
+fn run_network<S: FrustumFrames>(
     model: &FConvNet,
     device: &Device,
     config: &ExperimentConfig,
@@ -230,8 +235,9 @@ pub(crate) fn load_detect_inputs(
     split: &str,
     detections: Option<&Path>,
     max_frames: usize,
+    device: ComputeDevice,
 ) -> Result<DetectInputs> {
-    let device = Device::flex();
+    let device = device.device();
     let detector = Detector::load(config.clone(), checkpoint, &device)?;
     let frames = load_split(data_dir, split, max_frames, false)?;
     let det_path = detections
@@ -263,6 +269,7 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
         &options.split,
         options.detections.as_deref(),
         0,
+        options.device,
     )?;
     timing.load += t.elapsed();
     let num_frames = frames.len();

@@ -7,6 +7,8 @@ pub enum TrainError {
     #[error(transparent)]
     Format(#[from] fusiondet_kitti::FormatError),
     #[error(transparent)]
+    Data(#[from] fusiondet_dataset::DataError),
+    #[error(transparent)]
     Frustum(#[from] fusiondet_frustum::FrustumError),
     #[error(transparent)]
     Model(#[from] fusiondet_models::ModelError),
@@ -15,7 +17,7 @@ pub enum TrainError {
     #[error("{}: {message}", path.display())]
     RunDir { path: PathBuf, message: String },
     #[error("{0}")]
-    Data(String),
+    Invalid(String),
 }
 
 pub type Result<T> = std::result::Result<T, TrainError>;

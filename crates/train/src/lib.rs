@@ -5,6 +5,7 @@
 pub mod bench;
 pub mod config;
 pub mod detect;
+pub mod device;
 pub mod error;
 pub mod metrics_log;
 pub mod run_dir;
@@ -16,5 +17,6 @@ pub use config::{DetectConfig, ExperimentConfig, RefineConfig, TrainConfig};
 pub use detect::{
     DetectOptions, DetectSummary, Detector, FrameResults, StageTimes, detect, write_results,
 };
+pub use device::ComputeDevice;
 pub use error::{Result, TrainError};
 pub use trainer::{TrainOptions, TrainSummary, load_split, train};

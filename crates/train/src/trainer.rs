@@ -4,6 +4,7 @@
 
 use crate::config::{ExperimentConfig, RefineConfig};
 use crate::detect::{Detector, FrameResults, StageTimes};
+use crate::device::ComputeDevice;
 use crate::error::{Result, TrainError};
 use crate::metrics_log::MetricsLog;
 use crate::run_dir::{RunDir, RunState};
@@ -11,7 +12,7 @@ use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, OptimizerRecord};
 use burn::prelude::*;
 use fusiondet_frustum::{FrustumDataset, InMemoryFrames, PreparedBatch};
-use fusiondet_kitti::{DatasetDir, read_detections2d, read_split, write_atomic};
+use fusiondet_kitti::{DatasetDir, read_detections2d, write_atomic};
 use fusiondet_models::{FConvNet, LossTargets, fconvnet_loss, load_checkpoint, save_checkpoint};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -26,6 +27,8 @@ pub struct TrainOptions {
     pub resume: bool,
     /// Show a progress bar on stderr.
     pub progress: bool,
+    /// Where the network trains.
+    pub device: ComputeDevice,
 }
 
 /// What a finished `train` call did.
@@ -39,27 +42,18 @@ pub struct TrainSummary {
     pub model: PathBuf,
 }
 
-/// Loads the frames of a split (all of them, or the first `max_frames`).
+/// Loads the frames of a split (all of them, or the first `max_frames`) in the frustum
+/// family's form.
 pub fn load_split(
     data_dir: &Path,
     split: &str,
     max_frames: usize,
     with_labels: bool,
 ) -> Result<InMemoryFrames> {
-    let dataset = DatasetDir::new(data_dir);
-    let mut ids = read_split(&dataset.split(split))?;
-    if max_frames > 0 {
-        ids.truncate(max_frames);
-    }
-    if ids.is_empty() {
-        return Err(TrainError::Data(format!(
-            "split `{split}` of {} lists no frames",
-            data_dir.display()
-        )));
-    }
-    Ok(InMemoryFrames::load(
-        &dataset.training(),
-        &ids,
+    Ok(fusiondet_dataset::load_split(
+        data_dir,
+        split,
+        max_frames,
         with_labels,
     )?)
 }
@@ -117,7 +111,7 @@ fn training_proposals(
     options: &TrainOptions,
     frames: &InMemoryFrames,
 ) -> Result<FrameResults> {
-    let device = Device::flex();
+    let device = options.device.device();
     let config = ExperimentConfig::for_checkpoint(first_stage, None)?;
     let detector = Detector::load(config, first_stage, &device)?;
     let split = &options.config.train.split;
@@ -172,7 +166,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         }
     };
     if dataset.len() < cfg.train.batch_size {
-        return Err(TrainError::Data(format!(
+        return Err(TrainError::Invalid(format!(
             "{} training frustums (skipped: {:?}) are fewer than one batch of {}; use more frames or a smaller train.batch_size",
             dataset.len(),
             dataset.skips(),
@@ -180,7 +174,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         )));
     }
 
-    let ad = Device::flex().autodiff();
+    let ad = options.device.device().autodiff();
     let mut optim = AdamConfig::new()
         .with_weight_decay(Some(WeightDecayConfig::new(cfg.train.weight_decay as f32)))
         .init();

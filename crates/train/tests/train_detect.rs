@@ -58,6 +58,7 @@ fn tiny(epochs: usize) -> ExperimentConfig {
 
 fn train_run(dir: &Path, epochs: usize, resume: bool) -> fusiondet_train::TrainSummary {
     train(&TrainOptions {
+        device: Default::default(),
         config: tiny(epochs),
         data_dir: dataset().to_path_buf(),
         run_dir: dir.to_path_buf(),
@@ -130,6 +131,7 @@ fn a_run_directory_in_use_needs_resume_and_the_same_config() {
     let dir = tempfile::tempdir().unwrap();
     train_run(dir.path(), 1, false);
     let err = train(&TrainOptions {
+        device: Default::default(),
         config: tiny(1),
         data_dir: dataset().to_path_buf(),
         run_dir: dir.path().to_path_buf(),
@@ -142,6 +144,7 @@ fn a_run_directory_in_use_needs_resume_and_the_same_config() {
     let mut other = tiny(1);
     other.train.seed = 99;
     let err = train(&TrainOptions {
+        device: Default::default(),
         config: other,
         data_dir: dataset().to_path_buf(),
         run_dir: dir.path().to_path_buf(),
@@ -160,6 +163,7 @@ fn detect_writes_a_result_file_per_frame_that_the_evaluation_reads() {
     train_run(run.path(), 1, false);
     let out = run.path().join("results");
     let summary = detect(&DetectOptions {
+        device: Default::default(),
         config: tiny(1),
         checkpoint: run.path().join("model.bpk"),
         data_dir: dataset().to_path_buf(),
@@ -193,6 +197,7 @@ fn a_checkpoint_from_another_config_is_refused() {
     let mut other = tiny(1);
     other.model = ModelConfig::car();
     let err = detect(&DetectOptions {
+        device: Default::default(),
         config: other,
         checkpoint: run.path().join("model.bpk"),
         data_dir: dataset().to_path_buf(),
@@ -231,6 +236,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
     let mut first_cfg = tiny(2);
     first_cfg.train.split = "train".into();
     train(&TrainOptions {
+        device: Default::default(),
         config: first_cfg,
         data_dir: dataset().to_path_buf(),
         run_dir: first.path().to_path_buf(),
@@ -241,6 +247,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
     let second = tempfile::tempdir().unwrap();
     let run = second.path().join("refine");
     let summary = train(&TrainOptions {
+        device: Default::default(),
         config: tiny_refinement(first.path()),
         data_dir: dataset().to_path_buf(),
         run_dir: run.clone(),
@@ -261,6 +268,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
     drop(first);
     let out = second.path().join("results");
     let refined = detect(&DetectOptions {
+        device: Default::default(),
         config: stored,
         checkpoint: run.join("model.bpk"),
         data_dir: dataset().to_path_buf(),
@@ -272,6 +280,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
     assert!(refined.frustums > 0, "{refined:?}");
     assert!(refined.boxes_written > 0 && refined.boxes_written <= refined.frustums);
     let first_only = detect(&DetectOptions {
+        device: Default::default(),
         config: ExperimentConfig::for_checkpoint(&run.join("first-stage.bpk"), None).unwrap(),
         checkpoint: run.join("first-stage.bpk"),
         data_dir: dataset().to_path_buf(),
@@ -306,6 +315,7 @@ fn a_refinement_config_without_its_first_stage_is_a_clear_error() {
     let missing = tempfile::tempdir().unwrap();
     let run = tempfile::tempdir().unwrap();
     let err = train(&TrainOptions {
+        device: Default::default(),
         config: tiny_refinement(&missing.path().join("nowhere")),
         data_dir: dataset().to_path_buf(),
         run_dir: run.path().join("r"),

@@ -1,11 +1,11 @@
-//! Reading one frame from a KITTI `training/` (or `testing/`) directory and,
-//! optionally, a directory of result files into a [`FrameView`].
+//! Reading one frame (a [`SensorFrame`] and its image) from a KITTI `training/` (or
+//! `testing/`) directory and, optionally, a directory of result files into a [`FrameView`].
 
 use crate::error::VizError;
 use crate::frame::FrameView;
-use fusiondet_geometry::CameraModel;
+use fusiondet_dataset::{DataError, SensorFrame};
 use fusiondet_kitti::image::read_image;
-use fusiondet_kitti::{FrameDir, read_calib, read_objects, read_velodyne};
+use fusiondet_kitti::{FrameDir, read_objects};
 use std::path::{Path, PathBuf};
 
 /// The result file of frame `id`: `DIR/ID.txt`, or the KITTI devkit's `DIR/data/ID.txt`.
@@ -28,26 +28,27 @@ pub fn load_frame(
     id: &str,
     result_dir: Option<&Path>,
 ) -> Result<FrameView, VizError> {
+    // The image first: a frame without its picture cannot be drawn at all.
     let image = read_image(&frames.image(id))?;
-    let calib_path = frames.calib(id);
-    let camera =
-        CameraModel::from_calib(&read_calib(&calib_path)?).map_err(|message| VizError::Calib {
-            path: calib_path,
-            message,
-        })?;
-    let points = read_velodyne(&frames.velodyne(id))?;
     let mut notes = Vec::new();
-
-    let label_path = frames.label(id);
-    let ground_truth = if label_path.parent().is_some_and(|dir| !dir.is_dir()) {
+    let has_labels = !frames.label(id).parent().is_some_and(|dir| !dir.is_dir());
+    if !has_labels {
         notes.push(format!(
             "no label_2/ in {}: no ground truth",
             frames.root.display()
         ));
-        Vec::new()
-    } else {
-        read_objects(&label_path)?
-    };
+    }
+    let frame = SensorFrame::load(frames, id, has_labels).map_err(|e| match e {
+        DataError::Format(e) => VizError::Format(e),
+        DataError::Calib { message, .. } => VizError::Calib {
+            path: frames.calib(id),
+            message,
+        },
+        DataError::Data(message) => VizError::ResultDir {
+            path: frames.root.clone(),
+            message,
+        },
+    })?;
 
     let detections = match result_dir {
         None => None,
@@ -74,9 +75,9 @@ pub fn load_frame(
     Ok(FrameView {
         title: format!("frame {id}"),
         image,
-        camera,
-        points,
-        ground_truth,
+        camera: frame.camera,
+        points: frame.lidar,
+        ground_truth: frame.objects,
         detections,
         notes,
     })

@@ -1,0 +1,35 @@
+//! The neutral home of frames: what every detector family, the evaluation and the
+//! pictures read a data set through.
+//!
+//! - [`SensorFrame`]: one frame as the sensors saw it — the full LiDAR scan with
+//!   intensity, the camera model, the image (read on demand) and the labels.
+//! - [`FrameSource`]: frames by index, held in memory ([`InMemoryFrames`]) or read from
+//!   disk on every request ([`DiskFrames`]); a family keeps its own derived form of a
+//!   frame ([`DerivedFrame`]: the frustum family keeps only the points in the image).
+//! - [`load_split`] / [`split_ids`]: the frames an `ImageSets/<split>.txt` lists.
+//! - [`rng`]: the one seeded generator of the project.
+
+pub mod error;
+pub mod frame;
+pub mod rng;
+pub mod split;
+
+pub use error::{DataError, Result};
+pub use frame::{
+    DEFAULT_IMAGE_SIZE, DerivedFrame, DiskFrames, FrameSource, InMemoryFrames, SensorFrame,
+    png_size,
+};
+pub use split::{load_split, split_ids};
+
+/// The bundled KITTI sample frames, for tests.
+#[cfg(test)]
+pub(crate) mod test_data {
+    use fusiondet_kitti::FrameDir;
+    use std::path::Path;
+
+    pub fn sample_dir() -> FrameDir {
+        FrameDir::new(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/kitti-sample/training"),
+        )
+    }
+}

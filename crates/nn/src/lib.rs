@@ -1,0 +1,14 @@
+//! Generic network layers that know no detector: point-wise MLP layers with their own
+//! norm settings, batch norm over a subset of rows, and pooling over ragged groups
+//! (sub-frustums of points today; points of a voxel for a voxel feature encoder, and
+//! the sparse convolutions of the voxel family, belong here too).
+//!
+//! Backend-agnostic: every layer takes the [`burn::tensor::Device`] it is built on.
+
+pub mod mlp;
+pub mod norm;
+pub mod segment;
+
+pub use mlp::{MlpLayer, mlp_stack};
+pub use norm::{NormConfig, batch_norm, masked_batch_norm};
+pub use segment::{SegmentPool, segment_mean};

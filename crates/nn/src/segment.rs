@@ -1,0 +1,179 @@
+//! Pooling over ragged groups of rows ("segments"): the points of a sub-frustum, the
+//! pairs of a frustum, the points of a voxel. Segments are given by their row counts
+//! and start rows in a flat [rows, C] tensor, so no group is padded to the largest.
+
+use burn::prelude::*;
+use burn::tensor::IndexingUpdateOp;
+
+/// Max-pooling of ragged rows into segments, by gather.
+///
+/// The row features get a zero row appended (row `num_rows`). Segments are grouped into
+/// buckets by their row count rounded up to a power of two; a bucket of width w gathers
+/// [segments · w] rows — each segment's window repeats its own rows (duplicates do not
+/// change a max), an empty segment points at the zero row — and takes the max over the
+/// window. Buckets keep the gathered volume under twice the rows plus the segments,
+/// where one window as wide as the fullest segment would gather segments × cap rows.
+/// `restore` puts the bucket-ordered segments back in segment order.
+#[derive(Debug, Clone)]
+pub struct SegmentPool {
+    pub buckets: Vec<PoolBucket>,
+    /// [num_segments]: row of each segment in the concatenated bucket outputs; `None`
+    /// when that is already segment order.
+    pub restore: Option<Tensor<1, Int>>,
+}
+
+#[derive(Debug, Clone)]
+pub struct PoolBucket {
+    pub width: usize,
+    pub num_segments: usize,
+    /// [num_segments · width] rows into the features (with the zero row).
+    pub index: Tensor<1, Int>,
+}
+
+impl SegmentPool {
+    /// `counts[s]` rows in segment s, starting at row `starts[s]`, of `num_rows` rows.
+    pub fn new(counts: &[usize], starts: &[usize], num_rows: usize, device: &Device) -> Self {
+        let width = |c: usize| c.max(1).next_power_of_two();
+        let mut by_width: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+        for (s, &c) in counts.iter().enumerate() {
+            by_width.entry(width(c)).or_default().push(s);
+        }
+        let mut restore = vec![0i64; counts.len()];
+        let mut next = 0;
+        let buckets = by_width
+            .into_iter()
+            .map(|(w, segments)| {
+                let mut index = Vec::with_capacity(segments.len() * w);
+                for &s in &segments {
+                    restore[s] = next;
+                    next += 1;
+                    let (start, n) = (starts[s], counts[s]);
+                    index.extend(
+                        (0..w).map(|j| if n == 0 { num_rows } else { start + j % n } as i64),
+                    );
+                }
+                PoolBucket {
+                    width: w,
+                    num_segments: segments.len(),
+                    index: Tensor::from_data(TensorData::new(index, [segments.len() * w]), device),
+                }
+            })
+            .collect::<Vec<_>>();
+        let in_order = restore.iter().enumerate().all(|(i, &r)| r == i as i64);
+        let n = restore.len();
+        Self {
+            buckets,
+            restore: (!in_order).then(|| Tensor::from_data(TensorData::new(restore, [n]), device)),
+        }
+    }
+
+    /// Rows gathered in total (for diagnostics).
+    pub fn gathered_rows(&self) -> usize {
+        self.buckets.iter().map(|b| b.width * b.num_segments).sum()
+    }
+
+    /// Per-segment max of `features` ([num_rows + 1, C], the last row zero) →
+    /// [num_segments, C]; an empty segment gives the zero row.
+    pub fn max_pool(&self, features: Tensor<2>) -> Tensor<2> {
+        let c = features.dims()[1];
+        let parts: Vec<Tensor<2>> = self
+            .buckets
+            .iter()
+            .map(|b| {
+                let rows = features.clone().select(0, b.index.clone());
+                if b.width == 1 {
+                    rows
+                } else {
+                    rows.reshape([b.num_segments, b.width, c])
+                        .max_dim(1)
+                        .reshape([b.num_segments, c])
+                }
+            })
+            .collect();
+        let pooled = if parts.len() == 1 {
+            parts.into_iter().next().unwrap()
+        } else {
+            Tensor::cat(parts, 0)
+        };
+        match &self.restore {
+            Some(r) => pooled.select(0, r.clone()),
+            None => pooled,
+        }
+    }
+}
+
+/// Per-segment mean of `features` ([rows, C]) where row r belongs to segment
+/// `segment_of_row[r]`: a differentiable scatter-add, then a division by each segment's
+/// row count (an empty segment gives zeros). The mean voxel feature of a voxel encoder.
+pub fn segment_mean(
+    features: Tensor<2>,
+    segment_of_row: &[usize],
+    num_segments: usize,
+) -> Tensor<2> {
+    let [rows, c] = features.dims();
+    assert_eq!(rows, segment_of_row.len(), "one segment per row");
+    let device = features.device();
+    let mut counts = vec![0f32; num_segments];
+    for &s in segment_of_row {
+        counts[s] += 1.0;
+    }
+    let inverse: Vec<f32> = counts
+        .iter()
+        .map(|&n| if n > 0.0 { 1.0 / n } else { 0.0 })
+        .collect();
+    let index: Vec<i64> = segment_of_row.iter().map(|&s| s as i64).collect();
+    let sums = Tensor::<2>::zeros([num_segments, c], &device).select_assign(
+        0,
+        Tensor::from_data(TensorData::new(index, [rows]), &device),
+        features,
+        IndexingUpdateOp::Add,
+    );
+    sums * Tensor::<2>::from_data(TensorData::new(inverse, [num_segments, 1]), &device)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rows(values: &[[f32; 2]], device: &Device) -> Tensor<2> {
+        let flat: Vec<f32> = values.iter().flatten().copied().collect();
+        Tensor::from_data(TensorData::new(flat, [values.len(), 2]), device)
+    }
+
+    #[test]
+    fn max_pool_matches_a_loop_with_empty_and_uneven_segments() {
+        let device = Device::flex();
+        let data = [
+            [1.0, -2.0],
+            [3.0, 0.5],
+            [-1.0, 4.0],
+            [2.0, 2.0],
+            [0.0, -5.0],
+        ];
+        // Segments: rows 0..2, empty, rows 2..5.
+        let (counts, starts) = ([2, 0, 3], [0, 2, 2]);
+        let pool = SegmentPool::new(&counts, &starts, data.len(), &device);
+        let mut with_zero = data.to_vec();
+        with_zero.push([0.0, 0.0]);
+        let out: Vec<f32> = pool
+            .max_pool(rows(&with_zero, &device))
+            .into_data()
+            .to_vec()
+            .unwrap();
+        assert_eq!(out, vec![3.0, 0.5, 0.0, 0.0, 2.0, 4.0]);
+        assert_eq!(pool.gathered_rows(), 2 + 1 + 4);
+    }
+
+    #[test]
+    fn mean_matches_a_loop_and_has_gradients() {
+        let device = Device::flex().autodiff();
+        let data = [[1.0, -2.0], [3.0, 0.5], [-1.0, 4.0], [2.0, 2.0]];
+        let x = rows(&data, &device).require_grad();
+        let mean = segment_mean(x.clone(), &[0, 2, 0, 2], 3);
+        let out: Vec<f32> = mean.clone().into_data().to_vec().unwrap();
+        assert_eq!(out, vec![0.0, 1.0, 0.0, 0.0, 2.5, 1.25]);
+        let grads = mean.sum().backward();
+        let g: Vec<f32> = x.grad(&grads).unwrap().into_data().to_vec().unwrap();
+        assert_eq!(g, vec![0.5; 8]);
+    }
+}
