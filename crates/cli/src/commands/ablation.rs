@@ -200,6 +200,7 @@ fn run_one(
             .with_context(|| format!("{}: cannot clear", results.display()))?;
     }
     let summary = detect(&DetectOptions {
+        device: Default::default(),
         config: trained.clone(),
         checkpoint: run_dir.join("model.bpk"),
         data_dir: args.data.clone(),

@@ -31,6 +31,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         detections: input.detections,
         repeats: args.repeats,
         max_frames: args.max_frames,
+        device: input.device,
     })?;
     println!("{name}: {bench}");
     Ok(())

@@ -1,35 +1,12 @@
-//! `fusiondet demo`: the whole pipeline on data that ships with the repository —
-//! simulate a small street dataset, run a shipped Car model (F-ConvNet, built into the
-//! binary; `--model` picks SAF or FCAM from the clone's `models/`) on its validation split
-//! and on the bundled real KITTI frames, evaluate both with the official protocol and draw
-//! pictures. `--train-tiny` instead
-//! trains the tiny network on the simulated frames first (seconds) and detects with it.
+//! `fusiondet demo`: the whole pipeline on data built into the binary (see
+//! `fusiondet_workflows::demo`).
 
-use anyhow::{Context, bail};
-use fusiondet_eval::{EvalConfig, evaluate_dirs};
-use fusiondet_kitti::{DatasetDir, read_split};
-use fusiondet_models::info::parameter_count;
-use fusiondet_train::{DetectOptions, ExperimentConfig, TrainOptions, detect, train};
-use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
-use std::time::Instant;
-
-/// The bundled KITTI sample frames (in the source tree; a clone has them).
-const KITTI_SAMPLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/kitti-sample");
-/// The shipped checkpoints (in the source tree; a clone has them).
-const MODELS_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models");
-/// The tiny network's configuration, as shipped in `configs/tiny.toml`.
-const TINY_CONFIG: &str = include_str!("../../../../configs/tiny.toml");
-/// The shipped Car model and the configuration it was trained with (see the README for
-/// the command that reproduces it).
-const SHIPPED_MODEL: &[u8] = include_bytes!("../../../../models/fconvnet-car.bpk");
-const SHIPPED_CONFIG: &str = include_str!("../../../../models/fconvnet-car.toml");
-/// Marks a directory as the demo's own, so a re-run may replace what it wrote.
-const MARKER: &str = ".fusiondet-demo";
+use fusiondet_workflows::demo::{DemoOptions, ShippedModel};
+use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct DemoArgs {
-    /// Output directory (sim/, run/, results/, pictures/, eval-*.json).
+    /// Output directory (sim/, kitti/, run/, model/, results/, pictures/, eval-*.json).
     #[arg(long, default_value = "fusiondet-demo")]
     pub out: PathBuf,
     /// Simulated frames (half train, half val).
@@ -38,9 +15,10 @@ pub struct DemoArgs {
     /// Seed of the simulated world (and of training, with --train-tiny).
     #[arg(long, default_value_t = 2026)]
     pub seed: u64,
-    /// Which shipped Car model detects (all trained on simulated data; see the README).
-    #[arg(long, value_enum, default_value_t = ShippedModel::Fconvnet)]
-    pub model: ShippedModel,
+    /// Which shipped Car model detects (all trained on simulated data and built into the
+    /// binary; see the README).
+    #[arg(long, default_value = "fconvnet", value_parser = ["fconvnet", "fcam", "saf"])]
+    pub model: String,
     /// Train the tiny network on the simulated train split and detect with it instead of
     /// a shipped model.
     #[arg(long, conflicts_with = "model")]
@@ -50,294 +28,14 @@ pub struct DemoArgs {
     pub epochs: usize,
 }
 
-/// The shipped Car models: `models/<stem>.bpk` with the configuration it was trained
-/// with, `models/<stem>.toml`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum ShippedModel {
-    /// F-ConvNet (built into the binary).
-    Fconvnet,
-    /// FCAM: F-ConvNet with the improved CBAM.
-    Fcam,
-    /// SAF: depth-guided slicing, LFA and the projection loss.
-    Saf,
-}
-
-impl ShippedModel {
-    fn stem(self) -> &'static str {
-        match self {
-            ShippedModel::Fconvnet => "fconvnet-car",
-            ShippedModel::Fcam => "fcam-car",
-            ShippedModel::Saf => "saf-car",
-        }
-    }
-
-    fn title(self) -> &'static str {
-        match self {
-            ShippedModel::Fconvnet => "F-ConvNet",
-            ShippedModel::Fcam => "FCAM",
-            ShippedModel::Saf => "SAF",
-        }
-    }
-
-    /// `models/<stem>.bpk` and `.toml` in the clone.
-    fn paths(self) -> [PathBuf; 2] {
-        let dir = Path::new(MODELS_DIR);
-        ["bpk", "toml"].map(|ext| dir.join(format!("{}.{ext}", self.stem())))
-    }
-
-    /// Fails (before any work) when the model's files are not in the clone.
-    fn ensure_available(self) -> anyhow::Result<()> {
-        if self == ShippedModel::Fconvnet {
-            return Ok(());
-        }
-        for p in self.paths() {
-            if !p.is_file() {
-                bail!(
-                    "{}: the shipped {} model is missing; run the demo from a clone of the repository",
-                    p.display(),
-                    self.title()
-                );
-            }
-        }
-        Ok(())
-    }
-
-    /// The checkpoint and configuration files: built in for F-ConvNet, read from the
-    /// clone's `models/` for the others.
-    fn files(self) -> anyhow::Result<(Vec<u8>, String)> {
-        if self == ShippedModel::Fconvnet {
-            return Ok((SHIPPED_MODEL.to_vec(), SHIPPED_CONFIG.to_string()));
-        }
-        let [bpk, toml] = self.paths();
-        let read_err = |p: &Path| format!("{}: cannot read", p.display());
-        Ok((
-            std::fs::read(&bpk).with_context(|| read_err(&bpk))?,
-            std::fs::read_to_string(&toml).with_context(|| read_err(&toml))?,
-        ))
-    }
-}
-
-/// Creates `out`, or clears the demo's own sub-directories from an earlier run.
-fn prepare_out(out: &Path) -> anyhow::Result<()> {
-    if out.exists() {
-        let empty = std::fs::read_dir(out)
-            .with_context(|| format!("{}: cannot read", out.display()))?
-            .next()
-            .is_none();
-        if !empty && !out.join(MARKER).exists() {
-            bail!(
-                "{}: exists and was not written by `fusiondet demo`; choose another --out",
-                out.display()
-            );
-        }
-        for sub in ["sim", "run", "model", "results", "pictures"] {
-            let p = out.join(sub);
-            if p.exists() {
-                std::fs::remove_dir_all(&p)
-                    .with_context(|| format!("{}: cannot remove", p.display()))?;
-            }
-        }
-    }
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    std::fs::write(out.join(MARKER), b"written by fusiondet demo\n")
-        .with_context(|| format!("{}: cannot write", out.display()))?;
-    Ok(())
-}
-
-/// Detects on `split` of `data`, evaluates, prints the table and writes the JSON.
-fn detect_and_evaluate(
-    title: &str,
-    config: &ExperimentConfig,
-    model: &Path,
-    data: &Path,
-    results: &Path,
-    json: &Path,
-) -> anyhow::Result<()> {
-    let started = Instant::now();
-    let s = detect(&DetectOptions {
-        config: config.clone(),
-        checkpoint: model.to_path_buf(),
-        data_dir: data.to_path_buf(),
-        split: "val".into(),
-        out_dir: results.to_path_buf(),
-        detections: None,
-    })?;
-    println!(
-        "\n== {title}: {} frames, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",
-        s.frames,
-        s.detections_2d,
-        s.frustums,
-        s.boxes_written,
-        started.elapsed().as_secs_f64()
-    );
-    let dataset = DatasetDir::new(data);
-    let eval_config = EvalConfig {
-        classes: config.frustum.classes.clone(),
-        ..Default::default()
-    };
-    let (report, _) = evaluate_dirs(
-        &dataset.training().root.join("label_2"),
-        results,
-        Some(&dataset.split("val")),
-        &eval_config,
-    )?;
-    print!("{}", report.table());
-    fusiondet_eval::write_json(json, &report, None)?;
-    Ok(())
-}
-
-/// Draws the first `n` frames of the val split with their detections.
-fn pictures(
-    data: &Path,
-    results: &Path,
-    out: &Path,
-    prefix: &str,
-    n: usize,
-) -> anyhow::Result<Vec<PathBuf>> {
-    let dataset = DatasetDir::new(data);
-    let dir = dataset.training();
-    let mut written = Vec::new();
-    for id in read_split(&dataset.split("val"))?.into_iter().take(n) {
-        let view = fusiondet_viz::load_frame(&dir, &id, Some(results))?;
-        let path = out.join(format!("{prefix}-{id}.png"));
-        fusiondet_kitti::image::write_png(&path, &fusiondet_viz::render_frame(&view))?;
-        written.push(path);
-    }
-    Ok(written)
-}
-
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
-    let started = Instant::now();
-    if args.frames < 4 {
-        bail!("--frames must be at least 4 (the demo needs both a train and a val split)");
-    }
-    if !args.train_tiny {
-        args.model.ensure_available()?;
-    }
-    let out = &args.out;
-    prepare_out(out)?;
-    let kitti = Path::new(KITTI_SAMPLE);
-    if !kitti.join("training").is_dir() {
-        bail!(
-            "the bundled KITTI frames are missing ({}); run the demo from a clone of the repository",
-            kitti.display()
-        );
-    }
-
-    // 1. Simulate.
-    let t = Instant::now();
-    let sim = out.join("sim");
-    let stats = fusiondet_sim::write_dataset(
-        &fusiondet_sim::DatasetOptions {
-            out: sim.clone(),
-            frames: args.frames,
-            seed: args.seed,
-            force: false,
-            config: fusiondet_sim::SimConfig::default(),
-        },
-        &|_, _| {},
-    )?;
-    println!(
-        "== simulated {} frames ({} labelled objects, median {:.0} LiDAR points per frame) in {:.1} s -> {}",
-        stats.frames,
-        stats.labels.values().sum::<usize>(),
-        stats.points_per_frame_median,
-        t.elapsed().as_secs_f64(),
-        sim.display()
-    );
-
-    // 2. The model: the shipped one, or the tiny network trained here.
-    let (config, model) = if args.train_tiny {
-        train_tiny(&args, &sim)?
-    } else {
-        shipped_model(out, args.model)?
-    };
-
-    // 3. Detect and evaluate: simulated val split, then the real KITTI frames.
-    let results = out.join("results");
-    detect_and_evaluate(
-        "simulated val split",
-        &config,
-        &model,
-        &sim,
-        &results.join("sim"),
-        &out.join("eval-sim.json"),
-    )?;
-    detect_and_evaluate(
-        "bundled KITTI frames (val split, F-PointNet 2D detections)",
-        &config,
-        &model,
-        kitti,
-        &results.join("kitti"),
-        &out.join("eval-kitti.json"),
-    )?;
-
-    // 4. Pictures.
-    let pics = out.join("pictures");
-    std::fs::create_dir_all(&pics).with_context(|| format!("{}: cannot create", pics.display()))?;
-    let mut drawn = pictures(&sim, &results.join("sim"), &pics, "sim", 2)?;
-    drawn.extend(pictures(kitti, &results.join("kitti"), &pics, "kitti", 2)?);
-    println!("\n== pictures:");
-    for p in &drawn {
-        println!("   {}", p.display());
-    }
-    let what = if args.train_tiny {
-        "a tiny network trained for seconds: the numbers show the pipeline, not F-ConvNet's accuracy".to_string()
-    } else {
-        format!(
-            "the shipped {} Car model, trained on simulated data only; see the README for its full evaluation",
-            args.model.title()
-        )
-    };
-    println!(
-        "\ndemo finished in {:.1} s ({what})",
-        started.elapsed().as_secs_f64()
-    );
-    Ok(())
-}
-
-/// Writes a shipped Car model and its configuration to `out/model/`.
-fn shipped_model(out: &Path, which: ShippedModel) -> anyhow::Result<(ExperimentConfig, PathBuf)> {
-    let dir = out.join("model");
-    std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
-    let (bytes, toml) = which.files()?;
-    let config_path = dir.join(format!("{}.toml", which.stem()));
-    let model = dir.join(format!("{}.bpk", which.stem()));
-    fusiondet_kitti::write_atomic(&config_path, toml.as_bytes())?;
-    fusiondet_kitti::write_atomic(&model, &bytes)?;
-    let size = bytes.len();
-    let config = ExperimentConfig::from_file(&config_path)?;
-    let params = parameter_count(&config.model)?;
-    println!(
-        "== the shipped {} Car model ({:.1} MB, {params} parameters) -> {}",
-        which.title(),
-        size as f64 / 1e6,
-        model.display()
-    );
-    Ok((config, model))
-}
-
-/// Trains the tiny network on the simulated train split.
-fn train_tiny(args: &DemoArgs, sim: &Path) -> anyhow::Result<(ExperimentConfig, PathBuf)> {
-    let t = Instant::now();
-    let mut config = ExperimentConfig::from_toml_str(TINY_CONFIG, Path::new("configs/tiny.toml"))?;
-    config.train.epochs = args.epochs;
-    config.train.seed = args.seed;
-    let summary = train(&TrainOptions {
-        config: config.clone(),
-        data_dir: sim.to_path_buf(),
-        run_dir: args.out.join("run"),
-        resume: false,
-        progress: std::io::stderr().is_terminal(),
-    })?;
-    println!(
-        "== trained the tiny F-ConvNet ({} epochs, {} frustums from {} frames, final loss {:.3}) in {:.1} s -> {}",
-        summary.epochs_run,
-        summary.frustums,
-        summary.frames,
-        summary.final_loss.unwrap_or(f64::NAN),
-        t.elapsed().as_secs_f64(),
-        summary.model.display()
-    );
-    Ok((config, summary.model))
+    let model: ShippedModel = args.model.parse().map_err(anyhow::Error::msg)?;
+    fusiondet_workflows::demo::run(&DemoOptions {
+        out: args.out,
+        frames: args.frames,
+        seed: args.seed,
+        model,
+        train_tiny: args.train_tiny,
+        epochs: args.epochs,
+    })
 }

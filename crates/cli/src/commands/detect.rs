@@ -1,6 +1,6 @@
 //! `fusiondet detect`: runs a trained frustum detector on a split and writes KITTI results.
 
-use fusiondet_train::{DetectOptions, ExperimentConfig, detect};
+use fusiondet_train::{ComputeDevice, DetectOptions, ExperimentConfig, detect};
 use std::path::PathBuf;
 
 /// The arguments `detect` and `bench` share: a model, its configuration, the frames and
@@ -26,6 +26,9 @@ pub struct ModelOnSplit {
     /// fewer is faster).
     #[arg(long)]
     pub points: Option<usize>,
+    /// Where the network runs (this build: cpu).
+    #[arg(long, default_value = "cpu")]
+    pub device: ComputeDevice,
 }
 
 impl ModelOnSplit {
@@ -58,6 +61,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         split: input.split,
         out_dir: args.out.clone(),
         detections: input.detections,
+        device: input.device,
     })?;
     let skipped = s.skipped;
     println!(

@@ -1,6 +1,6 @@
 //! `fusiondet train`: trains a frustum detector from a TOML experiment configuration.
 
-use fusiondet_train::{ExperimentConfig, TrainOptions, train};
+use fusiondet_train::{ComputeDevice, ExperimentConfig, TrainOptions, train};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
@@ -24,6 +24,9 @@ pub struct TrainArgs {
     /// (overrides refine.first_stage).
     #[arg(long)]
     pub first_stage: Option<PathBuf>,
+    /// Where the network trains (this build: cpu).
+    #[arg(long, default_value = "cpu")]
+    pub device: ComputeDevice,
 }
 
 /// `[train]` values given on the command line (`train`, and `ablation` for every config).
@@ -85,6 +88,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         run_dir: args.out,
         resume: args.resume,
         progress: std::io::stderr().is_terminal(),
+        device: args.device,
     })?;
     println!(
         "trained on {} frustums from {} frames: {} epoch(s) run, {} done, final loss {}",

@@ -1,0 +1,79 @@
+//! The binary as a user installs it: copied away from the source tree and run from an
+//! empty directory, and the demo's results against those of the binary before the
+//! crates were reshaped for a second detector family.
+
+mod common;
+
+use common::{all_output, repo_root};
+use std::path::Path;
+use std::process::Command;
+
+/// Every result file of the default demo (`fusiondet demo`, 16 frames, seed 2026, the
+/// built-in F-ConvNet Car model), as the binary wrote them before the restructuring
+/// (kept in `tests/data/demo-results/`). The demo must still write exactly these bytes.
+#[test]
+fn the_default_demo_writes_the_same_result_files_as_before() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let o = Command::new(env!("CARGO_BIN_EXE_fusiondet"))
+        .args(["demo", "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", all_output(&o));
+    let expected = repo_root().join("crates/cli/tests/data/demo-results");
+    let mut compared = 0;
+    for split in ["sim", "kitti"] {
+        let mut names: Vec<_> = std::fs::read_dir(expected.join(split))
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        names.sort();
+        let written: usize = std::fs::read_dir(out.join("results").join(split))
+            .unwrap()
+            .count();
+        assert_eq!(written, names.len(), "{split}: result file count");
+        for name in names {
+            let want = std::fs::read(expected.join(split).join(&name)).unwrap();
+            let got = std::fs::read(out.join("results").join(split).join(&name)).unwrap();
+            assert!(
+                want == got,
+                "{split}/{}: differs from the result before the restructuring\nbefore:\n{}\nnow:\n{}",
+                name.to_string_lossy(),
+                String::from_utf8_lossy(&want),
+                String::from_utf8_lossy(&got)
+            );
+            compared += 1;
+        }
+    }
+    assert_eq!(compared, 13);
+}
+
+/// `cargo install` puts the binary far from the source tree: the demo (every shipped
+/// model) must run from an empty directory with nothing but the binary.
+#[test]
+fn an_installed_binary_runs_the_demo_from_an_empty_directory() {
+    let bin_dir = tempfile::tempdir().unwrap();
+    let installed = bin_dir.path().join("fusiondet");
+    std::fs::copy(env!("CARGO_BIN_EXE_fusiondet"), &installed).unwrap();
+    let work = tempfile::tempdir().unwrap();
+    for model in ["fconvnet", "saf"] {
+        let out = format!("demo-{model}");
+        let o = Command::new(&installed)
+            .current_dir(work.path())
+            .args(["demo", "--frames", "4", "--model", model, "--out", &out])
+            .output()
+            .unwrap();
+        let t = all_output(&o);
+        assert!(o.status.success(), "--model {model}: {t}");
+        assert!(t.contains("bundled KITTI frames"), "{t}");
+        let out = work.path().join(out);
+        for f in [
+            "eval-sim.json",
+            "eval-kitti.json",
+            "pictures/kitti-000001.png",
+        ] {
+            assert!(out.join(f).is_file(), "{model}: {f} missing\n{t}");
+        }
+        assert!(Path::new(&out.join("kitti/training/velodyne/000134.bin")).is_file());
+    }
+}

@@ -1,0 +1,212 @@
+//! Data that ships inside the binary, so that an installed `fusiondet` runs its demo
+//! from any directory with the source tree out of reach: the seven bundled KITTI frames
+//! (`data/kitti-sample/`, CC BY-NC-SA 3.0, see its README) and the three shipped Car
+//! models with the configurations they were trained with (`models/`).
+
+use anyhow::Context;
+use std::path::Path;
+
+/// Every file of `data/kitti-sample/` but its README, by path relative to it. A test
+/// checks that the list and the directory agree.
+pub const KITTI_SAMPLE: &[(&str, &[u8])] = &[
+    (
+        "ImageSets/train.txt",
+        include_bytes!("../../../data/kitti-sample/ImageSets/train.txt"),
+    ),
+    (
+        "ImageSets/trainval.txt",
+        include_bytes!("../../../data/kitti-sample/ImageSets/trainval.txt"),
+    ),
+    (
+        "ImageSets/val.txt",
+        include_bytes!("../../../data/kitti-sample/ImageSets/val.txt"),
+    ),
+    (
+        "rgb_detections/rgb_detection_train.txt",
+        include_bytes!("../../../data/kitti-sample/rgb_detections/rgb_detection_train.txt"),
+    ),
+    (
+        "rgb_detections/rgb_detection_val.txt",
+        include_bytes!("../../../data/kitti-sample/rgb_detections/rgb_detection_val.txt"),
+    ),
+    (
+        "training/calib/000000.txt",
+        include_bytes!("../../../data/kitti-sample/training/calib/000000.txt"),
+    ),
+    (
+        "training/calib/000001.txt",
+        include_bytes!("../../../data/kitti-sample/training/calib/000001.txt"),
+    ),
+    (
+        "training/calib/000002.txt",
+        include_bytes!("../../../data/kitti-sample/training/calib/000002.txt"),
+    ),
+    (
+        "training/calib/000003.txt",
+        include_bytes!("../../../data/kitti-sample/training/calib/000003.txt"),
+    ),
+    (
+        "training/calib/000004.txt",
+        include_bytes!("../../../data/kitti-sample/training/calib/000004.txt"),
+    ),
+    (
+        "training/calib/000005.txt",
+        include_bytes!("../../../data/kitti-sample/training/calib/000005.txt"),
+    ),
+    (
+        "training/calib/000134.txt",
+        include_bytes!("../../../data/kitti-sample/training/calib/000134.txt"),
+    ),
+    (
+        "training/image_2/000000.png",
+        include_bytes!("../../../data/kitti-sample/training/image_2/000000.png"),
+    ),
+    (
+        "training/image_2/000001.png",
+        include_bytes!("../../../data/kitti-sample/training/image_2/000001.png"),
+    ),
+    (
+        "training/image_2/000002.png",
+        include_bytes!("../../../data/kitti-sample/training/image_2/000002.png"),
+    ),
+    (
+        "training/image_2/000003.png",
+        include_bytes!("../../../data/kitti-sample/training/image_2/000003.png"),
+    ),
+    (
+        "training/image_2/000004.png",
+        include_bytes!("../../../data/kitti-sample/training/image_2/000004.png"),
+    ),
+    (
+        "training/image_2/000005.png",
+        include_bytes!("../../../data/kitti-sample/training/image_2/000005.png"),
+    ),
+    (
+        "training/image_2/000134.png",
+        include_bytes!("../../../data/kitti-sample/training/image_2/000134.png"),
+    ),
+    (
+        "training/label_2/000000.txt",
+        include_bytes!("../../../data/kitti-sample/training/label_2/000000.txt"),
+    ),
+    (
+        "training/label_2/000001.txt",
+        include_bytes!("../../../data/kitti-sample/training/label_2/000001.txt"),
+    ),
+    (
+        "training/label_2/000002.txt",
+        include_bytes!("../../../data/kitti-sample/training/label_2/000002.txt"),
+    ),
+    (
+        "training/label_2/000003.txt",
+        include_bytes!("../../../data/kitti-sample/training/label_2/000003.txt"),
+    ),
+    (
+        "training/label_2/000004.txt",
+        include_bytes!("../../../data/kitti-sample/training/label_2/000004.txt"),
+    ),
+    (
+        "training/label_2/000005.txt",
+        include_bytes!("../../../data/kitti-sample/training/label_2/000005.txt"),
+    ),
+    (
+        "training/label_2/000134.txt",
+        include_bytes!("../../../data/kitti-sample/training/label_2/000134.txt"),
+    ),
+    (
+        "training/velodyne/000000.bin",
+        include_bytes!("../../../data/kitti-sample/training/velodyne/000000.bin"),
+    ),
+    (
+        "training/velodyne/000001.bin",
+        include_bytes!("../../../data/kitti-sample/training/velodyne/000001.bin"),
+    ),
+    (
+        "training/velodyne/000002.bin",
+        include_bytes!("../../../data/kitti-sample/training/velodyne/000002.bin"),
+    ),
+    (
+        "training/velodyne/000003.bin",
+        include_bytes!("../../../data/kitti-sample/training/velodyne/000003.bin"),
+    ),
+    (
+        "training/velodyne/000004.bin",
+        include_bytes!("../../../data/kitti-sample/training/velodyne/000004.bin"),
+    ),
+    (
+        "training/velodyne/000005.bin",
+        include_bytes!("../../../data/kitti-sample/training/velodyne/000005.bin"),
+    ),
+    (
+        "training/velodyne/000134.bin",
+        include_bytes!("../../../data/kitti-sample/training/velodyne/000134.bin"),
+    ),
+];
+
+/// Writes the bundled KITTI frames under `dir` (a KITTI-layout data set root).
+pub fn write_kitti_sample(dir: &Path) -> anyhow::Result<()> {
+    for (relative, bytes) in KITTI_SAMPLE {
+        let path = dir.join(relative);
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent)
+                .with_context(|| format!("{}: cannot create", parent.display()))?;
+        }
+        fusiondet_kitti::write_atomic(&path, bytes)?;
+    }
+    Ok(())
+}
+
+/// A shipped Car model: its checkpoint and the configuration it was trained with.
+pub struct ShippedFiles {
+    pub checkpoint: &'static [u8],
+    pub config: &'static str,
+}
+
+pub const FCONVNET_CAR: ShippedFiles = ShippedFiles {
+    checkpoint: include_bytes!("../../../models/fconvnet-car.bpk"),
+    config: include_str!("../../../models/fconvnet-car.toml"),
+};
+pub const FCAM_CAR: ShippedFiles = ShippedFiles {
+    checkpoint: include_bytes!("../../../models/fcam-car.bpk"),
+    config: include_str!("../../../models/fcam-car.toml"),
+};
+pub const SAF_CAR: ShippedFiles = ShippedFiles {
+    checkpoint: include_bytes!("../../../models/saf-car.bpk"),
+    config: include_str!("../../../models/saf-car.toml"),
+};
+
+/// The tiny network's configuration, as shipped in `configs/tiny.toml`.
+pub const TINY_CONFIG: &str = include_str!("../../../configs/tiny.toml");
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_embedded_sample_is_the_whole_directory() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/kitti-sample");
+        let mut on_disk = Vec::new();
+        let mut stack = vec![root.clone()];
+        while let Some(dir) = stack.pop() {
+            for entry in std::fs::read_dir(&dir).unwrap() {
+                let path = entry.unwrap().path();
+                if path.is_dir() {
+                    stack.push(path);
+                } else if path.file_name().unwrap() != "README.md" {
+                    let relative = path.strip_prefix(&root).unwrap();
+                    on_disk.push(relative.to_string_lossy().replace('\\', "/"));
+                }
+            }
+        }
+        on_disk.sort();
+        let embedded: Vec<String> = KITTI_SAMPLE.iter().map(|(p, _)| p.to_string()).collect();
+        assert_eq!(embedded, on_disk);
+        for (relative, bytes) in KITTI_SAMPLE {
+            assert_eq!(
+                &std::fs::read(root.join(relative)).unwrap(),
+                bytes,
+                "{relative}"
+            );
+        }
+    }
+}
