@@ -158,7 +158,7 @@ mod tests {
         let out: Vec<f32> = pool
             .max_pool(rows(&with_zero, &device))
             .into_data()
-            .to_vec()
+            .try_to_vec::<f32>()
             .unwrap();
         assert_eq!(out, vec![3.0, 0.5, 0.0, 0.0, 2.0, 4.0]);
         assert_eq!(pool.gathered_rows(), 2 + 1 + 4);
@@ -170,10 +170,15 @@ mod tests {
         let data = [[1.0, -2.0], [3.0, 0.5], [-1.0, 4.0], [2.0, 2.0]];
         let x = rows(&data, &device).require_grad();
         let mean = segment_mean(x.clone(), &[0, 2, 0, 2], 3);
-        let out: Vec<f32> = mean.clone().into_data().to_vec().unwrap();
+        let out: Vec<f32> = mean.clone().into_data().try_to_vec::<f32>().unwrap();
         assert_eq!(out, vec![0.0, 1.0, 0.0, 0.0, 2.5, 1.25]);
         let grads = mean.sum().backward();
-        let g: Vec<f32> = x.grad(&grads).unwrap().into_data().to_vec().unwrap();
+        let g: Vec<f32> = x
+            .grad(&grads)
+            .unwrap()
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
         assert_eq!(g, vec![0.5; 8]);
     }
 }

@@ -1,7 +1,6 @@
 //! Times the stages of frame simulation in thread CPU time (one thread):
 //! `cargo run --release -p fusiondet-sim --example sim_profile -- [frames]`.
 
-use fusiondet_geometry::CameraModel;
 use fusiondet_sim::rng::{Stream, frame_key, frame_sampler};
 use fusiondet_sim::{SimConfig, camera, label, layout, lidar, sensors};
 

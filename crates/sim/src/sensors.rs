@@ -232,7 +232,6 @@ pub fn sample_calib(s: &mut Sampler) -> Calib {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use fusiondet_geometry::CameraModel;
 
     #[test]
     fn elevation_table_is_monotone_and_spans_the_sensor() {

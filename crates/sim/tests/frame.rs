@@ -1,7 +1,6 @@
 //! Whole-frame properties: determinism (also across thread counts), KITTI validity,
 //! and agreement between the point cloud and the image.
 
-use fusiondet_geometry::CameraModel;
 use fusiondet_kitti::ObjectClass;
 use fusiondet_sim::camera::SKY;
 use fusiondet_sim::primitive::Surface;

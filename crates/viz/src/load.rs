@@ -31,7 +31,7 @@ pub fn load_frame(
     // The image first: a frame without its picture cannot be drawn at all.
     let image = read_image(&frames.image(id))?;
     let mut notes = Vec::new();
-    let has_labels = !frames.label(id).parent().is_some_and(|dir| !dir.is_dir());
+    let has_labels = frames.label(id).parent().is_none_or(|dir| dir.is_dir());
     if !has_labels {
         notes.push(format!(
             "no label_2/ in {}: no ground truth",

@@ -210,7 +210,7 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
 
     // 2. The model: the shipped one, or the tiny network trained here.
     let (config, model) = if args.train_tiny {
-        train_tiny(&args, &sim)?
+        train_tiny(args, &sim)?
     } else {
         shipped_model(out, args.model)?
     };
