@@ -123,6 +123,21 @@ impl<S: FrameSource<Frame = ProjectedFrame>> FrustumFrames for S {}
 /// ~0.8 MB per KITTI frame, a sixth of the full scan's).
 pub type InMemoryFrames = fusiondet_dataset::InMemoryFrames<ProjectedFrame>;
 
+/// The frames of a split (the first `max_frames`; 0 = all) in the frustum family's form.
+pub fn load_split(
+    data_dir: &std::path::Path,
+    split: &str,
+    max_frames: usize,
+    with_labels: bool,
+) -> Result<InMemoryFrames> {
+    Ok(fusiondet_dataset::load_split(
+        data_dir,
+        split,
+        max_frames,
+        with_labels,
+    )?)
+}
+
 /// The frustum family's frames read from disk on every request.
 pub type DiskFrames = fusiondet_dataset::DiskFrames<ProjectedFrame>;
 

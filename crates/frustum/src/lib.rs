@@ -34,6 +34,7 @@ pub use dataset::{Batches, FrustumDataset, FrustumSpec, PreparedBatch, jitter_bo
 pub use error::{FrustumError, Result, SkipCounts, SkipReason};
 pub use frame::{
     DiskFrames, FrameSource, FrustumFrames, InMemoryFrames, ProjectedCloud, ProjectedFrame,
+    load_split,
 };
 pub use frustum::{FrustumFrame, FrustumPoints, clip_box, extract_frustum};
 pub use omega_study::{

@@ -7,14 +7,15 @@
 
 use crate::config::ModelConfig;
 use crate::error::ModelError;
+use crate::family::DetectorKind;
 use crate::model::FConvNet;
 use burn::prelude::*;
 use burn::store::burn_pack::Reader;
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use std::path::Path;
 
+/// Metadata key of the checkpoint's family ([`DetectorKind::checkpoint_tag`]).
 const KIND_KEY: &str = "fusiondet.model";
-const KIND: &str = "fconvnet";
 const CONFIG_KEY: &str = "fusiondet.model_config";
 
 fn ckpt_err(path: &Path, message: impl Into<String>) -> ModelError {
@@ -31,7 +32,7 @@ pub fn save_checkpoint(model: &FConvNet, path: &Path) -> Result<(), ModelError> 
     let mut store = BurnpackStore::from_file(path)
         .auto_extension(false)
         .overwrite(true)
-        .metadata(KIND_KEY, KIND)
+        .metadata(KIND_KEY, DetectorKind::Frustum.checkpoint_tag())
         .metadata(CONFIG_KEY, config);
     // `valid()` first folds the batch-norm running statistics that training threads hold
     // apart (burn keeps them per thread until synchronised) into the stored values.
@@ -41,16 +42,38 @@ pub fn save_checkpoint(model: &FConvNet, path: &Path) -> Result<(), ModelError> 
         .map_err(|e| ckpt_err(path, format!("cannot write: {e}")))
 }
 
-/// The model configuration stored in a checkpoint.
+/// The family a checkpoint belongs to, from its metadata.
+pub fn read_checkpoint_kind(path: &Path) -> Result<DetectorKind, ModelError> {
+    let reader =
+        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
+    kind_of(path, reader.metadata())
+}
+
+fn kind_of(
+    path: &Path,
+    meta: &std::collections::BTreeMap<String, String>,
+) -> Result<DetectorKind, ModelError> {
+    let tag = meta.get(KIND_KEY).ok_or_else(|| {
+        ckpt_err(
+            path,
+            "not a fusiondet checkpoint (no fusiondet model metadata)",
+        )
+    })?;
+    DetectorKind::from_checkpoint_tag(tag).ok_or_else(|| {
+        ckpt_err(
+            path,
+            format!("a checkpoint of the unknown family `{tag}` (written by a newer fusiondet?)"),
+        )
+    })
+}
+
+/// The frustum model configuration stored in a checkpoint.
 pub fn read_checkpoint_config(path: &Path) -> Result<ModelConfig, ModelError> {
     let reader =
         Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
     let meta = reader.metadata();
-    if meta.get(KIND_KEY).map(String::as_str) != Some(KIND) {
-        return Err(ckpt_err(
-            path,
-            "not an F-ConvNet checkpoint (no fusiondet model metadata)",
-        ));
+    match kind_of(path, meta)? {
+        DetectorKind::Frustum => {}
     }
     let json = meta
         .get(CONFIG_KEY)

@@ -26,6 +26,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod decode;
 pub mod error;
+pub mod family;
 pub mod fcn;
 pub mod heads;
 pub mod info;
@@ -36,13 +37,16 @@ pub mod model;
 pub mod pointnet;
 pub mod synthetic;
 
-pub use checkpoint::{load_checkpoint, read_checkpoint_config, save_checkpoint};
+pub use checkpoint::{
+    load_checkpoint, read_checkpoint_config, read_checkpoint_kind, save_checkpoint,
+};
 pub use config::{
     AttentionConfig, FConvNetConfig, LfaConfig, LfaStageConfig, LossConfig, ModelConfig,
     SliceEncoderKind,
 };
 pub use decode::{FrustumPrediction, decode};
 pub use error::ModelError;
+pub use family::DetectorKind;
 pub use info::{ParamTable, render_info};
 pub use inputs::BatchInputs;
 pub use loss::{LossComponents, LossOutput, LossTargets, fconvnet_loss};

@@ -5,7 +5,6 @@
 use crate::config::ExperimentConfig;
 use crate::detect::{DetectInputs, StageTimes, load_detect_inputs};
 use crate::error::Result;
-use fusiondet_frustum::FrameSource;
 use std::fmt;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -30,7 +29,8 @@ pub struct BenchOptions {
 #[derive(Debug, Clone)]
 pub struct DetectBench {
     pub frames: usize,
-    pub frustums: usize,
+    /// Network inputs per run (frustums for the frustum family).
+    pub samples: usize,
     pub runs: Vec<StageTimes>,
 }
 
@@ -46,13 +46,16 @@ fn median(mut v: Vec<Duration>) -> Duration {
 impl DetectBench {
     /// Median of each stage over the runs (load is not part of the runs).
     pub fn median(&self) -> StageTimes {
-        let pick = |f: fn(&StageTimes) -> Duration| median(self.runs.iter().map(f).collect());
-        StageTimes {
-            load: Duration::ZERO,
-            frustums: pick(|t| t.frustums),
-            network: pick(|t| t.network),
-            decode_nms: pick(|t| t.decode_nms),
+        let mut out = StageTimes::default();
+        if let Some(first) = self.runs.first() {
+            for (stage, _) in first.stages() {
+                out.add(
+                    stage,
+                    median(self.runs.iter().map(|t| t.get(stage)).collect()),
+                );
+            }
         }
+        out
     }
 
     /// Median total time of a run (frustums + network + decoding and NMS).
@@ -71,17 +74,13 @@ impl fmt::Display for DetectBench {
         let total = self.median_total().as_secs_f64().max(1e-9);
         writeln!(
             f,
-            "{} frames, {} frustums ({:.1} per frame), {} timed runs (medians):",
+            "{} frames, {} network inputs ({:.1} per frame), {} timed runs (medians):",
             self.frames,
-            self.frustums,
-            self.frustums as f64 / self.frames.max(1) as f64,
+            self.samples,
+            self.samples as f64 / self.frames.max(1) as f64,
             self.runs.len()
         )?;
-        for (name, d) in [
-            ("frustums (extract, sample, slice)", m.frustums),
-            ("network (tensors, forward, decode)", m.network),
-            ("boxes + 3D NMS", m.decode_nms),
-        ] {
+        for &(name, d) in m.stages() {
             writeln!(
                 f,
                 "  {name:<36} {:>8.1} ms  {:>5.1}%",
@@ -105,8 +104,7 @@ pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
     let DetectInputs {
         detector,
         device,
-        frames,
-        detections,
+        inputs,
     } = load_detect_inputs(
         cfg,
         &options.checkpoint,
@@ -117,19 +115,17 @@ pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
         options.device,
     )?;
     let mut runs = Vec::with_capacity(options.repeats);
-    let mut frustums = 0;
+    let mut samples = 0;
     for run in 0..=options.repeats {
         let mut timing = StageTimes::default();
-        frustums = detector
-            .detect_frames(&device, frames.clone(), &detections, &mut timing)?
-            .frustums;
+        samples = detector.detect(&device, &inputs, &mut timing)?.samples;
         if run > 0 {
             runs.push(timing);
         }
     }
     Ok(DetectBench {
-        frames: frames.len(),
-        frustums,
+        frames: inputs.frames(),
+        samples,
         runs,
     })
 }
@@ -142,6 +138,7 @@ pub fn frames_per_second(frames: usize, timing: &StageTimes) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frustum::{STAGE_DECODE, STAGE_FRUSTUMS, STAGE_NETWORK};
 
     fn ms(v: u64) -> Duration {
         Duration::from_millis(v)
@@ -149,18 +146,22 @@ mod tests {
 
     #[test]
     fn medians_and_rates() {
-        let run = |a, b, c| StageTimes {
-            load: ms(999),
-            frustums: ms(a),
-            network: ms(b),
-            decode_nms: ms(c),
+        let run = |a, b, c| {
+            let mut t = StageTimes {
+                load: ms(999),
+                ..Default::default()
+            };
+            t.add(STAGE_FRUSTUMS, ms(a));
+            t.add(STAGE_NETWORK, ms(b));
+            t.add(STAGE_DECODE, ms(c));
+            t
         };
         let bench = DetectBench {
             frames: 10,
-            frustums: 80,
+            samples: 80,
             runs: vec![run(100, 900, 10), run(300, 700, 30), run(200, 800, 20)],
         };
-        assert_eq!(bench.median().network, ms(800));
+        assert_eq!(bench.median().get(STAGE_NETWORK), ms(800));
         assert_eq!(bench.median_total(), ms(1020));
         assert!((bench.frames_per_second() - 10.0 / 1.02).abs() < 1e-9);
         let text = bench.to_string();

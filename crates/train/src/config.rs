@@ -1,12 +1,16 @@
-//! The experiment configuration: one TOML file with the frustum data set
-//! (`[frustum]`), the network (`[model]`), its loss (`[loss]`), training (`[train]`)
-//! and detection (`[detect]`) settings. Every key has the published F-ConvNet Car
-//! value as default; unknown keys are errors, so a typo never goes unnoticed.
+//! The experiment configuration: one TOML file naming the detector family
+//! (`[detector] kind`, required) and the data (`[dataset]`: format and classes), then
+//! the family's sections — for the frustum family the frustum data set (`[frustum]`),
+//! the network (`[model]`), its loss (`[loss]`) — and training (`[train]`) and
+//! detection (`[detect]`) settings. Every other key has the published F-ConvNet Car
+//! value as default; unknown keys are errors, so a typo never goes unnoticed. This is
+//! the one parser every command uses.
 
 use crate::error::{Result, TrainError};
 use crate::schedule::StepDecay;
 use fusiondet_frustum::FrustumConfig;
-use fusiondet_models::{FConvNetConfig, LossConfig, ModelConfig};
+use fusiondet_kitti::ObjectClass;
+use fusiondet_models::{DetectorKind, FConvNetConfig, LossConfig, ModelConfig};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -15,6 +19,12 @@ use std::path::{Path, PathBuf};
 pub struct ExperimentConfig {
     /// A name for logs and result headers.
     pub name: String,
+    /// `[detector] kind`: the family. Required: a file that does not say what it
+    /// configures is refused rather than read as F-ConvNet Car.
+    pub detector: Option<DetectorSection>,
+    /// `[dataset]`: the data's format and the classes the detector learns.
+    pub dataset: DatasetSection,
+    /// The frustum data set; its `classes` come from `[dataset] classes`.
     pub frustum: FrustumConfig,
     pub model: ModelConfig,
     pub loss: LossConfig,
@@ -24,6 +34,42 @@ pub struct ExperimentConfig {
     /// whose boxes this one refines.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub refine: Option<RefineConfig>,
+}
+
+/// `[detector]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorSection {
+    pub kind: DetectorKind,
+}
+
+/// The on-disk formats a data set can come in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DatasetFormat {
+    /// KITTI's object-benchmark layout (`training/{velodyne,calib,image_2,label_2}`,
+    /// `ImageSets/`), which the simulator also writes.
+    #[default]
+    Kitti,
+}
+
+/// `[dataset]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DatasetSection {
+    pub format: DatasetFormat,
+    /// The classes the detector learns, as the format spells them (KITTI: `["Car"]`,
+    /// `["Pedestrian", "Cyclist"]`).
+    pub classes: Vec<String>,
+}
+
+impl Default for DatasetSection {
+    fn default() -> Self {
+        DatasetSection {
+            format: DatasetFormat::Kitti,
+            classes: vec!["Car".into()],
+        }
+    }
 }
 
 /// The first stage of a refinement model.
@@ -73,6 +119,10 @@ impl Default for ExperimentConfig {
     fn default() -> Self {
         ExperimentConfig {
             name: "fconvnet-car".into(),
+            detector: Some(DetectorSection {
+                kind: DetectorKind::Frustum,
+            }),
+            dataset: DatasetSection::default(),
             frustum: FrustumConfig::car(),
             model: ModelConfig::car(),
             loss: LossConfig::default(),
@@ -117,11 +167,40 @@ impl ExperimentConfig {
     /// Parses and validates `text`, read from `path` (relative paths in it are
     /// resolved against `path`'s directory).
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Self> {
+        let config_err = |message: String| TrainError::Config {
+            path: path.to_path_buf(),
+            message,
+        };
         let mut config: ExperimentConfig =
-            toml::from_str(text).map_err(|e| TrainError::Config {
-                path: path.to_path_buf(),
-                message: e.to_string(),
-            })?;
+            toml::from_str(text).map_err(|e| config_err(e.to_string()))?;
+        if config.detector.is_none() {
+            return Err(config_err(
+                "no [detector] table: name the family, e.g. `[detector]` then \
+                 `kind = \"frustum\"` (configurations written before families existed: \
+                 also move `[frustum] classes` to `[dataset] classes`)"
+                    .into(),
+            ));
+        }
+        // The classes live in [dataset]; the frustum data set takes them from there.
+        let raw: toml::Table = toml::from_str(text).map_err(|e| config_err(e.to_string()))?;
+        if raw
+            .get("frustum")
+            .and_then(|f| f.as_table())
+            .is_some_and(|f| f.contains_key("classes"))
+        {
+            return Err(config_err(
+                "[frustum] classes: the classes are a property of the data; write them as \
+                 `[dataset] classes = [...]`"
+                    .into(),
+            ));
+        }
+        config.frustum.classes = config
+            .dataset
+            .classes
+            .iter()
+            .map(|name| name.parse::<ObjectClass>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|m| config_err(format!("[dataset] classes: {m}")))?;
         if let Some(r) = &mut config.refine
             && r.first_stage.is_relative()
         {
@@ -163,8 +242,22 @@ impl ExperimentConfig {
         Self::from_toml_str(&text, path)
     }
 
+    /// The file form: what [`ExperimentConfig::from_toml_str`] reads back (the classes
+    /// in `[dataset]` only).
     pub fn to_toml_string(&self) -> String {
-        toml::to_string_pretty(self).expect("the experiment configuration serialises")
+        let mut table =
+            toml::Table::try_from(self).expect("the experiment configuration serialises");
+        if let Some(frustum) = table.get_mut("frustum").and_then(|f| f.as_table_mut()) {
+            frustum.remove("classes");
+        }
+        toml::to_string_pretty(&table).expect("the experiment configuration serialises")
+    }
+
+    /// The family this configuration is for.
+    pub fn kind(&self) -> DetectorKind {
+        self.detector
+            .as_ref()
+            .map_or(DetectorKind::Frustum, |d| d.kind)
     }
 
     /// The same configuration with another test-time point count, validated.
@@ -267,13 +360,65 @@ impl ExperimentConfig {
     }
 }
 
+/// `text` with the `[detector]` table every configuration needs, for tests.
+#[cfg(test)]
+fn with_kind(text: &str) -> String {
+    format!("[detector]\nkind = \"frustum\"\n{text}")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn empty_file_is_the_published_car_configuration() {
-        let c = ExperimentConfig::from_toml_str("", Path::new("x.toml")).unwrap();
+    fn a_file_must_name_its_family_and_keep_classes_in_dataset() {
+        let err = ExperimentConfig::from_toml_str("", Path::new("x.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("x.toml") && err.contains("[detector]"),
+            "{err}"
+        );
+        let err =
+            ExperimentConfig::from_toml_str("[detector]\nkind = \"voxel\"\n", Path::new("x.toml"))
+                .unwrap_err()
+                .to_string();
+        assert!(err.contains("voxel") && err.contains("frustum"), "{err}");
+        let err = ExperimentConfig::from_toml_str(
+            &with_kind("[frustum]\nclasses = [\"Car\"]\n"),
+            Path::new("x.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("[dataset] classes"), "{err}");
+        let c = ExperimentConfig::from_toml_str(
+            &with_kind("[dataset]\nclasses = [\"Pedestrian\", \"Cyclist\"]\n"),
+            Path::new("x.toml"),
+        )
+        .unwrap();
+        assert_eq!(
+            c.frustum.classes,
+            [ObjectClass::Pedestrian, ObjectClass::Cyclist]
+        );
+        let err = ExperimentConfig::from_toml_str(
+            &with_kind("[dataset]\nclasses = [\"Bus\"]\n"),
+            Path::new("x.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("[dataset] classes") && err.contains("Bus"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_bare_frustum_detector_is_the_published_car_configuration() {
+        let c = ExperimentConfig::from_toml_str(
+            "[detector]\nkind = \"frustum\"\n",
+            Path::new("x.toml"),
+        )
+        .unwrap();
         assert_eq!(c, ExperimentConfig::default());
         assert_eq!(c.train.batch_size, 32);
         assert_eq!(c.detect.nms_iou, 0.1);
@@ -289,19 +434,26 @@ mod tests {
 
     #[test]
     fn typos_and_bad_values_are_named() {
-        let err = ExperimentConfig::from_toml_str("[train]\nepochz = 3\n", Path::new("c.toml"))
-            .unwrap_err()
-            .to_string();
+        let err = ExperimentConfig::from_toml_str(
+            &with_kind("[train]\nepochz = 3\n"),
+            Path::new("c.toml"),
+        )
+        .unwrap_err()
+        .to_string();
         assert!(err.contains("c.toml") && err.contains("epochz"), "{err}");
-        let err = ExperimentConfig::from_toml_str("[train]\nbatch_size = 0\n", Path::new("c.toml"))
-            .unwrap_err()
-            .to_string();
+        let err = ExperimentConfig::from_toml_str(
+            &with_kind("[train]\nbatch_size = 0\n"),
+            Path::new("c.toml"),
+        )
+        .unwrap_err()
+        .to_string();
         assert!(err.contains("batch_size"), "{err}");
     }
 }
 
 #[cfg(test)]
 mod shipped_configs {
+    use super::with_kind;
     use super::*;
     use fusiondet_models::ModelConfig;
 
@@ -410,7 +562,7 @@ mod shipped_configs {
     #[test]
     fn lfa_needs_the_survivors_to_be_the_sliced_points() {
         let err = ExperimentConfig::from_toml_str(
-            "[frustum]\npoints_per_frustum = 4096\n[model.lfa]\n",
+            &with_kind("[frustum]\npoints_per_frustum = 4096\n[model.lfa]\n"),
             Path::new("s.toml"),
         )
         .unwrap_err()
@@ -433,14 +585,14 @@ mod shipped_configs {
         assert_eq!(c.frustum.points_per_frustum, 512);
         // The crop and [refine] come together.
         let err = ExperimentConfig::from_toml_str(
-            "[frustum]\ndepth_range = [-2.0, 2.0]\n[frustum.proposal_crop]\n",
+            &with_kind("[frustum]\ndepth_range = [-2.0, 2.0]\n[frustum.proposal_crop]\n"),
             Path::new("r.toml"),
         )
         .unwrap_err()
         .to_string();
         assert!(err.contains("[refine]"), "{err}");
         let err = ExperimentConfig::from_toml_str(
-            "[refine]\nfirst_stage = \"a.bpk\"\n",
+            &with_kind("[refine]\nfirst_stage = \"a.bpk\"\n"),
             Path::new("r.toml"),
         )
         .unwrap_err()

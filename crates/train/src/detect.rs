@@ -1,19 +1,15 @@
-//! Detection: 2D detections → frustums → network → one 3D box per frustum → per-frame
-//! 3D NMS → KITTI result files. Score = 3D object probability + 2D detection score,
-//! as F-ConvNet reports it. A refinement model runs its first stage, then its own
-//! network on frustums cut around the first stage's boxes.
+//! Detection with a trained model of any family: load the checkpoint (its family
+//! checked against the configuration's), read the split in the family's form, detect,
+//! write one KITTI result file per frame; and the per-stage timing `bench` reports.
 
 use crate::config::ExperimentConfig;
 use crate::device::ComputeDevice;
 use crate::error::{Result, TrainError};
-use crate::trainer::load_split;
+use crate::frustum::FrustumDetector;
 use burn::prelude::*;
-use fusiondet_frustum::{
-    FrameSource, FrustumDataset, FrustumFrames, InMemoryFrames, SkipCounts, decode_box,
-};
-use fusiondet_geometry::nms_3d;
+use fusiondet_frustum::{FrameSource, InMemoryFrames, SkipCounts};
 use fusiondet_kitti::{DatasetDir, Detection2d, Object, read_detections2d, write_objects};
-use fusiondet_models::{FConvNet, decode};
+use fusiondet_models::DetectorKind;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -37,34 +33,47 @@ pub struct DetectOptions {
 pub struct DetectSummary {
     pub frames: usize,
     pub detections_2d: usize,
-    pub frustums: usize,
+    /// Inputs the network ran on (frustums for the frustum family).
+    pub samples: usize,
     pub skipped: SkipCounts,
     pub boxes_written: usize,
     pub timing: StageTimes,
 }
 
-/// Wall time per stage of detection.
+/// Wall time per stage of detection, the stages named by the family (in the order they
+/// first ran), and the time spent loading from disk apart.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct StageTimes {
     pub load: Duration,
-    pub frustums: Duration,
-    pub network: Duration,
-    pub decode_nms: Duration,
+    stages: Vec<(&'static str, Duration)>,
 }
 
 impl StageTimes {
+    /// Adds `elapsed` to stage `stage`.
+    pub fn add(&mut self, stage: &'static str, elapsed: Duration) {
+        match self.stages.iter_mut().find(|(name, _)| *name == stage) {
+            Some((_, d)) => *d += elapsed,
+            None => self.stages.push((stage, elapsed)),
+        }
+    }
+
+    /// The time of one stage (zero if it never ran).
+    pub fn get(&self, stage: &str) -> Duration {
+        self.stages
+            .iter()
+            .find(|(name, _)| *name == stage)
+            .map_or(Duration::ZERO, |(_, d)| *d)
+    }
+
+    /// Every stage with its time, in the order they first ran.
+    pub fn stages(&self) -> &[(&'static str, Duration)] {
+        &self.stages
+    }
+
     /// Everything but loading from disk: what frames/s is measured over.
     pub fn compute(&self) -> Duration {
-        self.frustums + self.network + self.decode_nms
+        self.stages.iter().map(|(_, d)| *d).sum()
     }
-}
-
-/// A trained detector: one network, or a refinement network with the first stage whose
-/// boxes it refines.
-pub struct Detector {
-    pub model: FConvNet,
-    pub config: ExperimentConfig,
-    pub first_stage: Option<Box<Detector>>,
 }
 
 /// What one detection pass over a set of frames produced.
@@ -74,160 +83,117 @@ pub struct FrameResults {
     pub objects: BTreeMap<String, Vec<Object>>,
     /// Frustums left out, by reason (both stages' for a refinement model).
     pub skipped: SkipCounts,
-    /// Frustums the network ran on (the last stage's).
-    pub frustums: usize,
+    /// Inputs the network ran on (frustums for the frustum family; the last stage's).
+    pub samples: usize,
+}
+
+/// A trained detector of any family, chosen by the family its checkpoint records.
+pub enum Detector {
+    Frustum(FrustumDetector),
+}
+
+/// A split prepared for one family's detector (the frames in the family's form, and
+/// what else it reads).
+pub enum SplitInputs {
+    /// Frames with their in-image points, and the 2D detections that become frustums.
+    Frustum {
+        frames: InMemoryFrames,
+        detections: Vec<Detection2d>,
+    },
+}
+
+impl SplitInputs {
+    pub fn frames(&self) -> usize {
+        match self {
+            SplitInputs::Frustum { frames, .. } => frames.len(),
+        }
+    }
+
+    /// 2D detections read (0 for a family that needs none).
+    pub fn detections_2d(&self) -> usize {
+        match self {
+            SplitInputs::Frustum { detections, .. } => detections.len(),
+        }
+    }
 }
 
 impl Detector {
-    /// Loads the checkpoint trained with `config` onto `device`, and for a refinement
-    /// configuration its first stage (`refine.first_stage`).
+    /// Loads a checkpoint onto `device` after checking that it belongs to the family
+    /// `config` is for.
     pub fn load(config: ExperimentConfig, checkpoint: &Path, device: &Device) -> Result<Self> {
-        let model = fusiondet_models::load_checkpoint(&config.model, checkpoint, device)?;
-        let first_stage = match &config.refine {
-            Some(r) => {
-                let first = ExperimentConfig::for_checkpoint(&r.first_stage, None)?;
-                if first.refine.is_some() {
-                    return Err(TrainError::Config {
-                        path: r.first_stage.clone(),
-                        message: "the first stage is itself a refinement model; name a \
-                                  first-stage (2D-box frustum) checkpoint"
-                            .into(),
-                    });
-                }
-                Some(Box::new(Detector::load(first, &r.first_stage, device)?))
+        let stored = fusiondet_models::read_checkpoint_kind(checkpoint)?;
+        if stored != config.kind() {
+            return Err(TrainError::Config {
+                path: checkpoint.to_path_buf(),
+                message: format!(
+                    "a {stored} checkpoint cannot be run with a {} configuration ({}); pass \
+                     the configuration it was trained with",
+                    config.kind(),
+                    config.name
+                ),
+            });
+        }
+        Ok(match config.kind() {
+            DetectorKind::Frustum => {
+                Detector::Frustum(FrustumDetector::load(config, checkpoint, device)?)
             }
-            None => None,
-        };
-        Ok(Detector {
-            model,
-            config,
-            first_stage,
         })
     }
 
-    /// Runs detection on in-memory frames: 2D detections → frustums → network → one box
-    /// per frustum → per-frame 3D NMS; a refinement model then cuts a frustum around
-    /// each first-stage box and runs its own network and NMS on those. A refined box
-    /// scores the first-stage score plus the refinement network's object probability.
-    pub fn detect_frames<S: FrustumFrames + Clone>(
+    pub fn config(&self) -> &ExperimentConfig {
+        match self {
+            Detector::Frustum(d) => &d.config,
+        }
+    }
+
+    /// Reads the first `max_frames` frames of a split (0 = all) in this family's form,
+    /// with what else it needs (the frustum family: the 2D detections, `detections` or
+    /// the data set's own file for the split).
+    pub fn load_split(
+        &self,
+        data_dir: &Path,
+        split: &str,
+        max_frames: usize,
+        detections: Option<&Path>,
+    ) -> Result<SplitInputs> {
+        match self {
+            Detector::Frustum(_) => {
+                let frames = fusiondet_dataset::load_split(data_dir, split, max_frames, false)?;
+                let path = detections
+                    .map(Path::to_path_buf)
+                    .unwrap_or_else(|| DatasetDir::new(data_dir).rgb_detections(split));
+                Ok(SplitInputs::Frustum {
+                    frames,
+                    detections: read_detections2d(&path)?,
+                })
+            }
+        }
+    }
+
+    /// Detects on every frame of `inputs` (in memory; no disk reads).
+    pub fn detect(
         &self,
         device: &Device,
-        frames: S,
-        detections: &[Detection2d],
+        inputs: &SplitInputs,
         timing: &mut StageTimes,
     ) -> Result<FrameResults> {
-        let ids: Vec<String> = (0..frames.len())
-            .map(|i| frames.frame_id(i).to_string())
-            .collect();
-        let mut skipped = SkipCounts::default();
-        let t = Instant::now();
-        let dataset = match &self.first_stage {
-            Some(first) => {
-                timing.frustums += t.elapsed();
-                let proposals = first.detect_frames(device, frames.clone(), detections, timing)?;
-                skipped.merge(&proposals.skipped);
-                let t = Instant::now();
-                let d = FrustumDataset::from_proposals(
-                    frames,
-                    &proposals.objects,
-                    self.config.detect_frustum(),
-                    false,
-                )?;
-                timing.frustums += t.elapsed();
-                d
+        match (self, inputs) {
+            (Detector::Frustum(d), SplitInputs::Frustum { frames, detections }) => {
+                d.detect_frames(device, frames.clone(), detections, timing)
             }
-            None => {
-                let d = FrustumDataset::from_detections(
-                    frames,
-                    detections,
-                    self.config.detect_frustum(),
-                )?;
-                timing.frustums += t.elapsed();
-                d
-            }
-        };
-        skipped.merge(&dataset.skips());
-        let candidates = run_network(&self.model, device, &self.config, &dataset, ids, timing)?;
-        let t = Instant::now();
-        let objects = candidates
-            .into_iter()
-            .map(|(id, objects)| {
-                let boxes: Vec<_> = objects.iter().map(|o| o.box3d).collect();
-                let scores: Vec<f64> = objects.iter().map(|o| o.score.unwrap_or(0.0)).collect();
-                let keep = nms_3d(&boxes, &scores, self.config.detect.nms_iou);
-                (id, keep.into_iter().map(|k| objects[k].clone()).collect())
-            })
-            .collect();
-        timing.decode_nms += t.elapsed();
-        Ok(FrameResults {
-            objects,
-            skipped,
-            frustums: dataset.len(),
-        })
-    }
-}
-
-/// One box per frustum of `dataset`, by frame (before NMS). Score = the network's
-/// object probability + the frustum's own score (the 2D detection's, or the
-/// first-stage box's), as F-ConvNet reports it.
-fn run_network<S: FrustumFrames>(
-    model: &FConvNet,
-    device: &Device,
-    config: &ExperimentConfig,
-    dataset: &FrustumDataset<S>,
-    ids: Vec<String>,
-    timing: &mut StageTimes,
-) -> Result<BTreeMap<String, Vec<Object>>> {
-    let mut candidates: BTreeMap<String, Vec<Object>> =
-        ids.into_iter().map(|id| (id, Vec::new())).collect();
-    let mut batches = dataset.in_order(config.detect.seed, config.detect.batch_size);
-    loop {
-        // Batches are prepared (sampled, sliced, collated) when asked for: time the ask.
-        let t = Instant::now();
-        let Some(prepared) = batches.next() else {
-            break;
-        };
-        let prepared = prepared?;
-        timing.frustums += t.elapsed();
-        let t = Instant::now();
-        let inputs = model.inputs(&prepared.batch, device)?;
-        let output = model.forward_inputs(&inputs);
-        let predictions = decode(&output, &inputs, &config.model)?;
-        timing.network += t.elapsed();
-        let t = Instant::now();
-        for (sample, p) in prepared.samples.iter().zip(&predictions) {
-            let box3d = decode_box(
-                [0.0; 3],
-                p.center.map(f64::from),
-                p.heading_bin,
-                p.heading_residual as f64,
-                p.size_cluster,
-                p.size_residual.map(f64::from),
-                &sample.frame,
-            );
-            let score = p.score as f64 + sample.score.unwrap_or(0.0);
-            candidates
-                .entry(sample.frame_id.clone())
-                .or_default()
-                .push(sample.to_kitti_object(box3d, score));
         }
-        timing.decode_nms += t.elapsed();
     }
-    Ok(candidates)
 }
 
-/// What detection runs on: the detector (on the CPU), the split's frames and the 2D
-/// detections.
+/// What detection runs on: the detector on its device, and the split's inputs.
 pub(crate) struct DetectInputs {
     pub detector: Detector,
     pub device: Device,
-    pub frames: InMemoryFrames,
-    pub detections: Vec<Detection2d>,
+    pub inputs: SplitInputs,
 }
 
-/// Loads a checkpoint (with its first stage for a refinement model), the first
-/// `max_frames` frames of a split (0 = all) and the 2D detections (`detections`, or
-/// the dataset's own file for the split).
+/// Loads a checkpoint (with its first stage for a refinement model) and the first
+/// `max_frames` frames of a split (0 = all) with what its family reads besides.
 pub(crate) fn load_detect_inputs(
     config: &ExperimentConfig,
     checkpoint: &Path,
@@ -239,15 +205,11 @@ pub(crate) fn load_detect_inputs(
 ) -> Result<DetectInputs> {
     let device = device.device();
     let detector = Detector::load(config.clone(), checkpoint, &device)?;
-    let frames = load_split(data_dir, split, max_frames, false)?;
-    let det_path = detections
-        .map(Path::to_path_buf)
-        .unwrap_or_else(|| DatasetDir::new(data_dir).rgb_detections(split));
+    let inputs = detector.load_split(data_dir, split, max_frames, detections)?;
     Ok(DetectInputs {
         detector,
         device,
-        frames,
-        detections: read_detections2d(&det_path)?,
+        inputs,
     })
 }
 
@@ -260,8 +222,7 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
     let DetectInputs {
         detector,
         device,
-        frames,
-        detections,
+        inputs,
     } = load_detect_inputs(
         cfg,
         &options.checkpoint,
@@ -272,13 +233,12 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
         options.device,
     )?;
     timing.load += t.elapsed();
-    let num_frames = frames.len();
-    let results = detector.detect_frames(&device, frames, &detections, &mut timing)?;
+    let results = detector.detect(&device, &inputs, &mut timing)?;
     write_results(&options.out_dir, &results.objects)?;
     Ok(DetectSummary {
-        frames: num_frames,
-        detections_2d: detections.len(),
-        frustums: results.frustums,
+        frames: inputs.frames(),
+        detections_2d: inputs.detections_2d(),
+        samples: results.samples,
         skipped: results.skipped,
         boxes_written: results.objects.values().map(Vec::len).sum(),
         timing,

@@ -1,22 +1,28 @@
-//! Training and inference for the frustum detectors: the experiment configuration,
-//! run directories, schedules, metrics logs, the training loop, detection and its
-//! speed benchmark.
+//! Running any detector family: the experiment configuration, run directories,
+//! schedules, metrics logs, the generic training loop ([`trainer`]), detection dispatched
+//! on the checkpoint's family ([`detect`]) and its speed benchmark ([`bench`]); each
+//! family plugs in through a module of its own ([`frustum`]).
 
 pub mod bench;
 pub mod config;
 pub mod detect;
 pub mod device;
 pub mod error;
+pub mod frustum;
 pub mod metrics_log;
 pub mod run_dir;
 pub mod schedule;
 pub mod trainer;
 
 pub use bench::{BenchOptions, DetectBench, bench_detect, frames_per_second};
-pub use config::{DetectConfig, ExperimentConfig, RefineConfig, TrainConfig};
+pub use config::{
+    DatasetFormat, DatasetSection, DetectConfig, DetectorSection, ExperimentConfig, RefineConfig,
+    TrainConfig,
+};
 pub use detect::{
-    DetectOptions, DetectSummary, Detector, FrameResults, StageTimes, detect, write_results,
+    DetectOptions, DetectSummary, Detector, FrameResults, SplitInputs, StageTimes, detect,
+    write_results,
 };
 pub use device::ComputeDevice;
 pub use error::{Result, TrainError};
-pub use trainer::{TrainOptions, TrainSummary, load_split, train};
+pub use trainer::{TrainOptions, TrainSummary, TrainingTask, train};

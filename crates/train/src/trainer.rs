@@ -1,19 +1,19 @@
-//! The training loop: seeded initialisation, Adam with step decay, a data thread that
-//! prepares the next batch while the network trains on the current one, per-epoch
-//! checkpoints (weights and optimizer state) and metrics, and exact resume.
+//! The training loop, generic over a detector family ([`TrainingTask`]): seeded
+//! initialisation, Adam with step decay, a data thread that prepares the next batch while
+//! the network trains on the current one, per-epoch checkpoints (weights and optimizer
+//! state) and metrics, and exact resume. [`train`] picks the family from the
+//! configuration's `[detector] kind`.
 
-use crate::config::{ExperimentConfig, RefineConfig};
-use crate::detect::{Detector, FrameResults, StageTimes};
+use crate::config::ExperimentConfig;
 use crate::device::ComputeDevice;
 use crate::error::{Result, TrainError};
 use crate::metrics_log::MetricsLog;
 use crate::run_dir::{RunDir, RunState};
+use burn::module::Module;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, OptimizerRecord};
 use burn::prelude::*;
-use fusiondet_frustum::{FrustumDataset, InMemoryFrames, PreparedBatch};
-use fusiondet_kitti::{DatasetDir, read_detections2d, write_atomic};
-use fusiondet_models::{FConvNet, LossTargets, fconvnet_loss, load_checkpoint, save_checkpoint};
+use fusiondet_models::DetectorKind;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -35,27 +35,56 @@ pub struct TrainOptions {
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrainSummary {
     pub frames: usize,
-    pub frustums: usize,
+    /// Training samples per epoch (frustums for the frustum family).
+    pub samples: usize,
     pub epochs_run: usize,
     pub epochs_done: usize,
     pub final_loss: Option<f64>,
     pub model: PathBuf,
 }
 
-/// Loads the frames of a split (all of them, or the first `max_frames`) in the frustum
-/// family's form.
-pub fn load_split(
-    data_dir: &Path,
-    split: &str,
-    max_frames: usize,
-    with_labels: bool,
-) -> Result<InMemoryFrames> {
-    Ok(fusiondet_dataset::load_split(
-        data_dir,
-        split,
-        max_frames,
-        with_labels,
-    )?)
+/// A batch's loss: the total to differentiate, and named components for the log (the
+/// first is the total).
+pub struct StepLoss {
+    pub total: Tensor<1>,
+    pub components: Vec<(&'static str, f32)>,
+}
+
+/// What the training loop needs from a detector family: its network, its prepared
+/// training data, and its loss.
+pub trait TrainingTask: Sync {
+    type Model: Module;
+    type Batch: Send;
+
+    /// Frames the training samples come from.
+    fn frames(&self) -> usize;
+    /// Training samples in one epoch.
+    fn samples(&self) -> usize;
+    /// What a sample is called in the metrics log ("frustums").
+    fn sample_noun(&self) -> &'static str;
+    /// Said after the sample count when there are too few (e.g. what was skipped).
+    fn sample_note(&self) -> String {
+        String::new()
+    }
+    /// A freshly initialised network (weights from the configuration's seed alone).
+    fn new_model(&self, device: &Device) -> Result<Self::Model>;
+    fn load_model(&self, path: &Path, device: &Device) -> Result<Self::Model>;
+    /// Writes the weights atomically.
+    fn save_model(&self, model: &Self::Model, path: &Path) -> Result<()>;
+    /// The batches of epoch `epoch` (0-based) in training order; called on the data
+    /// thread's behalf, so preparing a batch overlaps the previous step.
+    fn epoch_batches(
+        &self,
+        epoch: usize,
+    ) -> Box<dyn ExactSizeIterator<Item = Result<Self::Batch>> + Send + '_>;
+    fn loss(&self, model: &Self::Model, batch: Self::Batch, device: &Device) -> Result<StepLoss>;
+}
+
+/// Trains the family named by the configuration.
+pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
+    match options.config.kind() {
+        DetectorKind::Frustum => crate::frustum::train(options),
+    }
 }
 
 fn bar(len: usize, enabled: bool) -> indicatif::ProgressBar {
@@ -73,103 +102,59 @@ fn bar(len: usize, enabled: bool) -> indicatif::ProgressBar {
     bar
 }
 
-/// A freshly initialised network whose weights depend on the seed alone. burn's
-/// initialisers draw from one process-wide generator, so seeding and drawing happen
-/// under a lock: two runs in one process (tests, ablations) cannot interleave draws.
-pub fn seeded_network(cfg: &ExperimentConfig, device: &Device) -> Result<FConvNet> {
+/// Draws a network's initial weights from `seed` alone. burn's initialisers draw from one
+/// process-wide generator, so seeding and drawing happen under a lock: two runs in one
+/// process (tests, ablations) cannot interleave draws.
+pub fn seeded<M>(seed: u64, device: &Device, init: impl FnOnce() -> Result<M>) -> Result<M> {
     static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _guard = INIT.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-    device.seed(cfg.train.seed);
-    Ok(FConvNet::new(&cfg.model, device)?)
+    device.seed(seed);
+    init()
 }
 
-/// A refinement run keeps its first stage beside its own model (`first-stage.bpk` and
-/// `first-stage.toml`), and its `config.toml` names that copy: the run directory is
-/// self-contained and can be moved.
-pub const FIRST_STAGE_FILE: &str = "first-stage.bpk";
-
-/// Copies the first stage named by `refine` into the run directory (atomically).
-fn copy_first_stage(refine: &RefineConfig, run: &RunDir) -> Result<()> {
-    let first = ExperimentConfig::for_checkpoint(&refine.first_stage, None)?;
-    let bytes = std::fs::read(&refine.first_stage).map_err(|e| TrainError::RunDir {
-        path: refine.first_stage.clone(),
-        message: format!("cannot read the first-stage checkpoint: {e}"),
-    })?;
-    let dest = run.root.join(FIRST_STAGE_FILE);
-    write_atomic(&dest, &bytes)?;
-    write_atomic(
-        &dest.with_extension("toml"),
-        first.to_toml_string().as_bytes(),
-    )?;
-    Ok(())
+/// A run directory opened for training: fresh, or resumed at its last finished epoch.
+pub struct OpenedRun {
+    pub run: RunDir,
+    pub resumed: Option<RunState>,
 }
 
-/// The first stage's results on the training frames (from the split's 2D detections):
-/// the proposals a refinement stage learns to correct.
-fn training_proposals(
-    first_stage: &Path,
+/// Opens `options.run_dir` for `stored` (the configuration as the run keeps it). A
+/// resumed run may be given more (or fewer) epochs; `compatible` decides whether the
+/// rest of a stored configuration matches.
+pub fn open_run(
     options: &TrainOptions,
-    frames: &InMemoryFrames,
-) -> Result<FrameResults> {
-    let device = options.device.device();
-    let config = ExperimentConfig::for_checkpoint(first_stage, None)?;
-    let detector = Detector::load(config, first_stage, &device)?;
-    let split = &options.config.train.split;
-    let detections = read_detections2d(&DatasetDir::new(&options.data_dir).rgb_detections(split))?;
-    let mut timing = StageTimes::default();
-    detector.detect_frames(&device, frames.clone(), &detections, &mut timing)
-}
-
-pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
-    let cfg = &options.config;
+    stored: &ExperimentConfig,
+    compatible: impl Fn(ExperimentConfig) -> bool,
+) -> Result<OpenedRun> {
     let run = RunDir::new(&options.run_dir);
-    // The stored configuration names the run's own copy of a first stage.
-    let mut stored = cfg.clone();
-    if let Some(r) = &mut stored.refine {
-        r.first_stage = PathBuf::from(FIRST_STAGE_FILE);
-    }
-    // A resumed run may be given more (or fewer) epochs; everything else must match.
-    let compatible = |stored: &str| {
-        ExperimentConfig::from_toml_str(stored, &run.config()).is_ok_and(|mut old| {
-            old.train.epochs = cfg.train.epochs;
-            old.refine.clone_from(&cfg.refine);
-            old == *cfg
+    let config_path = run.config();
+    let check = |text: &str| {
+        ExperimentConfig::from_toml_str(text, &config_path).is_ok_and(|mut old| {
+            old.train.epochs = options.config.train.epochs;
+            compatible(old)
         })
     };
-    let resumed = run.open(&stored.to_toml_string(), options.resume, &compatible)?;
-    let log = MetricsLog::new(run.metrics());
-    let first_stage = run.root.join(FIRST_STAGE_FILE);
-    if let Some(r) = &cfg.refine
-        && (resumed.is_none() || !first_stage.is_file())
-    {
-        copy_first_stage(r, &run)?;
-    }
+    let resumed = run.open(&stored.to_toml_string(), options.resume, &check)?;
+    Ok(OpenedRun { run, resumed })
+}
 
-    let frames = load_split(
-        &options.data_dir,
-        &cfg.train.split,
-        cfg.train.max_frames,
-        true,
-    )?;
-    let num_frames = fusiondet_frustum::FrameSource::len(&frames);
-    let dataset = match &cfg.refine {
-        None => FrustumDataset::from_labels(frames, cfg.frustum.clone(), cfg.train.seed)?,
-        Some(_) => {
-            let proposals = training_proposals(&first_stage, options, &frames)?;
-            if options.progress {
-                eprintln!(
-                    "first stage: {} boxes on {num_frames} training frames",
-                    proposals.objects.values().map(Vec::len).sum::<usize>()
-                );
-            }
-            FrustumDataset::from_proposals(frames, &proposals.objects, cfg.frustum.clone(), true)?
-        }
-    };
-    if dataset.len() < cfg.train.batch_size {
+/// The loop: epochs from the resumed state to `config.train.epochs`, each committed to
+/// the run directory (checkpoint, optimizer state, `model.bpk`, state, metrics line).
+pub fn run_training<T: TrainingTask>(
+    task: &T,
+    options: &TrainOptions,
+    opened: OpenedRun,
+) -> Result<TrainSummary> {
+    let cfg = &options.config;
+    let OpenedRun { run, resumed } = opened;
+    let log = MetricsLog::new(run.metrics());
+    if task.samples() < cfg.train.batch_size {
         return Err(TrainError::Invalid(format!(
-            "{} training frustums (skipped: {:?}) are fewer than one batch of {}; use more frames or a smaller train.batch_size",
-            dataset.len(),
-            dataset.skips(),
+            "{} training {}{} are fewer than one batch of {}; use more frames or a smaller \
+             train.batch_size",
+            task.samples(),
+            task.sample_noun(),
+            task.sample_note(),
             cfg.train.batch_size
         )));
     }
@@ -180,7 +165,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         .init();
     let (mut model, start_epoch) = match &resumed {
         Some(state) => {
-            let model = load_checkpoint(&cfg.model, &run.root.join(&state.model), &ad)?;
+            let model = task.load_model(&run.root.join(&state.model), &ad)?;
             let record = OptimizerRecord::load(run.root.join(&state.optimizer)).map_err(|e| {
                 TrainError::RunDir {
                     path: run.root.join(&state.optimizer),
@@ -191,24 +176,22 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
             log.truncate_to(state.epochs_done)?;
             (model, state.epochs_done)
         }
-        None => (seeded_network(cfg, &ad)?, 0),
+        None => (task.new_model(&ad)?, 0),
     };
 
     let mut final_loss = None;
     for epoch in start_epoch..cfg.train.epochs {
         let lr = cfg.train.lr.lr_at(epoch);
         let started = Instant::now();
-        let batches = dataset.epoch(cfg.train.seed, epoch as u64, cfg.train.batch_size);
+        let batches = task.epoch_batches(epoch);
         let progress = bar(batches.len(), options.progress);
         progress.set_prefix(format!("epoch {}/{}", epoch + 1, cfg.train.epochs));
         let mut sums: Vec<(&'static str, f64)> = Vec::new();
         let mut steps = 0usize;
-        // The data thread prepares batch k+1 (in parallel over its frustums) while the
-        // network trains on batch k.
+        // The data thread prepares batch k+1 while the network trains on batch k.
         let mut slot = Some(model);
         let outcome: Result<()> = std::thread::scope(|scope| {
-            let (tx, rx) =
-                std::sync::mpsc::sync_channel::<fusiondet_frustum::Result<PreparedBatch>>(2);
+            let (tx, rx) = std::sync::mpsc::sync_channel::<Result<T::Batch>>(2);
             scope.spawn(move || {
                 for b in batches {
                     if tx.send(b).is_err() {
@@ -217,14 +200,12 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
                 }
             });
             for prepared in rx {
-                let prepared = prepared?;
+                let batch = prepared?;
                 let net = slot.take().expect("the model is put back after every step");
-                let inputs = net.inputs(&prepared.batch, &ad)?;
-                let targets = LossTargets::new(&prepared.batch, &cfg.model, &cfg.loss, &ad)?;
-                let loss = fconvnet_loss(&net.forward_inputs(&inputs), &targets, &cfg.loss)?;
+                let loss = task.loss(&net, batch, &ad)?;
                 let grads = GradientsParams::from_grads(loss.total.backward(), &net);
                 slot = Some(optim.step(lr, net, grads));
-                for (k, (name, value)) in loss.components.named().into_iter().enumerate() {
+                for (k, (name, value)) in loss.components.into_iter().enumerate() {
                     if sums.len() <= k {
                         sums.push((name, 0.0));
                     }
@@ -246,7 +227,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
             model: run.epoch_model(done),
             optimizer: run.epoch_optimizer(done),
         };
-        save_checkpoint(&model, &run.root.join(&state.model))?;
+        task.save_model(&model, &run.root.join(&state.model))?;
         optim
             .to_record()
             .save(run.root.join(&state.optimizer))
@@ -254,14 +235,14 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
                 path: run.root.join(&state.optimizer),
                 message: format!("cannot write the optimizer state: {e}"),
             })?;
-        save_checkpoint(&model, &run.model())?;
+        task.save_model(&model, &run.model())?;
         run.commit(&state)?;
 
         let mut record = json!({
             "epoch": epoch,
             "lr": lr,
             "batches": steps,
-            "frustums": steps * cfg.train.batch_size,
+            task.sample_noun(): steps * cfg.train.batch_size,
             "seconds": started.elapsed().as_secs_f64(),
         });
         for (name, sum) in &sums {
@@ -279,8 +260,8 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         }
     }
     Ok(TrainSummary {
-        frames: num_frames,
-        frustums: dataset.len(),
+        frames: task.frames(),
+        samples: task.samples(),
         epochs_run: cfg.train.epochs.saturating_sub(start_epoch),
         epochs_done: cfg.train.epochs.max(start_epoch),
         final_loss,

@@ -107,7 +107,7 @@ fn resume_after_an_epoch_gives_the_same_weights_as_an_uninterrupted_run() {
     let straight = tempfile::tempdir().unwrap();
     let s = train_run(straight.path(), 2, false);
     assert_eq!(s.epochs_run, 2);
-    assert!(s.frustums >= 8, "{s:?}");
+    assert!(s.samples >= 8, "{s:?}");
     let metrics = std::fs::read_to_string(straight.path().join("metrics.jsonl")).unwrap();
     assert_eq!(metrics.lines().count(), 2);
     assert!(metrics.contains("\"loss_total\""), "{metrics}");
@@ -180,7 +180,7 @@ fn detect_writes_a_result_file_per_frame_that_the_evaluation_reads() {
             "no result for {id}"
         );
     }
-    assert!(summary.boxes_written > 0 && summary.boxes_written <= summary.frustums);
+    assert!(summary.boxes_written > 0 && summary.boxes_written <= summary.samples);
     let label_dir = dataset().join("training/label_2");
     let split = DatasetDir::new(dataset()).split("val");
     let (report, loaded) =
@@ -255,7 +255,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
         progress: false,
     })
     .unwrap();
-    assert!(summary.frustums >= 4, "{summary:?}");
+    assert!(summary.samples >= 4, "{summary:?}");
     // The run holds its own copy of the first stage and its config names the copy.
     assert!(run.join("first-stage.bpk").is_file());
     assert!(run.join("first-stage.toml").is_file());
@@ -277,8 +277,8 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
         detections: None,
     })
     .unwrap();
-    assert!(refined.frustums > 0, "{refined:?}");
-    assert!(refined.boxes_written > 0 && refined.boxes_written <= refined.frustums);
+    assert!(refined.samples > 0, "{refined:?}");
+    assert!(refined.boxes_written > 0 && refined.boxes_written <= refined.samples);
     let first_only = detect(&DetectOptions {
         device: Default::default(),
         config: ExperimentConfig::for_checkpoint(&run.join("first-stage.bpk"), None).unwrap(),
@@ -293,7 +293,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
     // skips are both stages').
     let second_stage_skips = refined.skipped.total() - first_only.skipped.total();
     assert_eq!(
-        refined.frustums + second_stage_skips,
+        refined.samples + second_stage_skips,
         first_only.boxes_written
     );
     let read_all = |dir: &Path| {

@@ -136,7 +136,7 @@ fn detect_and_evaluate(
         "\n== {title}: {} frames, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",
         s.frames,
         s.detections_2d,
-        s.frustums,
+        s.samples,
         s.boxes_written,
         started.elapsed().as_secs_f64()
     );
@@ -300,7 +300,7 @@ fn train_tiny(args: &DemoOptions, sim: &Path) -> anyhow::Result<(ExperimentConfi
     println!(
         "== trained the tiny F-ConvNet ({} epochs, {} frustums from {} frames, final loss {:.3}) in {:.1} s -> {}",
         summary.epochs_run,
-        summary.frustums,
+        summary.samples,
         summary.frames,
         summary.final_loss.unwrap_or(f64::NAN),
         t.elapsed().as_secs_f64(),

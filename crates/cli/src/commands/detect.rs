@@ -68,7 +68,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         "{} frames, {} 2D detections -> {} frustums -> {} boxes written to {}",
         s.frames,
         s.detections_2d,
-        s.frustums,
+        s.samples,
         s.boxes_written,
         args.out.display()
     );
@@ -77,12 +77,15 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         skipped.outside_image, skipped.too_small, skipped.no_points, skipped.unknown_frame
     );
     let t = &s.timing;
+    let stages: Vec<String> = t
+        .stages()
+        .iter()
+        .map(|(name, d)| format!("{name} {:.3} s", d.as_secs_f64()))
+        .collect();
     println!(
-        "time: load {:.2} s, frustums {:.2} s, network {:.2} s, decode+nms {:.3} s",
+        "time: load {:.2} s, {}",
         t.load.as_secs_f64(),
-        t.frustums.as_secs_f64(),
-        t.network.as_secs_f64(),
-        t.decode_nms.as_secs_f64()
+        stages.join(", ")
     );
     Ok(())
 }

@@ -2,34 +2,26 @@
 //! for a refinement configuration, its first stage's too and the total of both.
 
 use fusiondet_models::info::parameter_count;
-use fusiondet_models::{FConvNetConfig, render_info};
+use fusiondet_models::render_info;
 use fusiondet_train::ExperimentConfig;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct InfoArgs {
-    /// Model configuration: TOML with `[model]` and `[loss]` tables (missing keys take the
-    /// published F-ConvNet Car values; other tables are ignored, except `[refine]`).
+    /// Experiment configuration (TOML, read as `train` reads it: `[detector]`, `[dataset]`,
+    /// `[model]`, `[loss]`, ...; missing keys take the published F-ConvNet Car values).
     #[arg(long)]
     pub config: PathBuf,
 }
 
 pub fn run(args: InfoArgs) -> anyhow::Result<()> {
-    let config = FConvNetConfig::from_toml_file(&args.config)?;
-    let text = std::fs::read_to_string(&args.config)?;
-    let names_a_first_stage = toml::from_str::<toml::Table>(&text)
-        .ok()
-        .is_some_and(|t| t.contains_key("refine"));
-    if !names_a_first_stage {
+    let experiment = ExperimentConfig::from_file(&args.config)?;
+    let config = experiment.network();
+    let Some(refine) = &experiment.refine else {
         println!("{}", render_info(&config)?);
         return Ok(());
-    }
-    let experiment = ExperimentConfig::from_file(&args.config)?;
-    let first_path = &experiment
-        .refine
-        .as_ref()
-        .expect("a [refine] table was parsed")
-        .first_stage;
+    };
+    let first_path = &refine.first_stage;
     // A first stage that is not trained yet (e.g. `runs/fconvnet-people/model.bpk`) has no
     // configuration to count: the refinement stage's own table still answers.
     let first = match ExperimentConfig::for_checkpoint(first_path, None) {

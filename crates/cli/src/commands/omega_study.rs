@@ -3,8 +3,9 @@
 //! them, on a dataset's ground-truth frustums, and recommends the largest ω that loses
 //! under 1% of the objects' own points (the paper does not give ω).
 
+use fusiondet_frustum::load_split;
 use fusiondet_frustum::{DEFAULT_OMEGAS, Slicing, omega_study_from_labels};
-use fusiondet_train::{ExperimentConfig, load_split};
+use fusiondet_train::ExperimentConfig;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]

@@ -92,7 +92,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     })?;
     println!(
         "trained on {} frustums from {} frames: {} epoch(s) run, {} done, final loss {}",
-        summary.frustums,
+        summary.samples,
         summary.frames,
         summary.epochs_run,
         summary.epochs_done,

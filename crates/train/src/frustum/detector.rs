@@ -1,0 +1,171 @@
+//! The frustum family's detector: 2D detections → frustums → network → one 3D box per
+//! frustum → per-frame 3D NMS. Score = 3D object probability + 2D detection score, as
+//! F-ConvNet reports it. A refinement model runs its first stage, then its own network
+//! on frustums cut around the first stage's boxes.
+
+use crate::config::ExperimentConfig;
+use crate::detect::{FrameResults, StageTimes};
+use crate::error::{Result, TrainError};
+use burn::prelude::*;
+use fusiondet_frustum::{FrustumDataset, FrustumFrames, SkipCounts, decode_box};
+use fusiondet_geometry::nms_3d;
+use fusiondet_kitti::{Detection2d, Object};
+use fusiondet_models::{FConvNet, decode};
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Instant;
+
+/// The frustum family's stages, as `bench` and `detect` report them.
+pub const STAGE_FRUSTUMS: &str = "frustums (extract, sample, slice)";
+pub const STAGE_NETWORK: &str = "network (tensors, forward, decode)";
+pub const STAGE_DECODE: &str = "boxes + 3D NMS";
+
+/// A trained detector: one network, or a refinement network with the first stage whose
+/// boxes it refines.
+pub struct FrustumDetector {
+    pub model: FConvNet,
+    pub config: ExperimentConfig,
+    pub first_stage: Option<Box<FrustumDetector>>,
+}
+
+impl FrustumDetector {
+    /// Loads the checkpoint trained with `config` onto `device`, and for a refinement
+    /// configuration its first stage (`refine.first_stage`).
+    pub fn load(config: ExperimentConfig, checkpoint: &Path, device: &Device) -> Result<Self> {
+        let model = fusiondet_models::load_checkpoint(&config.model, checkpoint, device)?;
+        let first_stage = match &config.refine {
+            Some(r) => {
+                let first = ExperimentConfig::for_checkpoint(&r.first_stage, None)?;
+                if first.refine.is_some() {
+                    return Err(TrainError::Config {
+                        path: r.first_stage.clone(),
+                        message: "the first stage is itself a refinement model; name a \
+                                  first-stage (2D-box frustum) checkpoint"
+                            .into(),
+                    });
+                }
+                Some(Box::new(FrustumDetector::load(
+                    first,
+                    &r.first_stage,
+                    device,
+                )?))
+            }
+            None => None,
+        };
+        Ok(FrustumDetector {
+            model,
+            config,
+            first_stage,
+        })
+    }
+
+    /// Runs detection on in-memory frames: 2D detections → frustums → network → one box
+    /// per frustum → per-frame 3D NMS; a refinement model then cuts a frustum around
+    /// each first-stage box and runs its own network and NMS on those. A refined box
+    /// scores the first-stage score plus the refinement network's object probability.
+    pub fn detect_frames<S: FrustumFrames + Clone>(
+        &self,
+        device: &Device,
+        frames: S,
+        detections: &[Detection2d],
+        timing: &mut StageTimes,
+    ) -> Result<FrameResults> {
+        let ids: Vec<String> = (0..frames.len())
+            .map(|i| frames.frame_id(i).to_string())
+            .collect();
+        let mut skipped = SkipCounts::default();
+        let t = Instant::now();
+        let dataset = match &self.first_stage {
+            Some(first) => {
+                timing.add(STAGE_FRUSTUMS, t.elapsed());
+                let proposals = first.detect_frames(device, frames.clone(), detections, timing)?;
+                skipped.merge(&proposals.skipped);
+                let t = Instant::now();
+                let d = FrustumDataset::from_proposals(
+                    frames,
+                    &proposals.objects,
+                    self.config.detect_frustum(),
+                    false,
+                )?;
+                timing.add(STAGE_FRUSTUMS, t.elapsed());
+                d
+            }
+            None => {
+                let d = FrustumDataset::from_detections(
+                    frames,
+                    detections,
+                    self.config.detect_frustum(),
+                )?;
+                timing.add(STAGE_FRUSTUMS, t.elapsed());
+                d
+            }
+        };
+        skipped.merge(&dataset.skips());
+        let candidates = run_network(&self.model, device, &self.config, &dataset, ids, timing)?;
+        let t = Instant::now();
+        let objects = candidates
+            .into_iter()
+            .map(|(id, objects)| {
+                let boxes: Vec<_> = objects.iter().map(|o| o.box3d).collect();
+                let scores: Vec<f64> = objects.iter().map(|o| o.score.unwrap_or(0.0)).collect();
+                let keep = nms_3d(&boxes, &scores, self.config.detect.nms_iou);
+                (id, keep.into_iter().map(|k| objects[k].clone()).collect())
+            })
+            .collect();
+        timing.add(STAGE_DECODE, t.elapsed());
+        Ok(FrameResults {
+            objects,
+            skipped,
+            samples: dataset.len(),
+        })
+    }
+}
+
+/// One box per frustum of `dataset`, by frame (before NMS). Score = the network's
+/// object probability + the frustum's own score (the 2D detection's, or the
+/// first-stage box's), as F-ConvNet reports it.
+fn run_network<S: FrustumFrames>(
+    model: &FConvNet,
+    device: &Device,
+    config: &ExperimentConfig,
+    dataset: &FrustumDataset<S>,
+    ids: Vec<String>,
+    timing: &mut StageTimes,
+) -> Result<BTreeMap<String, Vec<Object>>> {
+    let mut candidates: BTreeMap<String, Vec<Object>> =
+        ids.into_iter().map(|id| (id, Vec::new())).collect();
+    let mut batches = dataset.in_order(config.detect.seed, config.detect.batch_size);
+    loop {
+        // Batches are prepared (sampled, sliced, collated) when asked for: time the ask.
+        let t = Instant::now();
+        let Some(prepared) = batches.next() else {
+            break;
+        };
+        let prepared = prepared?;
+        timing.add(STAGE_FRUSTUMS, t.elapsed());
+        let t = Instant::now();
+        let inputs = model.inputs(&prepared.batch, device)?;
+        let output = model.forward_inputs(&inputs);
+        let predictions = decode(&output, &inputs, &config.model)?;
+        timing.add(STAGE_NETWORK, t.elapsed());
+        let t = Instant::now();
+        for (sample, p) in prepared.samples.iter().zip(&predictions) {
+            let box3d = decode_box(
+                [0.0; 3],
+                p.center.map(f64::from),
+                p.heading_bin,
+                p.heading_residual as f64,
+                p.size_cluster,
+                p.size_residual.map(f64::from),
+                &sample.frame,
+            );
+            let score = p.score as f64 + sample.score.unwrap_or(0.0);
+            candidates
+                .entry(sample.frame_id.clone())
+                .or_default()
+                .push(sample.to_kitti_object(box3d, score));
+        }
+        timing.add(STAGE_DECODE, t.elapsed());
+    }
+    Ok(candidates)
+}

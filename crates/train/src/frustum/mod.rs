@@ -1,0 +1,9 @@
+//! The frustum family (F-ConvNet with its refinement stage, FCAM, SAF) plugged into the
+//! generic pipeline: its training task ([`FrustumTask`]) and its detector
+//! ([`FrustumDetector`]).
+
+mod detector;
+mod task;
+
+pub use detector::{FrustumDetector, STAGE_DECODE, STAGE_FRUSTUMS, STAGE_NETWORK};
+pub use task::{FIRST_STAGE_FILE, FrustumTask, seeded_network, train};
