@@ -7,13 +7,16 @@
 //!   disk on every request ([`DiskFrames`]); a family keeps its own derived form of a
 //!   frame ([`DerivedFrame`]: the frustum family keeps only the points in the image).
 //! - [`load_split`] / [`split_ids`]: the frames an `ImageSets/<split>.txt` lists.
+//! - [`ClassSet`]: a detector's class vocabulary (names in one-hot order, mean sizes).
 //! - [`rng`]: the one seeded generator of the project.
 
+pub mod classes;
 pub mod error;
 pub mod frame;
 pub mod rng;
 pub mod split;
 
+pub use classes::{ClassInfo, ClassSet};
 pub use error::{DataError, Result};
 pub use frame::{
     DEFAULT_IMAGE_SIZE, DerivedFrame, DiskFrames, FrameSource, InMemoryFrames, SensorFrame,

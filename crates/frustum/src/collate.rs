@@ -2,7 +2,6 @@
 
 use crate::batch::{BatchScale, BatchTargets, FrustumBatch};
 use crate::sample::FrustumSample;
-use crate::targets::{CLASSES, size_cluster_of};
 
 /// Stacks samples into a batch. Row `i` of every per-frustum array is `samples[i]`;
 /// pair indices are offset by `i · points_per_frustum` (points) and
@@ -56,13 +55,14 @@ pub fn collate(samples: &[FrustumSample]) -> FrustumBatch {
     }
 
     let mut points = Vec::with_capacity(n * n_points * 3);
-    let mut class_one_hot = vec![0.0f32; n * CLASSES.len()];
+    let slots = first.num_class_slots;
+    let mut class_one_hot = vec![0.0f32; n * slots];
     let mut image_projection = Vec::with_capacity(n * 12);
     for (i, s) in samples.iter().enumerate() {
         points.extend(s.points.iter().flat_map(|p| p.map(|v| v as f32)));
         image_projection.extend(s.image_projection.map(|v| v as f32));
-        let slot = size_cluster_of(s.class).expect("sample class has a one-hot slot");
-        class_one_hot[i * CLASSES.len() + slot] = 1.0;
+        assert_eq!(s.num_class_slots, slots, "sample {i}: class set differs");
+        class_one_hot[i * slots + s.class_slot] = 1.0;
     }
 
     let scales = (0..first.scales.len())

@@ -2,10 +2,10 @@
 //! table (e.g. `[frustum]`) in a model's TOML. Every field has a default (the
 //! published F-ConvNet Car configuration), so a table only lists what it changes.
 
+use crate::coder::BoxCoder;
 use crate::error::{FrustumError, Result};
 use crate::proposal::ProposalCrop;
 use crate::slicing::{DepthGuidedSlicing, SliceStrategy, Slicing, UniformSlicing};
-use crate::targets::size_cluster_of;
 use fusiondet_kitti::ObjectClass;
 use serde::{Deserialize, Serialize};
 
@@ -44,6 +44,11 @@ pub struct FrustumConfig {
     /// boxes and `depth_range` is relative to each box's centre.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub proposal_crop: Option<ProposalCrop>,
+    /// The box coder of the targets (and of decoding): not a key of its own, but built
+    /// by the experiment configuration from the network's heading bins and the data
+    /// set's class set (F-ConvNet's KITTI coder by default).
+    #[serde(skip)]
+    pub coder: BoxCoder,
 }
 
 /// Training-time augmentation. The 2D jitter is drawn once, when the training set is
@@ -125,6 +130,7 @@ impl FrustumConfig {
             min_object_points: 1,
             augment: AugmentConfig::default(),
             proposal_crop: None,
+            coder: BoxCoder::kitti(),
         }
     }
 
@@ -177,9 +183,10 @@ impl FrustumConfig {
             return bad("`classes` is empty".into());
         }
         for c in &self.classes {
-            if size_cluster_of(*c).is_none() {
+            if self.coder.cluster_of(c.as_str()).is_none() {
                 return bad(format!(
-                    "`classes`: {c} has no size cluster; use Car, Pedestrian and/or Cyclist"
+                    "`classes`: {c} has no size cluster; use {}",
+                    self.coder.classes().names().join(", ")
                 ));
             }
         }

@@ -6,14 +6,15 @@
 //! ([`FrustumPoints`] in the box's [`FrustumFrame`], or a [`SkipReason`]) →
 //! [`build_sample`] (augmentation, 1024-point sampling, sub-frustums of every scale
 //! by the configured [`Slicing`]: F-ConvNet's uniform or SAF's depth-guided, whose ω
-//! [`omega_study()`] helps choose; [`BoxEncoding`] targets) → [`collate()`] into a
+//! [`omega_study()`] helps choose; [`BoxEncoding`] targets by the [`BoxCoder`]) → [`collate()`] into a
 //! [`FrustumBatch`]. [`FrustumDataset`] ties these together over a [`FrameSource`]
-//! with seeded, parallel, thread-count-independent epochs. [`decode_box`] turns
-//! network outputs back into KITTI camera-frame boxes.
+//! with seeded, parallel, thread-count-independent epochs. [`BoxCoder::decode_box`]
+//! turns network outputs back into KITTI camera-frame boxes.
 //!
 //! Geometry is f64; only the batch arrays handed to the network are f32.
 
 pub mod batch;
+pub mod coder;
 pub mod collate;
 pub mod config;
 pub mod dataset;
@@ -28,6 +29,7 @@ pub mod slicing;
 pub mod targets;
 
 pub use batch::{BatchScale, BatchTargets, FrustumBatch};
+pub use coder::{BoxCoder, BoxEncoding};
 pub use collate::collate;
 pub use config::{AugmentConfig, DepthShift, FrustumConfig};
 pub use dataset::{Batches, FrustumDataset, FrustumSpec, PreparedBatch, jitter_box};
@@ -50,10 +52,7 @@ pub use slicing::{
     DEFAULT_OMEGA, DepthGuidedSlicing, MAX_NEAR_FRACTION, MeanHeights, ScaleLayout, SliceContext,
     SliceInterval, SliceStrategy, Slicing, UniformSlicing, coarse_depth,
 };
-pub use targets::{
-    BoxEncoding, CLASSES, MEAN_SIZES, NUM_HEADING_BINS, decode_box, decode_encoding, encode_box,
-    position_labels, size_cluster_of,
-};
+pub use targets::position_labels;
 
 /// The bundled KITTI sample frames, for tests.
 #[cfg(test)]

@@ -2,11 +2,12 @@
 //! their ragged point membership, and (for training) its targets. f64 throughout;
 //! [`crate::collate()`] converts to the f32 batch arrays.
 
+use crate::coder::{BoxCoder, BoxEncoding};
 use crate::config::{AugmentConfig, FrustumConfig};
 use crate::frustum::{FrustumFrame, FrustumPoints};
 use crate::rng::Sampler;
 use crate::slicing::{SliceContext, SliceInterval, SliceStrategy, depth_order, slice_pairs};
-use crate::targets::{BoxEncoding, encode_box, position_labels, size_cluster_of};
+use crate::targets::position_labels;
 use fusiondet_geometry::{alpha_from_ry, corners};
 use fusiondet_kitti::{Box2d, Box3d, Object, ObjectClass};
 
@@ -47,6 +48,10 @@ pub struct FrustumSample {
     pub frame_id: String,
     /// The class of the 2D box (ground truth or detection).
     pub class: ObjectClass,
+    /// The class's one-hot slot (= size cluster) in the coder's class set, and the
+    /// set's size (the one-hot's length).
+    pub class_slot: usize,
+    pub num_class_slots: usize,
     /// The 2D box that made the frustum, clipped to the image.
     pub box2d: Box2d,
     /// The 2D detection score (detection frustums only).
@@ -183,9 +188,15 @@ pub fn build_sample(
             }
         })
         .collect();
+    let class_slot = config
+        .coder
+        .cluster_of(source.class.as_str())
+        .expect("the config only admits classes with a size cluster");
     let mut sample = FrustumSample {
         frame_id: source.frame_id.to_string(),
         class: source.class,
+        class_slot,
+        num_class_slots: config.coder.num_clusters(),
         box2d: frustum.box2d,
         score: source.score,
         frame,
@@ -198,8 +209,9 @@ pub fn build_sample(
     };
     if let Some(object) = source.object {
         sample.target = Some(make_target(
+            &config.coder,
             object,
-            sample.class,
+            sample.class_slot,
             &sample.frame,
             sample.positions(),
         ));
@@ -208,18 +220,17 @@ pub fn build_sample(
 }
 
 fn make_target(
+    coder: &BoxCoder,
     object: &Box3d,
-    class: ObjectClass,
+    cluster: usize,
     frame: &FrustumFrame,
     positions: &[[f64; 3]],
 ) -> SampleTarget {
-    let cluster =
-        size_cluster_of(class).expect("the config only admits classes with a size cluster");
     let in_frustum = frame.box_to_frustum(object);
     SampleTarget {
         object: *object,
         in_frustum,
-        encoding: encode_box(object, cluster, frame),
+        encoding: coder.encode_box(object, cluster, frame),
         labels: position_labels(positions, &in_frustum),
         corners: corners(&in_frustum),
     }
@@ -249,7 +260,7 @@ impl FrustumSample {
     /// The sample mirrored about the frustum axis (x → −x, heading → π − heading), the
     /// frame's mirror flag toggled and the targets recomputed through it. Membership is
     /// unchanged (depths are), so flipping twice returns the original exactly.
-    pub fn flipped(&self) -> FrustumSample {
+    pub fn flipped(&self, coder: &BoxCoder) -> FrustumSample {
         let frame = self
             .frame
             .with_augmentation(!self.frame.mirrored, self.frame.depth_shift);
@@ -270,8 +281,9 @@ impl FrustumSample {
         }
         if let Some(t) = &self.target {
             out.target = Some(make_target(
+                coder,
                 &t.object,
-                out.class,
+                out.class_slot,
                 &out.frame,
                 out.positions(),
             ));
@@ -392,7 +404,7 @@ mod tests {
             "{positives:?}"
         );
         // The decoded target is the label.
-        let back = crate::targets::decode_encoding(&t.encoding, &s.frame);
+        let back = BoxCoder::kitti().decode_encoding(&t.encoding, &s.frame);
         assert!((back.x - obj.box3d.x).abs() < 1e-9 && (back.z - obj.box3d.z).abs() < 1e-9);
     }
 
@@ -502,13 +514,13 @@ mod tests {
             },
             3,
         );
-        let f = s.flipped();
+        let f = s.flipped(&BoxCoder::kitti());
         assert_ne!(f, s);
-        assert_eq!(f.flipped(), s);
+        assert_eq!(f.flipped(&BoxCoder::kitti()), s);
         // The flipped target decodes to the same camera box, and the same points are inside it.
         let t = s.target.as_ref().unwrap();
         let ft = f.target.as_ref().unwrap();
-        let back = crate::targets::decode_encoding(&ft.encoding, &f.frame);
+        let back = BoxCoder::kitti().decode_encoding(&ft.encoding, &f.frame);
         for (a, b) in [
             (back.x, t.object.x),
             (back.z, t.object.z),
@@ -568,7 +580,10 @@ mod tests {
             6,
         );
         let t = s.target.as_ref().unwrap();
-        let o = s.to_kitti_object(crate::targets::decode_encoding(&t.encoding, &s.frame), 0.9);
+        let o = s.to_kitti_object(
+            BoxCoder::kitti().decode_encoding(&t.encoding, &s.frame),
+            0.9,
+        );
         assert_eq!(
             (o.class, o.bbox, o.score),
             (label.class, label.bbox, Some(0.9))

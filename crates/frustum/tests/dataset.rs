@@ -2,8 +2,8 @@
 //! (contract with the networks), determinism across seeds and thread counts.
 
 use fusiondet_frustum::{
-    AugmentConfig, DiskFrames, FrameSource, FrustumConfig, FrustumDataset, FrustumFrames,
-    InMemoryFrames, PreparedBatch, SkipReason, collate, decode_box,
+    AugmentConfig, BoxCoder, BoxEncoding, DiskFrames, FrameSource, FrustumConfig, FrustumDataset,
+    FrustumFrames, InMemoryFrames, PreparedBatch, SkipReason, collate,
 };
 use fusiondet_geometry::normalize_angle;
 use fusiondet_kitti::{Box2d, Detection2d, FrameDir, ObjectClass, read_detections2d};
@@ -163,15 +163,14 @@ fn decode_at_first_positive(pb: &PreparedBatch, i: usize) -> fusiondet_kitti::Bo
     let pc: [f64; 3] = std::array::from_fn(|j| pos.slice_centers[3 * (i * n + k) + j] as f64);
     let off: [f64; 3] = std::array::from_fn(|j| t.center[3 * i + j] as f64 - pc[j]);
     let sr: [f64; 3] = std::array::from_fn(|j| t.size_residual[3 * i + j] as f64);
-    decode_box(
-        pc,
-        off,
-        t.heading_bin[i] as usize,
-        t.heading_residual[i] as f64,
-        t.size_cluster[i] as usize,
-        sr,
-        &pb.samples[i].frame,
-    )
+    let predicted = BoxEncoding {
+        center: off,
+        heading_bin: t.heading_bin[i] as usize,
+        heading_residual: t.heading_residual[i] as f64,
+        size_cluster: t.size_cluster[i] as usize,
+        size_residual: sr,
+    };
+    BoxCoder::kitti().decode_box(pc, &predicted, &pb.samples[i].frame)
 }
 
 /// Decoding the batch's own f32 targets through `decode_box`, from each positive

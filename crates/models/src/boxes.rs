@@ -1,7 +1,6 @@
-//! Host-side box helpers in the conventions the loss uses (frustum frame: x right, y down,
+//! Host-side box corners in the conventions the loss uses (the heading and size
+//! coding is the frustum crate's `BoxCoder`) (frustum frame: x right, y down,
 //! z forward; heading is a rotation about y as in KITTI's `rotation_y`).
-
-use std::f32::consts::{PI, TAU};
 
 /// The eight corners of a box given by its *geometric* centre, heading and (l, w, h), in
 /// the order of `fusiondet_geometry::corners`: 0–3 the bottom face (y = centre + h/2),
@@ -39,37 +38,10 @@ pub fn flip_corners(corners: &[[f32; 3]; 8], center: [f32; 3]) -> [[f32; 3]; 8] 
     corners.map(|[x, y, z]| [2.0 * center[0] - x, y, 2.0 * center[2] - z])
 }
 
-/// F-ConvNet's heading encoding: bin k is centred on k · 2π / bins; returns the bin and
-/// the residual from its centre in radians, in [−π/bins, π/bins).
-pub fn encode_heading(angle: f32, bins: usize) -> (usize, f32) {
-    let width = TAU / bins as f32;
-    let shifted = (angle + width / 2.0).rem_euclid(TAU);
-    let bin = ((shifted / width) as usize).min(bins - 1);
-    (bin, shifted - (bin as f32 * width + width / 2.0))
-}
-
-/// Inverse of [`encode_heading`], wrapped to (−π, π].
-pub fn decode_heading(bin: usize, residual: f32, bins: usize) -> f32 {
-    let a = (bin as f32 * TAU / bins as f32 + residual).rem_euclid(TAU);
-    if a > PI { a - TAU } else { a }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn heading_round_trip() {
-        for i in 0..100 {
-            let a = -PI + 0.0628 * i as f32 + 0.001;
-            let (bin, res) = encode_heading(a, 12);
-            assert!(bin < 12 && res.abs() <= PI / 12.0 + 1e-5, "{a} {bin} {res}");
-            let back = decode_heading(bin, res, 12);
-            assert!((back - a).abs() < 1e-4, "{a} → {back}");
-        }
-        assert_eq!(encode_heading(0.0, 12).0, 0);
-        assert_eq!(encode_heading(PI / 2.0, 12).0, 3);
-    }
+    use std::f32::consts::PI;
 
     #[test]
     fn flipped_corners_are_the_box_turned_by_pi() {

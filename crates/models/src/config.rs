@@ -141,7 +141,8 @@ pub struct ModelConfig {
     /// Heading bins over 2π; bin k is centred on k · 2π / bins.
     pub num_heading_bins: usize,
     /// Mean (l, w, h) of each size cluster, in metres (F-ConvNet: the KITTI class means of
-    /// Car, Pedestrian, Cyclist). Must match the frustum dataset's size-residual encoding.
+    /// Car, Pedestrian, Cyclist): the box coder's, which the experiment configuration
+    /// checks them against.
     pub size_clusters: Vec<[f32; 3]>,
     /// Whether layers followed by batch norm carry a bias. The published implementation
     /// has none (the bias is redundant before batch norm); `true` adds 5,632 parameters to Car.
@@ -195,10 +196,12 @@ impl Default for LossConfig {
     }
 }
 
-/// F-ConvNet's KITTI class mean sizes (l, w, h) for Car, Pedestrian, Cyclist
-/// (`datasets/dataset_info.py` of the reference implementation, rounded to f32).
+/// F-ConvNet's KITTI size clusters as its reference implementation writes them for the
+/// network (`dataset_info.py`, Car, Pedestrian, Cyclist), which every shipped checkpoint
+/// stores: the KITTI class set's mean sizes to f32 precision (the Cyclist length is
+/// 1.762824 here, 1.76282397 in the box coder).
 #[allow(clippy::excessive_precision)]
-pub const KITTI_MEAN_SIZES: [[f32; 3]; 3] = [
+pub const KITTI_SIZE_CLUSTERS: [[f32; 3]; 3] = [
     [3.883_116_4, 1.628_567_4, 1.525_631_9],
     [0.844_225_24, 0.660_686_2, 1.762_551_2],
     [1.762_824, 0.597_063_67, 1.736_981_3],
@@ -221,7 +224,7 @@ impl ModelConfig {
             fcn_channels: vec![128, 128, 256, 512],
             deconv_channels: 256,
             num_heading_bins: 12,
-            size_clusters: KITTI_MEAN_SIZES.to_vec(),
+            size_clusters: KITTI_SIZE_CLUSTERS.to_vec(),
             bias_before_norm: false,
             batch_norm_momentum: 0.1,
             batch_norm_epsilon: 1e-5,

@@ -1,12 +1,12 @@
 //! Inference decoding: the best position of each frustum and its box components, as plain
 //! numbers in the `BatchTargets` conventions (the frustum crate turns them into boxes).
 
-use crate::boxes::decode_heading;
 use crate::config::ModelConfig;
 use crate::error::ModelError;
 use crate::heads::RegressionLayout;
 use crate::inputs::BatchInputs;
 use crate::model::FConvNetOutput;
+use fusiondet_frustum::BoxCoder;
 
 /// The prediction of one frustum at its highest-scoring position.
 #[derive(Debug, Clone, PartialEq)]
@@ -29,17 +29,13 @@ pub struct FrustumPrediction {
 
 impl FrustumPrediction {
     /// The heading angle in (−π, π].
-    pub fn heading(&self, config: &ModelConfig) -> f32 {
-        decode_heading(
-            self.heading_bin,
-            self.heading_residual,
-            config.num_heading_bins,
-        )
+    pub fn heading(&self, coder: &BoxCoder) -> f32 {
+        coder.bin_to_heading_f32(self.heading_bin, self.heading_residual)
     }
 
     /// (l, w, h) in metres.
-    pub fn size(&self, config: &ModelConfig) -> [f32; 3] {
-        let mean = config.size_clusters[self.size_cluster];
+    pub fn size(&self, coder: &BoxCoder) -> [f32; 3] {
+        let mean = coder.mean_sizes_f32()[self.size_cluster];
         std::array::from_fn(|d| mean[d] * (1.0 + self.size_residual[d]))
     }
 }

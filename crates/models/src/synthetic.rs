@@ -7,8 +7,8 @@
 //! (so most points fall in two slices per scale, as in F-ConvNet), first come first served
 //! up to the scale's cap.
 
-use crate::boxes::{box_corners, encode_heading};
-use crate::config::KITTI_MEAN_SIZES;
+use crate::boxes::box_corners;
+use fusiondet_frustum::BoxCoder;
 use fusiondet_frustum::{BatchScale, BatchTargets, FrustumBatch};
 
 /// Shape of a synthetic batch.
@@ -79,7 +79,7 @@ pub fn synthetic_batch(spec: &SyntheticSpec, seed: u64) -> FrustumBatch {
         let z0 = rng.uniform(0.15 * d, 0.7 * d);
         let x0 = rng.uniform(-1.0, 1.0);
         let heading = rng.uniform(-std::f32::consts::PI, std::f32::consts::PI);
-        let mean = KITTI_MEAN_SIZES[0];
+        let mean = BoxCoder::kitti().mean_sizes_f32()[0];
         let size: [f32; 3] = std::array::from_fn(|k| mean[k] * rng.uniform(0.9, 1.1));
         let center = [x0, 0.9, z0];
         let frac = (0.3 * d / z0).clamp(0.1, 0.8);
@@ -164,11 +164,11 @@ pub fn synthetic_batch(spec: &SyntheticSpec, seed: u64) -> FrustumBatch {
                 });
             }
             t.center.extend_from_slice(center);
-            let (bin, res) = encode_heading(*heading, 12);
+            let (bin, res) = BoxCoder::kitti().heading_to_bin_f32(*heading);
             t.heading_bin.push(bin as i64);
             t.heading_residual.push(res);
             t.size_cluster.push(0);
-            let mean = KITTI_MEAN_SIZES[0];
+            let mean = BoxCoder::kitti().mean_sizes_f32()[0];
             t.size_residual
                 .extend((0..3).map(|k| (size[k] - mean[k]) / mean[k]));
             t.corners

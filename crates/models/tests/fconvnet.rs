@@ -3,8 +3,9 @@
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
+use fusiondet_frustum::BoxCoder;
 use fusiondet_frustum::FrustumBatch;
-use fusiondet_models::boxes::{box_corners, encode_heading};
+use fusiondet_models::boxes::box_corners;
 use fusiondet_models::inputs::conv3_output_len;
 use fusiondet_models::loss::{box_corners_tensor, focal_loss};
 use fusiondet_models::synthetic::{SyntheticSpec, synthetic_batch};
@@ -276,10 +277,10 @@ fn loss_case() -> LossCase {
     let pc: [f32; 3] = batch.scales[1].slice_centers[0..3].try_into().unwrap();
     let center = [pc[0] + 0.2, pc[1] + 0.9, pc[2] + 0.5];
     let heading = 0.3;
-    let mean = config::KITTI_MEAN_SIZES[0];
+    let mean = BoxCoder::kitti().mean_sizes_f32()[0];
     let residual = [0.05, -0.02, 0.1];
     let size: [f32; 3] = std::array::from_fn(|k| mean[k] * (1.0 + residual[k]));
-    let (bin, res) = encode_heading(heading, 12);
+    let (bin, res) = BoxCoder::kitti().heading_to_bin_f32(heading);
     let t = batch.targets.as_mut().unwrap();
     t.labels = (0..p).map(|j| if j == 0 { 1 } else { 0 }).collect();
     t.center = center.to_vec();
@@ -307,7 +308,7 @@ fn crafted_output(case: &LossCase, dc: [f32; 3], hres: f32, sres: [f32; 3]) -> F
     let device = Device::flex();
     let p = case.batch.scales[1].slices_per_frustum;
     let pc = &case.batch.scales[1].slice_centers[0..3];
-    let (bin, _) = encode_heading(case.heading, 12);
+    let (bin, _) = BoxCoder::kitti().heading_to_bin_f32(case.heading);
     let mut reg = vec![0f32; p * 39];
     for d in 0..3 {
         reg[d] = case.center[d] + dc[d] - pc[d];
@@ -334,7 +335,7 @@ fn loss_components_match_hand_computation() {
     let targets = LossTargets::new(&case.batch, &config.model, &config.loss, &device).unwrap();
     let p = case.batch.scales[1].slices_per_frustum as f64;
     let bin_half = std::f64::consts::PI / 12.0;
-    let (_, res) = encode_heading(case.heading, 12);
+    let (_, res) = BoxCoder::kitti().heading_to_bin_f32(case.heading);
     let res_norm = res as f64 / bin_half;
     let fl = |pt: f64, a: f64| -a * (1.0 - pt).powi(2) * pt.ln();
     // All logits zero: p = ½ everywhere; one positive (α ¼), p − 1 negatives (α ¾).
@@ -380,7 +381,7 @@ fn loss_components_match_hand_computation() {
         .unwrap()
         .components;
     close(c.size_res, huber(0.5, 1.0), "size res");
-    let mean = config::KITTI_MEAN_SIZES[0];
+    let mean = BoxCoder::kitti().mean_sizes_f32()[0];
     let pred_size: [f32; 3] = std::array::from_fn(|k| mean[k] * (1.0 + sres[k]));
     let (a, b) = (
         box_corners(case.center, case.heading, pred_size),
@@ -435,7 +436,7 @@ fn decode_picks_the_best_position() {
     let config = ModelConfig::tiny();
     let device = Device::flex();
     let inputs = BatchInputs::new(&case.batch, &config, &device).unwrap();
-    let (_, res) = encode_heading(case.heading, 12);
+    let (_, res) = BoxCoder::kitti().heading_to_bin_f32(case.heading);
     let mut out = crafted_output(
         &case,
         [0.0; 3],
@@ -448,7 +449,7 @@ fn decode_picks_the_best_position() {
     cls[7] = 1.0; // position 3: 1 vs 0
     out.cls_logits = Tensor::from_data(TensorData::new(cls, [1, p, 2]), &device);
     let mut reg = vec_of(&out.regression);
-    let (bin, _) = encode_heading(case.heading, 12);
+    let (bin, _) = BoxCoder::kitti().heading_to_bin_f32(case.heading);
     reg[3 + bin] = 5.0;
     reg[3 + 24] = 5.0;
     out.regression = Tensor::from_data(TensorData::new(reg, [1, p, 39]), &device);
@@ -458,9 +459,9 @@ fn decode_picks_the_best_position() {
     assert_eq!((pred.heading_bin, pred.size_cluster), (bin, 0));
     for d in 0..3 {
         assert!((pred.center[d] - case.center[d]).abs() < 1e-5);
-        assert!((pred.size(&config)[d] - case.size[d]).abs() < 1e-5);
+        assert!((pred.size(&BoxCoder::kitti())[d] - case.size[d]).abs() < 1e-5);
     }
-    assert!((pred.heading(&config) - case.heading).abs() < 1e-5);
+    assert!((pred.heading(&BoxCoder::kitti()) - case.heading).abs() < 1e-5);
 }
 
 #[test]

@@ -147,10 +147,8 @@ mod tests {
     #[test]
     fn medians_and_rates() {
         let run = |a, b, c| {
-            let mut t = StageTimes {
-                load: ms(999),
-                ..Default::default()
-            };
+            let mut t = StageTimes::default();
+            t.load = ms(999);
             t.add(STAGE_FRUSTUMS, ms(a));
             t.add(STAGE_NETWORK, ms(b));
             t.add(STAGE_DECODE, ms(c));

@@ -8,7 +8,8 @@
 
 use crate::error::{Result, TrainError};
 use crate::schedule::StepDecay;
-use fusiondet_frustum::FrustumConfig;
+use fusiondet_dataset::ClassSet;
+use fusiondet_frustum::{BoxCoder, FrustumConfig};
 use fusiondet_kitti::ObjectClass;
 use fusiondet_models::{DetectorKind, FConvNetConfig, LossConfig, ModelConfig};
 use serde::{Deserialize, Serialize};
@@ -21,6 +22,7 @@ pub struct ExperimentConfig {
     pub name: String,
     /// `[detector] kind`: the family. Required: a file that does not say what it
     /// configures is refused rather than read as F-ConvNet Car.
+    #[serde(default)]
     pub detector: Option<DetectorSection>,
     /// `[dataset]`: the data's format and the classes the detector learns.
     pub dataset: DatasetSection,
@@ -51,6 +53,16 @@ pub enum DatasetFormat {
     /// `ImageSets/`), which the simulator also writes.
     #[default]
     Kitti,
+}
+
+impl DatasetFormat {
+    /// The classes a detector of this format's data can learn (one-hot slots and size
+    /// clusters).
+    pub fn class_set(self) -> ClassSet {
+        match self {
+            DatasetFormat::Kitti => ClassSet::kitti(),
+        }
+    }
 }
 
 /// `[dataset]`.
@@ -201,6 +213,13 @@ impl ExperimentConfig {
             .map(|name| name.parse::<ObjectClass>())
             .collect::<std::result::Result<_, _>>()
             .map_err(|m| config_err(format!("[dataset] classes: {m}")))?;
+        // One box coder for targets, loss and decoding: the network's heading bins and
+        // the format's class set.
+        config.frustum.coder = BoxCoder::new(
+            config.model.num_heading_bins,
+            config.dataset.format.class_set(),
+        )
+        .map_err(|m| config_err(format!("[model] num_heading_bins: {m}")))?;
         if let Some(r) = &mut config.refine
             && r.first_stage.is_relative()
         {
@@ -286,7 +305,8 @@ impl ExperimentConfig {
         }
     }
 
-    fn validate(&self, path: &Path) -> Result<()> {
+    /// Checks every constraint across sections; `path` names the source in errors.
+    pub fn validate(&self, path: &Path) -> Result<()> {
         let bad = |message: String| {
             Err(TrainError::Config {
                 path: path.to_path_buf(),
@@ -324,6 +344,44 @@ impl ExperimentConfig {
                         .into(),
                 );
             }
+        }
+        let coder = &self.frustum.coder;
+        if coder.heading_bins() != self.model.num_heading_bins {
+            return bad(format!(
+                "the frustum targets' box coder has {} heading bins, model.num_heading_bins {}; \
+                 build the coder from the model (configurations read from files always are)",
+                coder.heading_bins(),
+                self.model.num_heading_bins
+            ));
+        }
+        if self.model.num_classes != coder.num_clusters() {
+            return bad(format!(
+                "model.num_classes is {}, but the {} class set has {} classes ({}); remove the \
+                 key or make it {}",
+                self.model.num_classes,
+                coder.classes().name,
+                coder.num_clusters(),
+                coder.classes().names().join(", "),
+                coder.num_clusters()
+            ));
+        }
+        // The network's f32 clusters must be the coder's means to f32 precision (the
+        // shipped models store F-ConvNet's own rounding, within 1e-6 of them).
+        let agree = self.model.size_clusters.len() == coder.num_clusters()
+            && (0..coder.num_clusters()).all(|k| {
+                (0..3).all(|d| {
+                    let mean = coder.mean_size(k)[d];
+                    (self.model.size_clusters[k][d] as f64 - mean).abs() <= 1e-6 * mean
+                })
+            });
+        if !agree {
+            return bad(format!(
+                "model.size_clusters {:?} differ from the mean sizes of the {} class set \
+                 ({:?}), which the targets and the decoding use; remove the key",
+                self.model.size_clusters,
+                coder.classes().name,
+                coder.mean_sizes_f32()
+            ));
         }
         match (&self.refine, &self.frustum.proposal_crop) {
             (Some(_), None) => {
@@ -410,6 +468,47 @@ mod tests {
             err.contains("[dataset] classes") && err.contains("Bus"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn the_box_coder_follows_the_network_and_the_class_set() {
+        let c = ExperimentConfig::from_toml_str(
+            &with_kind("[model]\nnum_heading_bins = 8\n"),
+            Path::new("x.toml"),
+        )
+        .unwrap();
+        assert_eq!(c.frustum.coder.heading_bins(), 8);
+        assert_eq!(
+            c.frustum.coder.classes().names(),
+            ["Car", "Pedestrian", "Cyclist"]
+        );
+        let err = ExperimentConfig::from_toml_str(
+            &with_kind(
+                "[model]\nsize_clusters = [[4.0, 1.6, 1.5], [0.8, 0.7, 1.8], [1.8, 0.6, 1.7]]\n",
+            ),
+            Path::new("x.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("size_clusters") && err.contains("KITTI"),
+            "{err}"
+        );
+        let err = ExperimentConfig::from_toml_str(
+            &with_kind("[model]\nnum_classes = 4\n"),
+            Path::new("x.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("num_classes") && err.contains("Cyclist"),
+            "{err}"
+        );
+        // A configuration built in code must keep the two in step.
+        let mut c = ExperimentConfig::default();
+        c.model.num_heading_bins = 8;
+        let err = c.validate(Path::new("built")).unwrap_err().to_string();
+        assert!(err.contains("heading bins"), "{err}");
     }
 
     #[test]

@@ -35,6 +35,7 @@ fn every_shipped_checkpoint_is_small_configured_and_loads() {
         assert_eq!(config.name, format!("{stem}-sim"), "{}", path.display());
         let detector = Detector::load(config, &path, &device)
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let Detector::Frustum(detector) = detector;
         assert_eq!(
             detector.first_stage.is_some(),
             stem.contains("refine"),

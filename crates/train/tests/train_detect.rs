@@ -1,12 +1,12 @@
 //! Train → resume → detect → evaluate on a small simulated dataset with the tiny network.
 
 use burn::prelude::*;
-use fusiondet_frustum::{FrustumConfig, InMemoryFrames};
+use fusiondet_dataset::ClassSet;
+use fusiondet_frustum::{BoxCoder, FrustumConfig, InMemoryFrames};
 use fusiondet_kitti::{DatasetDir, read_detections2d, read_split};
 use fusiondet_models::{ModelConfig, load_checkpoint};
-use fusiondet_train::{
-    DetectOptions, Detector, ExperimentConfig, RefineConfig, TrainOptions, detect, train,
-};
+use fusiondet_train::frustum::FrustumDetector;
+use fusiondet_train::{DetectOptions, ExperimentConfig, RefineConfig, TrainOptions, detect, train};
 use std::path::Path;
 use std::sync::OnceLock;
 
@@ -72,7 +72,7 @@ fn train_run(dir: &Path, epochs: usize, resume: bool) -> fusiondet_train::TrainS
 fn fingerprint(model_path: &Path) -> Vec<f64> {
     let cfg = tiny(1);
     let device = Device::flex();
-    let detector = Detector {
+    let detector = FrustumDetector {
         model: load_checkpoint(&cfg.model, model_path, &device).unwrap(),
         config: cfg,
         first_stage: None,
@@ -307,6 +307,42 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
         read_all(&second.path().join("first")),
         "refinement changed no box"
     );
+}
+
+/// The heading bins are the network's setting, and targets, loss and decoding follow it:
+/// 8 bins train and detect end to end.
+#[test]
+fn another_heading_bin_count_trains_and_detects() {
+    let _turn = one_at_a_time();
+    let mut config = tiny(1);
+    config.model.num_heading_bins = 8;
+    config.frustum.coder = BoxCoder::new(8, ClassSet::kitti()).unwrap();
+    let run = tempfile::tempdir().unwrap();
+    let summary = train(&TrainOptions {
+        device: Default::default(),
+        config: config.clone(),
+        data_dir: dataset().to_path_buf(),
+        run_dir: run.path().join("r"),
+        resume: false,
+        progress: false,
+    })
+    .unwrap();
+    assert!(
+        summary.final_loss.is_some_and(f64::is_finite),
+        "{summary:?}"
+    );
+    let out = run.path().join("results");
+    let detected = detect(&DetectOptions {
+        device: Default::default(),
+        config,
+        checkpoint: summary.model,
+        data_dir: dataset().to_path_buf(),
+        split: "val".into(),
+        out_dir: out,
+        detections: None,
+    })
+    .unwrap();
+    assert!(detected.boxes_written > 0, "{detected:?}");
 }
 
 #[test]

@@ -115,6 +115,7 @@ fn training_proposals(
 /// Trains a frustum detector (first stage or refinement stage).
 pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     let cfg = &options.config;
+    cfg.validate(Path::new("the training configuration"))?;
     // The stored configuration names the run's own copy of a first stage.
     let mut stored = cfg.clone();
     if let Some(r) = &mut stored.refine {
