@@ -84,6 +84,22 @@ impl SensorFrame {
     }
 }
 
+/// The points of one LiDAR scan (`velodyne` .bin) in the rectified camera frame of its
+/// calibration (`calib`): what counting points in labelled boxes needs, for scans and
+/// calibrations kept in directories of their own.
+pub fn scan_in_rect(velodyne: &Path, calib: &Path) -> Result<Vec<[f64; 3]>> {
+    let camera = read_calib(calib)?
+        .camera_model()
+        .map_err(|message| DataError::Calib {
+            frame: calib.display().to_string(),
+            message,
+        })?;
+    Ok(read_velodyne(velodyne)?
+        .iter()
+        .map(|p| camera.velo_to_rect([p[0] as f64, p[1] as f64, p[2] as f64]))
+        .collect())
+}
+
 /// Width and height from a PNG's IHDR chunk, or `None` if the file is missing or not a PNG.
 pub fn png_size(path: &Path) -> Option<[f64; 2]> {
     use std::io::Read;

@@ -20,7 +20,7 @@ pub use classes::{ClassInfo, ClassSet};
 pub use error::{DataError, Result};
 pub use frame::{
     DEFAULT_IMAGE_SIZE, DerivedFrame, DiskFrames, FrameSource, InMemoryFrames, SensorFrame,
-    png_size,
+    png_size, scan_in_rect,
 };
 pub use split::{load_split, split_ids};
 

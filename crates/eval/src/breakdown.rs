@@ -28,8 +28,9 @@ use crate::evaluate::{EvalConfig, tasks_for, validate};
 use crate::frames::{FrameDet, FrameGt};
 use crate::protocol::{Metric, is_evaluated, neighbour_class};
 use crate::report::PrCurve;
+use fusiondet_dataset::{DataError, scan_in_rect};
 use fusiondet_geometry::count_points_in_box;
-use fusiondet_kitti::{Box3d, FormatError, Object, ObjectClass, read_calib, read_velodyne};
+use fusiondet_kitti::{Box3d, FormatError, Object, ObjectClass};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::path::Path;
@@ -123,16 +124,13 @@ pub fn count_lidar_points(
         .zip(det.par_iter())
         .map(|(g, d)| {
             let calib_path = calib_dir.join(format!("{}.txt", g.id));
-            let calib = read_calib(&calib_path).map_err(EvalError::Breakdown)?;
-            let cam = calib
-                .camera_model()
-                .map_err(|m| EvalError::Breakdown(FormatError::file(&calib_path, m)))?;
-            let scan = read_velodyne(&velodyne_dir.join(format!("{}.bin", g.id)))
-                .map_err(EvalError::Breakdown)?;
-            let points: Vec<[f64; 3]> = scan
-                .iter()
-                .map(|p| cam.velo_to_rect([p[0] as f64, p[1] as f64, p[2] as f64]))
-                .collect();
+            let points = scan_in_rect(&velodyne_dir.join(format!("{}.bin", g.id)), &calib_path)
+                .map_err(|e| match e {
+                    DataError::Format(e) => EvalError::Breakdown(e),
+                    DataError::Calib { message, .. } | DataError::Data(message) => {
+                        EvalError::Breakdown(FormatError::file(&calib_path, message))
+                    }
+                })?;
             let count = |objects: &[Object]| {
                 objects
                     .iter()

@@ -157,3 +157,43 @@ pub fn load_checkpoint(
     }
     Ok(model)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::LinearConfig;
+
+    /// A burnpack file with `tag` as its family (or none).
+    fn pack(path: &Path, tag: Option<&str>) {
+        let mut store = BurnpackStore::from_file(path)
+            .auto_extension(false)
+            .overwrite(true);
+        if let Some(tag) = tag {
+            store = store.metadata(KIND_KEY, tag);
+        }
+        LinearConfig::new(2, 2)
+            .init(&Device::flex())
+            .save_into(&mut store)
+            .unwrap();
+    }
+
+    #[test]
+    fn the_family_is_read_from_the_file_and_unknown_ones_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let ours = dir.path().join("ours.bpk");
+        pack(&ours, Some("fconvnet"));
+        assert_eq!(read_checkpoint_kind(&ours).unwrap(), DetectorKind::Frustum);
+        let newer = dir.path().join("newer.bpk");
+        pack(&newer, Some("voxel_rcnn"));
+        let err = read_checkpoint_kind(&newer).unwrap_err().to_string();
+        assert!(
+            err.contains("newer.bpk") && err.contains("voxel_rcnn"),
+            "{err}"
+        );
+        assert!(read_checkpoint_config(&newer).is_err());
+        let foreign = dir.path().join("foreign.bpk");
+        pack(&foreign, None);
+        let err = read_checkpoint_kind(&foreign).unwrap_err().to_string();
+        assert!(err.contains("not a fusiondet checkpoint"), "{err}");
+    }
+}

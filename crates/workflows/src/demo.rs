@@ -11,7 +11,7 @@ use anyhow::{Context, bail};
 use fusiondet_eval::{EvalConfig, evaluate_dirs};
 use fusiondet_kitti::{DatasetDir, read_split};
 use fusiondet_models::info::parameter_count;
-use fusiondet_train::{DetectOptions, ExperimentConfig, TrainOptions, detect, train};
+use fusiondet_pipeline::{DetectOptions, ExperimentConfig, TrainOptions, detect, train};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;

@@ -1,5 +1,7 @@
 //! Workflows that chain the library's steps (what the binary used to do itself): the
-//! demo, and the data and models built into the binary for it.
+//! demo, the ablation (trainings in child processes, detection, evaluation, tables and
+//! plots), and the data and models built into the binary for the demo.
 
+pub mod ablation;
 pub mod bundled;
 pub mod demo;

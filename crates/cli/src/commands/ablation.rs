@@ -3,21 +3,13 @@
 //! the per-occlusion / per-distance / per-LiDAR-points breakdown, and draws the
 //! precision–recall curves.
 //!
-//! Each training runs in its own `fusiondet train` process: a training is bit-reproducible
-//! in a process of its own (two in one process share rayon's pool), and a finished run is
-//! resumed rather than repeated, so an interrupted ablation continues where it stopped.
+//! The work is `fusiondet_workflows::ablation`; each training runs in a child
+//! `fusiondet train` process of this executable.
 
 use crate::commands::train::TrainOverrides;
-use anyhow::{Context, bail};
-use fusiondet_eval::{
-    AblationRow, Difficulty, EvalConfig, Metric, ablation_breakdown_table, ablation_table,
-    count_lidar_points, evaluate, evaluate_breakdown, frame_ids, load_dirs, write_ablation_json,
-};
-use fusiondet_kitti::DatasetDir;
-use fusiondet_models::info::parameter_count;
-use fusiondet_train::{DetectOptions, ExperimentConfig, detect, frames_per_second};
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use anyhow::Context;
+use fusiondet_workflows::ablation::AblationOptions;
+use std::path::PathBuf;
 
 #[derive(clap::Args)]
 #[command(after_help = "\
@@ -41,205 +33,13 @@ pub struct AblationArgs {
     pub overrides: TrainOverrides,
 }
 
-/// One configuration's results.
-struct Entry {
-    name: String,
-    report: fusiondet_eval::EvalReport,
-    breakdown: Vec<fusiondet_eval::BreakdownRow>,
-    params: usize,
-    frames_per_second: f64,
-}
-
 pub fn run(args: AblationArgs) -> anyhow::Result<()> {
-    let configs: Vec<(PathBuf, ExperimentConfig)> = args
-        .configs
-        .iter()
-        .map(|p| Ok((p.clone(), ExperimentConfig::from_file(p)?)))
-        .collect::<anyhow::Result<_>>()?;
-    let mut names: Vec<&str> = configs.iter().map(|(_, c)| c.name.as_str()).collect();
-    names.sort_unstable();
-    if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
-        bail!(
-            "two configurations are named `{}`; names become directories, give each its own",
-            w[0]
-        );
-    }
-    let classes = configs[0].1.frustum.classes.clone();
-    if let Some((p, c)) = configs.iter().find(|(_, c)| c.frustum.classes != classes) {
-        bail!(
-            "{}: detects {:?} but {} detects {:?}; an ablation compares models of the same classes",
-            p.display(),
-            c.frustum.classes,
-            args.configs[0].display(),
-            classes
-        );
-    }
-    if let Some((p, _)) = configs.first().filter(|(_, c)| c.refine.is_some()) {
-        bail!(
-            "{}: a refinement stage needs its first stage listed before it in --configs \
-             (e.g. fconvnet-car.toml fconvnet-refine-car.toml)",
-            p.display()
-        );
-    }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("{}: cannot create", args.out.display()))?;
-    let dataset = DatasetDir::new(&args.data);
-    let label_dir = dataset.training().root.join("label_2");
-    let ids = frame_ids(&label_dir, Some(&dataset.split("val")))?;
-
-    let mut entries = Vec::new();
-    // A refinement row refines the boxes of the nearest first-stage row above it.
-    let mut first_stage: Option<PathBuf> = None;
-    for (path, config) in &configs {
-        let first = config.refine.as_ref().and(first_stage.as_deref());
-        entries.push(run_one(&args, path, config, first, &label_dir, &ids)?);
-        if config.refine.is_none() {
-            first_stage = Some(run_dir_of(&args, config).join("model.bpk"));
-        }
-    }
-
-    let rows: Vec<AblationRow> = entries
-        .iter()
-        .map(|e| AblationRow {
-            name: e.name.clone(),
-            report: e.report.clone(),
-            breakdown: Some(e.breakdown.clone()),
-            params: Some(e.params),
-            frames_per_second: Some(e.frames_per_second),
-        })
-        .collect();
-    let mut text = format!(
-        "# Ablation on {} ({} val frames)\n\n",
-        args.data.display(),
-        ids.len()
-    );
-    for &class in &classes {
-        text += &format!("## {class}\n\n");
-        text += &ablation_table(&rows, class, 0);
-        text +=
-            &format!("\n### {class}: AP_R40 by distance, occlusion and LiDAR points (hard)\n\n");
-        text += &ablation_breakdown_table(&rows, class, 0, Difficulty::Hard);
-        text += "\n";
-        for (metric, tag) in [(Metric::ThreeD, "3d"), (Metric::Bev, "bev")] {
-            let curves: Vec<(&str, &fusiondet_eval::MetricResult)> = rows
-                .iter()
-                .filter_map(|r| Some((r.name.as_str(), r.report.get(class, metric, 0)?)))
-                .collect();
-            let image = fusiondet_viz::render_pr_difficulties(
-                &format!("{class} {} precision-recall", tag.to_uppercase()),
-                &curves,
-                &Default::default(),
-            );
-            let png = args
-                .out
-                .join(format!("pr-{}-{tag}.png", class.to_string().to_lowercase()));
-            fusiondet_viz::write_plot_png(&png, &image)?;
-            text += &format!(
-                "![{class} {tag}]({})\n\n",
-                png.file_name().unwrap().to_string_lossy()
-            );
-        }
-    }
-    print!("{text}");
-    fusiondet_kitti::write_atomic(&args.out.join("ablation.md"), text.as_bytes())
-        .with_context(|| format!("{}: cannot write", args.out.display()))?;
-    write_ablation_json(&args.out.join("ablation.json"), &rows)?;
-    println!(
-        "wrote {}/ablation.md, ablation.json and the PR plots",
-        args.out.display()
-    );
-    Ok(())
-}
-
-fn run_dir_of(args: &AblationArgs, config: &ExperimentConfig) -> PathBuf {
-    args.out.join("runs").join(&config.name)
-}
-
-/// Trains (in a child process; a refinement stage over `first_stage`), detects on the
-/// val split and evaluates one configuration.
-fn run_one(
-    args: &AblationArgs,
-    path: &Path,
-    config: &ExperimentConfig,
-    first_stage: Option<&Path>,
-    label_dir: &Path,
-    ids: &[String],
-) -> anyhow::Result<Entry> {
-    let run_dir = run_dir_of(args, config);
-    let exe = std::env::current_exe().context("cannot locate the fusiondet binary")?;
-    let mut train = Command::new(exe);
-    train
-        .arg("train")
-        .arg("--config")
-        .arg(path)
-        .arg("--data")
-        .arg(&args.data)
-        .arg("--out")
-        .arg(&run_dir);
-    if run_dir.join("state.json").exists() {
-        train.arg("--resume");
-    }
-    train.args(args.overrides.to_args());
-    if let Some(first) = first_stage {
-        train.arg("--first-stage").arg(first);
-    }
-    eprintln!("== {}: training ({})", config.name, path.display());
-    let status = train.status().context("cannot start `fusiondet train`")?;
-    if !status.success() {
-        bail!(
-            "training {} failed ({status}); its run directory is {}",
-            config.name,
-            run_dir.display()
-        );
-    }
-    // The run directory holds the configuration it was trained with (overrides included).
-    let trained = ExperimentConfig::from_file(&run_dir.join("config.toml"))?;
-    let results = args.out.join("results").join(&config.name);
-    if results.exists() {
-        std::fs::remove_dir_all(&results)
-            .with_context(|| format!("{}: cannot clear", results.display()))?;
-    }
-    let summary = detect(&DetectOptions {
+    fusiondet_workflows::ablation::run(&AblationOptions {
+        configs: args.configs,
+        data: args.data,
+        out: args.out,
+        train_flags: args.overrides.to_args(),
+        executable: std::env::current_exe().context("cannot locate the fusiondet binary")?,
         device: Default::default(),
-        config: trained.clone(),
-        checkpoint: run_dir.join("model.bpk"),
-        data_dir: args.data.clone(),
-        split: "val".into(),
-        out_dir: results.clone(),
-        detections: None,
-    })?;
-    let frames_per_second = frames_per_second(summary.frames, &summary.timing);
-    let eval_config = EvalConfig {
-        classes: trained.frustum.classes.clone(),
-        ..Default::default()
-    };
-    let frames = load_dirs(label_dir, &results, ids)?;
-    let report = evaluate(&frames.gt, &frames.det, &eval_config)?;
-    let training = DatasetDir::new(&args.data).training();
-    let points = count_lidar_points(
-        &frames.gt,
-        &frames.det,
-        &training.root.join("velodyne"),
-        &training.root.join("calib"),
-    )?;
-    let breakdown = evaluate_breakdown(&frames.gt, &frames.det, &eval_config, Some(&points))?;
-    // A refinement row counts both stages, as the papers do.
-    let params = parameter_count(&trained.model)?
-        + match &trained.refine {
-            Some(r) => {
-                parameter_count(&ExperimentConfig::for_checkpoint(&r.first_stage, None)?.model)?
-            }
-            None => 0,
-        };
-    eprintln!(
-        "== {}: {} frames, {} boxes, {frames_per_second:.1} frames/s, {params} parameters",
-        config.name, summary.frames, summary.boxes_written
-    );
-    Ok(Entry {
-        name: config.name.clone(),
-        report,
-        breakdown,
-        params,
-        frames_per_second,
     })
 }

@@ -2,7 +2,7 @@
 //! stage, medians over repeated runs on in-memory frames.
 
 use crate::commands::detect::ModelOnSplit;
-use fusiondet_train::{BenchOptions, bench_detect};
+use fusiondet_pipeline::{BenchOptions, bench_detect};
 
 #[derive(clap::Args)]
 pub struct BenchArgs {

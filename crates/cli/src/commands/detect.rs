@@ -1,6 +1,6 @@
 //! `fusiondet detect`: runs a trained frustum detector on a split and writes KITTI results.
 
-use fusiondet_train::{ComputeDevice, DetectOptions, ExperimentConfig, detect};
+use fusiondet_pipeline::{ComputeDevice, DetectOptions, ExperimentConfig, detect};
 use std::path::PathBuf;
 
 /// The arguments `detect` and `bench` share: a model, its configuration, the frames and

@@ -3,7 +3,7 @@
 
 use fusiondet_models::info::parameter_count;
 use fusiondet_models::render_info;
-use fusiondet_train::ExperimentConfig;
+use fusiondet_pipeline::ExperimentConfig;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]

@@ -5,7 +5,7 @@
 
 use fusiondet_frustum::load_split;
 use fusiondet_frustum::{DEFAULT_OMEGAS, Slicing, omega_study_from_labels};
-use fusiondet_train::ExperimentConfig;
+use fusiondet_pipeline::ExperimentConfig;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]

@@ -1,6 +1,6 @@
 //! `fusiondet train`: trains a frustum detector from a TOML experiment configuration.
 
-use fusiondet_train::{ComputeDevice, ExperimentConfig, TrainOptions, train};
+use fusiondet_pipeline::{ComputeDevice, ExperimentConfig, TrainOptions, train};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 

@@ -5,7 +5,7 @@
 
 use crate::config::ExperimentConfig;
 use crate::detect::{FrameResults, StageTimes};
-use crate::error::{Result, TrainError};
+use crate::error::{PipelineError, Result};
 use burn::prelude::*;
 use fusiondet_frustum::{BoxEncoding, FrustumDataset, FrustumFrames, SkipCounts};
 use fusiondet_geometry::nms_3d;
@@ -37,7 +37,7 @@ impl FrustumDetector {
             Some(r) => {
                 let first = ExperimentConfig::for_checkpoint(&r.first_stage, None)?;
                 if first.refine.is_some() {
-                    return Err(TrainError::Config {
+                    return Err(PipelineError::Config {
                         path: r.first_stage.clone(),
                         message: "the first stage is itself a refinement model; name a \
                                   first-stage (2D-box frustum) checkpoint"

@@ -21,8 +21,8 @@ pub use config::{
 };
 pub use detect::{
     DetectOptions, DetectSummary, Detector, FrameResults, SplitInputs, StageTimes, detect,
-    write_results,
+    trained_parameters, write_results,
 };
 pub use device::ComputeDevice;
-pub use error::{Result, TrainError};
+pub use error::{PipelineError, Result};
 pub use trainer::{TrainOptions, TrainSummary, TrainingTask, train};

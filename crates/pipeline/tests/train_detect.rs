@@ -5,8 +5,10 @@ use fusiondet_dataset::ClassSet;
 use fusiondet_frustum::{BoxCoder, FrustumConfig, InMemoryFrames};
 use fusiondet_kitti::{DatasetDir, read_detections2d, read_split};
 use fusiondet_models::{ModelConfig, load_checkpoint};
-use fusiondet_train::frustum::FrustumDetector;
-use fusiondet_train::{DetectOptions, ExperimentConfig, RefineConfig, TrainOptions, detect, train};
+use fusiondet_pipeline::frustum::FrustumDetector;
+use fusiondet_pipeline::{
+    DetectOptions, ExperimentConfig, RefineConfig, TrainOptions, detect, train,
+};
 use std::path::Path;
 use std::sync::OnceLock;
 
@@ -56,7 +58,7 @@ fn tiny(epochs: usize) -> ExperimentConfig {
     c
 }
 
-fn train_run(dir: &Path, epochs: usize, resume: bool) -> fusiondet_train::TrainSummary {
+fn train_run(dir: &Path, epochs: usize, resume: bool) -> fusiondet_pipeline::TrainSummary {
     train(&TrainOptions {
         device: Default::default(),
         config: tiny(epochs),

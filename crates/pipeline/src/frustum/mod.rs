@@ -6,4 +6,4 @@ mod detector;
 mod task;
 
 pub use detector::{FrustumDetector, STAGE_DECODE, STAGE_FRUSTUMS, STAGE_NETWORK};
-pub use task::{FIRST_STAGE_FILE, FrustumTask, seeded_network, train};
+pub use task::{FIRST_STAGE_FILE, FrustumTask, seeded_network, train, trained_parameters};

@@ -3,7 +3,7 @@
 //! for the refinement model).
 
 use burn::prelude::Device;
-use fusiondet_train::{Detector, ExperimentConfig};
+use fusiondet_pipeline::{Detector, ExperimentConfig};
 use std::path::{Path, PathBuf};
 
 /// Largest shipped checkpoint: keeps a clone small enough to carry every variant.

@@ -3,7 +3,7 @@
 
 use crate::config::{ExperimentConfig, RefineConfig};
 use crate::detect::{FrameResults, StageTimes};
-use crate::error::{Result, TrainError};
+use crate::error::{PipelineError, Result};
 use crate::frustum::FrustumDetector;
 use crate::run_dir::RunDir;
 use crate::trainer::{StepLoss, TrainOptions, TrainSummary, TrainingTask, open_run, run_training};
@@ -65,7 +65,7 @@ impl TrainingTask for FrustumTask<'_> {
         Box::new(
             self.dataset
                 .epoch(cfg.train.seed, epoch as u64, cfg.train.batch_size)
-                .map(|b| b.map_err(TrainError::from)),
+                .map(|b| b.map_err(PipelineError::from)),
         )
     }
     fn loss(&self, net: &FConvNet, prepared: PreparedBatch, device: &Device) -> Result<StepLoss> {
@@ -83,7 +83,7 @@ impl TrainingTask for FrustumTask<'_> {
 /// Copies the first stage named by `refine` into the run directory (atomically).
 fn copy_first_stage(refine: &RefineConfig, run: &RunDir) -> Result<()> {
     let first = ExperimentConfig::for_checkpoint(&refine.first_stage, None)?;
-    let bytes = std::fs::read(&refine.first_stage).map_err(|e| TrainError::RunDir {
+    let bytes = std::fs::read(&refine.first_stage).map_err(|e| PipelineError::RunDir {
         path: refine.first_stage.clone(),
         message: format!("cannot read the first-stage checkpoint: {e}"),
     })?;
@@ -158,4 +158,17 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         dataset,
     };
     run_training(&task, options, opened)
+}
+
+/// Parameters of a trained model as the papers count them: both stages of a refinement
+/// model (its first stage's configuration found beside its checkpoint).
+pub fn trained_parameters(config: &ExperimentConfig) -> Result<usize> {
+    let own = fusiondet_models::info::parameter_count(&config.model)?;
+    let first = match &config.refine {
+        Some(r) => fusiondet_models::info::parameter_count(
+            &ExperimentConfig::for_checkpoint(&r.first_stage, None)?.model,
+        )?,
+        None => 0,
+    };
+    Ok(own + first)
 }

@@ -6,7 +6,7 @@
 //! value as default; unknown keys are errors, so a typo never goes unnoticed. This is
 //! the one parser every command uses.
 
-use crate::error::{Result, TrainError};
+use crate::error::{PipelineError, Result};
 use crate::schedule::StepDecay;
 use fusiondet_dataset::ClassSet;
 use fusiondet_frustum::{BoxCoder, FrustumConfig};
@@ -179,7 +179,7 @@ impl ExperimentConfig {
     /// Parses and validates `text`, read from `path` (relative paths in it are
     /// resolved against `path`'s directory).
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Self> {
-        let config_err = |message: String| TrainError::Config {
+        let config_err = |message: String| PipelineError::Config {
             path: path.to_path_buf(),
             message,
         };
@@ -243,7 +243,7 @@ impl ExperimentConfig {
                 return Self::from_file(&candidate);
             }
         }
-        Err(TrainError::Config {
+        Err(PipelineError::Config {
             path: checkpoint.with_extension("toml"),
             message: format!(
                 "no configuration found for {}: pass --config, or keep the run's config.toml \
@@ -254,7 +254,7 @@ impl ExperimentConfig {
     }
 
     pub fn from_file(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| TrainError::Config {
+        let text = std::fs::read_to_string(path).map_err(|e| PipelineError::Config {
             path: path.to_path_buf(),
             message: format!("cannot read: {e}"),
         })?;
@@ -308,16 +308,16 @@ impl ExperimentConfig {
     /// Checks every constraint across sections; `path` names the source in errors.
     pub fn validate(&self, path: &Path) -> Result<()> {
         let bad = |message: String| {
-            Err(TrainError::Config {
+            Err(PipelineError::Config {
                 path: path.to_path_buf(),
                 message,
             })
         };
-        self.frustum.validate().map_err(|e| TrainError::Config {
+        self.frustum.validate().map_err(|e| PipelineError::Config {
             path: path.to_path_buf(),
             message: e.to_string(),
         })?;
-        self.model.validate().map_err(|e| TrainError::Config {
+        self.model.validate().map_err(|e| PipelineError::Config {
             path: path.to_path_buf(),
             message: e.to_string(),
         })?;

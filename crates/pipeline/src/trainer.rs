@@ -6,7 +6,7 @@
 
 use crate::config::ExperimentConfig;
 use crate::device::ComputeDevice;
-use crate::error::{Result, TrainError};
+use crate::error::{PipelineError, Result};
 use crate::metrics_log::MetricsLog;
 use crate::run_dir::{RunDir, RunState};
 use burn::module::Module;
@@ -149,7 +149,7 @@ pub fn run_training<T: TrainingTask>(
     let OpenedRun { run, resumed } = opened;
     let log = MetricsLog::new(run.metrics());
     if task.samples() < cfg.train.batch_size {
-        return Err(TrainError::Invalid(format!(
+        return Err(PipelineError::Invalid(format!(
             "{} training {}{} are fewer than one batch of {}; use more frames or a smaller \
              train.batch_size",
             task.samples(),
@@ -167,7 +167,7 @@ pub fn run_training<T: TrainingTask>(
         Some(state) => {
             let model = task.load_model(&run.root.join(&state.model), &ad)?;
             let record = OptimizerRecord::load(run.root.join(&state.optimizer)).map_err(|e| {
-                TrainError::RunDir {
+                PipelineError::RunDir {
                     path: run.root.join(&state.optimizer),
                     message: format!("cannot read the optimizer state: {e}"),
                 }
@@ -231,7 +231,7 @@ pub fn run_training<T: TrainingTask>(
         optim
             .to_record()
             .save(run.root.join(&state.optimizer))
-            .map_err(|e| TrainError::RunDir {
+            .map_err(|e| PipelineError::RunDir {
                 path: run.root.join(&state.optimizer),
                 message: format!("cannot write the optimizer state: {e}"),
             })?;

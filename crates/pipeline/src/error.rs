@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 #[derive(Debug, thiserror::Error)]
-pub enum TrainError {
+pub enum PipelineError {
     #[error(transparent)]
     Format(#[from] fusiondet_kitti::FormatError),
     #[error(transparent)]
@@ -20,4 +20,4 @@ pub enum TrainError {
     Invalid(String),
 }
 
-pub type Result<T> = std::result::Result<T, TrainError>;
+pub type Result<T> = std::result::Result<T, PipelineError>;

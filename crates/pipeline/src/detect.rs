@@ -4,7 +4,7 @@
 
 use crate::config::ExperimentConfig;
 use crate::device::ComputeDevice;
-use crate::error::{Result, TrainError};
+use crate::error::{PipelineError, Result};
 use crate::frustum::FrustumDetector;
 use burn::prelude::*;
 use fusiondet_frustum::{FrameSource, InMemoryFrames, SkipCounts};
@@ -123,7 +123,7 @@ impl Detector {
     pub fn load(config: ExperimentConfig, checkpoint: &Path, device: &Device) -> Result<Self> {
         let stored = fusiondet_models::read_checkpoint_kind(checkpoint)?;
         if stored != config.kind() {
-            return Err(TrainError::Config {
+            return Err(PipelineError::Config {
                 path: checkpoint.to_path_buf(),
                 message: format!(
                     "a {stored} checkpoint cannot be run with a {} configuration ({}); pass \
@@ -182,6 +182,14 @@ impl Detector {
                 d.detect_frames(device, frames.clone(), detections, timing)
             }
         }
+    }
+}
+
+/// Parameters of a trained model as the papers count them (both stages of a two-stage
+/// model).
+pub fn trained_parameters(config: &ExperimentConfig) -> Result<usize> {
+    match config.kind() {
+        DetectorKind::Frustum => crate::frustum::trained_parameters(config),
     }
 }
 
@@ -247,7 +255,7 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
 
 /// Writes `OUT/<id>.txt` for every frame.
 pub fn write_results(out_dir: &Path, results: &BTreeMap<String, Vec<Object>>) -> Result<()> {
-    std::fs::create_dir_all(out_dir).map_err(|e| TrainError::RunDir {
+    std::fs::create_dir_all(out_dir).map_err(|e| PipelineError::RunDir {
         path: out_dir.to_path_buf(),
         message: format!("cannot create the result directory: {e}"),
     })?;

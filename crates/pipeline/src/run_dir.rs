@@ -12,7 +12,7 @@
 //! complete, and older checkpoints are removed only after that: a kill at any moment
 //! leaves a state that names complete files, losing at most the epoch in progress.
 
-use crate::error::{Result, TrainError};
+use crate::error::{PipelineError, Result};
 use fusiondet_kitti::write_atomic;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -56,8 +56,8 @@ impl RunDir {
         format!("checkpoints/epoch-{epoch:04}.optim.bpk")
     }
 
-    fn err(&self, path: &Path, message: impl Into<String>) -> TrainError {
-        TrainError::RunDir {
+    fn err(&self, path: &Path, message: impl Into<String>) -> PipelineError {
+        PipelineError::RunDir {
             path: path.to_path_buf(),
             message: message.into(),
         }
