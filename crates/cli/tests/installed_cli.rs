@@ -8,44 +8,47 @@ use common::{all_output, repo_root};
 use std::path::Path;
 use std::process::Command;
 
-/// Every result file of the default demo (`fusiondet demo`, 16 frames, seed 2026, the
-/// built-in F-ConvNet Car model), as the binary wrote them before the restructuring
-/// (kept in `tests/data/demo-results/`). The demo must still write exactly these bytes.
+/// Every result file of the demo (16 frames, seed 2026) with each shipped Car model, as
+/// the binary wrote them before the crates were reshaped for a second detector family
+/// (kept in `tests/data/demo-results-<model>/`). The demo must still write exactly these
+/// bytes: the same detections from the same checkpoints.
 #[test]
-fn the_default_demo_writes_the_same_result_files_as_before() {
+fn the_demo_writes_the_same_result_files_as_before_with_every_shipped_model() {
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("demo");
-    let o = Command::new(env!("CARGO_BIN_EXE_fusiondet"))
-        .args(["demo", "--out", out.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", all_output(&o));
-    let expected = repo_root().join("crates/cli/tests/data/demo-results");
-    let mut compared = 0;
-    for split in ["sim", "kitti"] {
-        let mut names: Vec<_> = std::fs::read_dir(expected.join(split))
-            .unwrap()
-            .map(|e| e.unwrap().file_name())
-            .collect();
-        names.sort();
-        let written: usize = std::fs::read_dir(out.join("results").join(split))
-            .unwrap()
-            .count();
-        assert_eq!(written, names.len(), "{split}: result file count");
-        for name in names {
-            let want = std::fs::read(expected.join(split).join(&name)).unwrap();
-            let got = std::fs::read(out.join("results").join(split).join(&name)).unwrap();
-            assert!(
-                want == got,
-                "{split}/{}: differs from the result before the restructuring\nbefore:\n{}\nnow:\n{}",
-                name.to_string_lossy(),
-                String::from_utf8_lossy(&want),
-                String::from_utf8_lossy(&got)
-            );
-            compared += 1;
+    for model in ["fconvnet", "fcam", "saf"] {
+        let out = dir.path().join(model);
+        let o = Command::new(env!("CARGO_BIN_EXE_fusiondet"))
+            .args(["demo", "--model", model, "--out", out.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{model}: {}", all_output(&o));
+        let expected = repo_root().join(format!("crates/cli/tests/data/demo-results-{model}"));
+        let mut compared = 0;
+        for split in ["sim", "kitti"] {
+            let mut names: Vec<_> = std::fs::read_dir(expected.join(split))
+                .unwrap()
+                .map(|e| e.unwrap().file_name())
+                .collect();
+            names.sort();
+            let written = std::fs::read_dir(out.join("results").join(split))
+                .unwrap()
+                .count();
+            assert_eq!(written, names.len(), "{model} {split}: result file count");
+            for name in names {
+                let want = std::fs::read(expected.join(split).join(&name)).unwrap();
+                let got = std::fs::read(out.join("results").join(split).join(&name)).unwrap();
+                assert!(
+                    want == got,
+                    "{model} {split}/{}: differs from the result before the restructuring\nbefore:\n{}\nnow:\n{}",
+                    name.to_string_lossy(),
+                    String::from_utf8_lossy(&want),
+                    String::from_utf8_lossy(&got)
+                );
+                compared += 1;
+            }
         }
+        assert_eq!(compared, 13, "{model}");
     }
-    assert_eq!(compared, 13);
 }
 
 /// `cargo install` puts the binary far from the source tree: the demo (every shipped

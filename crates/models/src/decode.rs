@@ -1,12 +1,13 @@
-//! Inference decoding: the best position of each frustum and its box components, as plain
-//! numbers in the `BatchTargets` conventions (the frustum crate turns them into boxes).
+//! Inference decoding, the network's half: the best position of each frustum and its box
+//! components read from the output tensors, in the box coder's terms
+//! ([`FrustumPrediction::encoding`]); the coder's other half turns them into boxes.
 
 use crate::config::ModelConfig;
 use crate::error::ModelError;
 use crate::heads::RegressionLayout;
 use crate::inputs::BatchInputs;
 use crate::model::FConvNetOutput;
-use fusiondet_frustum::BoxCoder;
+use fusiondet_frustum::{BoxCoder, BoxEncoding};
 
 /// The prediction of one frustum at its highest-scoring position.
 #[derive(Debug, Clone, PartialEq)]
@@ -28,6 +29,18 @@ pub struct FrustumPrediction {
 }
 
 impl FrustumPrediction {
+    /// The prediction in the box coder's terms (the centre in the frustum frame), which
+    /// [`BoxCoder::decode_encoding`] turns into a KITTI box.
+    pub fn encoding(&self) -> BoxEncoding {
+        BoxEncoding {
+            center: self.center.map(f64::from),
+            heading_bin: self.heading_bin,
+            heading_residual: self.heading_residual as f64,
+            size_cluster: self.size_cluster,
+            size_residual: self.size_residual.map(f64::from),
+        }
+    }
+
     /// The heading angle in (−π, π].
     pub fn heading(&self, coder: &BoxCoder) -> f32 {
         coder.bin_to_heading_f32(self.heading_bin, self.heading_residual)

@@ -7,7 +7,7 @@ use crate::config::ExperimentConfig;
 use crate::detect::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use burn::prelude::*;
-use fusiondet_frustum::{BoxEncoding, FrustumDataset, FrustumFrames, SkipCounts};
+use fusiondet_frustum::{FrustumDataset, FrustumFrames, SkipCounts};
 use fusiondet_geometry::nms_3d;
 use fusiondet_kitti::{Detection2d, Object};
 use fusiondet_models::{FConvNet, decode};
@@ -150,17 +150,10 @@ fn run_network<S: FrustumFrames>(
         timing.add(STAGE_NETWORK, t.elapsed());
         let t = Instant::now();
         for (sample, p) in prepared.samples.iter().zip(&predictions) {
-            let predicted = BoxEncoding {
-                center: p.center.map(f64::from),
-                heading_bin: p.heading_bin,
-                heading_residual: p.heading_residual as f64,
-                size_cluster: p.size_cluster,
-                size_residual: p.size_residual.map(f64::from),
-            };
             let box3d = config
                 .frustum
                 .coder
-                .decode_box([0.0; 3], &predicted, &sample.frame);
+                .decode_encoding(&p.encoding(), &sample.frame);
             let score = p.score as f64 + sample.score.unwrap_or(0.0);
             candidates
                 .entry(sample.frame_id.clone())
