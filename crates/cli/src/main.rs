@@ -38,6 +38,8 @@ enum Command {
     OmegaStudy(commands::omega_study::OmegaStudyArgs),
     /// Detection speed of a trained model: frames/s and time per stage (medians).
     Bench(commands::bench::BenchArgs),
+    /// Dense depth from sparse depth (IP-Basic), or from each frame's projected LiDAR scan.
+    DepthComplete(commands::depth_complete::DepthCompleteArgs),
 }
 
 fn main() -> ExitCode {
@@ -53,6 +55,7 @@ fn main() -> ExitCode {
         Command::Ablation(args) => commands::ablation::run(args),
         Command::OmegaStudy(args) => commands::omega_study::run(args),
         Command::Bench(args) => commands::bench::run(args),
+        Command::DepthComplete(args) => commands::depth_complete::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

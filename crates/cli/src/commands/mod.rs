@@ -3,6 +3,7 @@
 pub mod ablation;
 pub mod bench;
 pub mod demo;
+pub mod depth_complete;
 pub mod detect;
 pub mod eval;
 pub mod info;

@@ -1,0 +1,164 @@
+//! `fusiondet depth-complete`: dense depth from sparse depth (IP-Basic's fast pipeline),
+//! in the KITTI depth-completion format; the work lives in `fusiondet-depth`.
+
+use anyhow::bail;
+use fusiondet_depth::{Blur, DepthCompleter, IpBasic, read_depth_png, write_depth_png};
+use fusiondet_kitti::FrameDir;
+use std::path::PathBuf;
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum Method {
+    /// IP-Basic's fast pipeline.
+    Fast,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum BlurArg {
+    Gaussian,
+    Bilateral,
+}
+
+#[derive(clap::Args)]
+#[command(after_help = "\
+Inputs and outputs are KITTI depth-completion PNGs: 16-bit grey, value = metres x 256, \
+0 = no measurement. Give one of --sparse (one map, with --out), --sparse-dir (every PNG of a \
+directory, with --out-dir) or --data-dir (a KITTI training/ directory: each frame's velodyne \
+scan projected into image_2, nearest point per pixel, then completed; with --out-dir).")]
+pub struct DepthCompleteArgs {
+    /// One sparse depth map.
+    #[arg(long, conflicts_with_all = ["sparse_dir", "data_dir"])]
+    pub sparse: Option<PathBuf>,
+    /// Output PNG for --sparse (written atomically).
+    #[arg(long, requires = "sparse")]
+    pub out: Option<PathBuf>,
+    /// A directory of sparse depth maps.
+    #[arg(long, conflicts_with = "data_dir")]
+    pub sparse_dir: Option<PathBuf>,
+    /// KITTI training/ directory (velodyne/, calib/, image_2/).
+    #[arg(long)]
+    pub data_dir: Option<PathBuf>,
+    /// Output directory for --sparse-dir and --data-dir (must not be an input directory).
+    #[arg(long)]
+    pub out_dir: Option<PathBuf>,
+    /// Frame ids for --data-dir (default: every frame with a velodyne scan).
+    #[arg(long, value_delimiter = ',')]
+    pub ids: Vec<String>,
+    #[arg(long, value_enum, default_value = "fast")]
+    pub method: Method,
+    /// The last smoothing step (IP-Basic's fast default: bilateral).
+    #[arg(long, value_enum, default_value = "bilateral")]
+    pub blur: BlurArg,
+    /// Extend each column's top depth upward and fill large holes (31x31).
+    #[arg(long)]
+    pub extrapolate: bool,
+    /// With --data-dir: measure instead of writing. Hold out this share of each frame's
+    /// projected LiDAR pixels (seeded by --seed), complete from the rest and print MAE,
+    /// RMSE (mm), iMAE and iRMSE (1/km) on the held-out pixels.
+    #[arg(long, requires = "data_dir", conflicts_with = "out_dir")]
+    pub holdout: Option<f64>,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
+    let Method::Fast = args.method;
+    let completer = IpBasic {
+        extrapolate: args.extrapolate,
+        blur: match args.blur {
+            BlurArg::Gaussian => Blur::Gaussian,
+            BlurArg::Bilateral => Blur::Bilateral,
+        },
+        ..Default::default()
+    };
+    if let Some(sparse) = &args.sparse {
+        let Some(out) = &args.out else {
+            bail!("--sparse needs --out FILE.png");
+        };
+        if out == sparse {
+            bail!("{}: --out is the input; choose another file", out.display());
+        }
+        let map = read_depth_png(sparse)?;
+        let dense = completer.complete(&map);
+        write_depth_png(out, &dense)?;
+        println!(
+            "{}: {} of {} pixels measured -> {} filled -> {}",
+            sparse.display(),
+            map.valid_count(),
+            map.width * map.height,
+            dense.valid_count(),
+            out.display()
+        );
+        return Ok(());
+    }
+    if let (Some(fraction), Some(dir)) = (args.holdout, &args.data_dir) {
+        return holdout(
+            &FrameDir::new(dir),
+            &args.ids,
+            fraction,
+            args.seed,
+            &completer,
+        );
+    }
+    let Some(out_dir) = &args.out_dir else {
+        bail!("give --sparse FILE --out FILE, or --sparse-dir / --data-dir with --out-dir DIR");
+    };
+    let summary = match (&args.sparse_dir, &args.data_dir) {
+        (Some(dir), None) => fusiondet_depth::complete_dir(dir, out_dir, &completer)?,
+        (None, Some(dir)) => {
+            fusiondet_depth::complete_frames(&FrameDir::new(dir), &args.ids, out_dir, &completer)?
+        }
+        _ => bail!("give --sparse-dir or --data-dir (one of them) with --out-dir"),
+    };
+    println!(
+        "{} depth maps: {} measured pixels -> {} filled -> {}",
+        summary.maps,
+        summary.sparse_pixels,
+        summary.dense_pixels,
+        out_dir.display()
+    );
+    Ok(())
+}
+
+/// Held-out accuracy over the frames of a KITTI directory, pixel-weighted.
+fn holdout(
+    frames: &FrameDir,
+    ids: &[String],
+    fraction: f64,
+    seed: u64,
+    completer: &IpBasic,
+) -> anyhow::Result<()> {
+    if !(fraction > 0.0 && fraction < 1.0) {
+        bail!("--holdout must be in (0, 1), got {fraction}");
+    }
+    let ids = if ids.is_empty() {
+        fusiondet_kitti::layout::list_frame_ids(&frames.root.join("velodyne"), "bin")?
+    } else {
+        ids.to_vec()
+    };
+    let (mut n, mut ae, mut se, mut iae, mut ise) = (0usize, 0.0, 0.0, 0.0, 0.0);
+    for (k, id) in ids.iter().enumerate() {
+        let frame = fusiondet_dataset::SensorFrame::load(frames, id, false)?;
+        let sparse = fusiondet_depth::project_scan(&frame);
+        let e = fusiondet_depth::holdout_errors(&sparse, fraction, seed ^ k as u64, completer)?;
+        let m = e.pixels as f64;
+        n += e.pixels;
+        ae += e.mae_mm * m;
+        se += e.rmse_mm * e.rmse_mm * m;
+        iae += e.imae_per_km * m;
+        ise += e.irmse_per_km * e.irmse_per_km * m;
+        println!(
+            "{id}: {} held-out pixels, MAE {:.1} mm, RMSE {:.1} mm, iMAE {:.2} /km, iRMSE {:.2} /km",
+            e.pixels, e.mae_mm, e.rmse_mm, e.imae_per_km, e.irmse_per_km
+        );
+    }
+    let m = n.max(1) as f64;
+    println!(
+        "all {} frames: {n} held-out pixels, MAE {:.1} mm, RMSE {:.1} mm, iMAE {:.2} /km, iRMSE {:.2} /km",
+        ids.len(),
+        ae / m,
+        (se / m).sqrt(),
+        iae / m,
+        (ise / m).sqrt()
+    );
+    Ok(())
+}

@@ -1,0 +1,38 @@
+//! Depth completion per 1242×375 frame: projecting a bundled KITTI scan, and IP-Basic's
+//! fast pipeline with each blur.
+//!
+//! `cargo bench -p fusiondet-depth`
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use fusiondet_dataset::SensorFrame;
+use fusiondet_depth::{Blur, IpBasic, complete, project_scan};
+use fusiondet_kitti::FrameDir;
+use std::hint::black_box;
+use std::path::Path;
+
+fn bench(c: &mut Criterion) {
+    let dir = FrameDir::new(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/kitti-sample/training"),
+    );
+    let frame = SensorFrame::load(&dir, "000001", false).unwrap();
+    c.bench_function("project scan 000001", |b| {
+        b.iter(|| project_scan(black_box(&frame)))
+    });
+    let sparse = project_scan(&frame);
+    for (name, blur) in [("gaussian", Blur::Gaussian), ("bilateral", Blur::Bilateral)] {
+        let settings = IpBasic {
+            blur,
+            ..Default::default()
+        };
+        c.bench_function(&format!("ip-basic fast {name}"), |b| {
+            b.iter(|| complete(black_box(&sparse), &settings))
+        });
+    }
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(10);
+    targets = bench
+}
+criterion_main!(benches);

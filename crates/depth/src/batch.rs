@@ -1,0 +1,117 @@
+//! Completing many depth maps: every PNG of a directory, or every frame of a KITTI
+//! `training/` directory (its scan projected first). Frames run in parallel; each output
+//! is written atomically, and nothing is written into an input directory.
+
+use crate::ip_basic::DepthCompleter;
+use crate::png::{read_depth_png, write_depth_png};
+use crate::project::project_scan;
+use crate::{DepthError, Result};
+use fusiondet_dataset::SensorFrame;
+use fusiondet_kitti::{FormatError, FrameDir};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// What a batch did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BatchSummary {
+    pub maps: usize,
+    /// Measured pixels in, filled pixels out (summed over the maps).
+    pub sparse_pixels: usize,
+    pub dense_pixels: usize,
+}
+
+fn same_dir(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    }
+}
+
+fn refuse_input_dir(out_dir: &Path, inputs: &[&Path]) -> Result<()> {
+    if let Some(input) = inputs.iter().find(|i| same_dir(out_dir, i)) {
+        return Err(DepthError::Mismatch(format!(
+            "{}: the output directory is an input directory ({}); choose another",
+            out_dir.display(),
+            input.display()
+        )));
+    }
+    std::fs::create_dir_all(out_dir).map_err(|e| FormatError::io(out_dir, e))?;
+    Ok(())
+}
+
+fn summarise(results: Vec<Result<(usize, usize)>>) -> Result<BatchSummary> {
+    let mut summary = BatchSummary::default();
+    for r in results {
+        let (sparse, dense) = r?;
+        summary.maps += 1;
+        summary.sparse_pixels += sparse;
+        summary.dense_pixels += dense;
+    }
+    Ok(summary)
+}
+
+/// Completes every `*.png` of `sparse_dir` into `out_dir` (same file names).
+pub fn complete_dir(
+    sparse_dir: &Path,
+    out_dir: &Path,
+    completer: &(dyn DepthCompleter + Sync),
+) -> Result<BatchSummary> {
+    let mut inputs: Vec<PathBuf> = std::fs::read_dir(sparse_dir)
+        .map_err(|e| FormatError::io(sparse_dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "png"))
+        .collect();
+    inputs.sort();
+    if inputs.is_empty() {
+        return Err(DepthError::Mismatch(format!(
+            "{}: no .png depth maps here",
+            sparse_dir.display()
+        )));
+    }
+    refuse_input_dir(out_dir, &[sparse_dir])?;
+    let results = inputs
+        .par_iter()
+        .map(|input| {
+            let sparse = read_depth_png(input)?;
+            let dense = completer.complete(&sparse);
+            write_depth_png(&out_dir.join(input.file_name().expect("a file")), &dense)?;
+            Ok((sparse.valid_count(), dense.valid_count()))
+        })
+        .collect();
+    summarise(results)
+}
+
+/// Projects each frame's scan into its `image_2` and completes it into
+/// `out_dir/<id>.png`; `ids` empty = every frame with a `velodyne/*.bin`.
+pub fn complete_frames(
+    frames: &FrameDir,
+    ids: &[String],
+    out_dir: &Path,
+    completer: &(dyn DepthCompleter + Sync),
+) -> Result<BatchSummary> {
+    let ids = if ids.is_empty() {
+        let velodyne = frames.root.join("velodyne");
+        fusiondet_kitti::layout::list_frame_ids(&velodyne, "bin")
+            .map_err(|e| FormatError::io(&velodyne, e))?
+    } else {
+        ids.to_vec()
+    };
+    if ids.is_empty() {
+        return Err(DepthError::Mismatch(format!(
+            "{}: no frames (velodyne/*.bin) here",
+            frames.root.display()
+        )));
+    }
+    refuse_input_dir(out_dir, &[&frames.root, &frames.root.join("image_2")])?;
+    let results = ids
+        .par_iter()
+        .map(|id| {
+            let frame = SensorFrame::load(frames, id, false)?;
+            let sparse = project_scan(&frame);
+            let dense = completer.complete(&sparse);
+            write_depth_png(&out_dir.join(format!("{id}.png")), &dense)?;
+            Ok((sparse.valid_count(), dense.valid_count()))
+        })
+        .collect();
+    summarise(results)
+}

@@ -1,0 +1,37 @@
+//! Depth completion, DASANet's camera branch: the sparse LiDAR depth projected into the
+//! image ([`project_scan`]) made dense ([`complete`], IP-Basic's classical pipeline:
+//! Ku, Harakeh, Waslander, CRV 2018), in the KITTI depth-completion format
+//! ([`read_depth_png`] / [`write_depth_png`]: 16-bit PNG, metres × 256, 0 = empty).
+//!
+//! [`DepthCompleter`] is the interface a learned completion can implement later.
+
+pub mod batch;
+pub mod holdout;
+pub mod image_ops;
+pub mod ip_basic;
+pub mod map;
+pub mod metrics;
+pub mod png;
+pub mod project;
+
+pub use batch::{BatchSummary, complete_dir, complete_frames};
+pub use holdout::{holdout_errors, split_holdout};
+pub use ip_basic::{Blur, DepthCompleter, IpBasic, complete};
+pub use map::DepthMap;
+pub use metrics::{DepthErrors, depth_errors};
+pub use png::{read_depth_png, write_depth_png};
+pub use project::project_scan;
+
+/// Errors of depth maps and their files.
+#[derive(Debug, thiserror::Error)]
+pub enum DepthError {
+    #[error(transparent)]
+    Format(#[from] fusiondet_kitti::FormatError),
+    #[error(transparent)]
+    Data(#[from] fusiondet_dataset::DataError),
+    /// Two maps that must align do not (the message says which sizes).
+    #[error("{0}")]
+    Mismatch(String),
+}
+
+pub type Result<T> = std::result::Result<T, DepthError>;
