@@ -128,3 +128,42 @@ fn bad_input_is_named_and_inputs_are_never_overwritten() {
     assert!(!o.status.success());
     assert!(all_output(&o).contains("--holdout"), "{}", all_output(&o));
 }
+
+/// A simulated data set carries the dense truth (training/depth_2/), and
+/// `--truth-dir` measures the completion against it.
+#[test]
+fn simulated_frames_carry_their_dense_depth_and_are_measured_against_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = dir.path().join("sim");
+    let o = run(
+        "simulate",
+        &["--out", s(&sim), "--frames", "2", "--seed", "4"],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+    let training = sim.join("training");
+    let truth = fusiondet_depth::read_depth_png(&training.join("depth_2/000000.png")).unwrap();
+    assert_eq!((truth.width, truth.height), (1242, 375));
+    assert!(truth.valid_count() > 200_000, "{}", truth.valid_count());
+    let o = run(
+        "depth-complete",
+        &[
+            "--data-dir",
+            s(&training),
+            "--truth-dir",
+            s(&training.join("depth_2")),
+            "--extrapolate",
+        ],
+    );
+    let t = all_output(&o);
+    assert!(o.status.success(), "{t}");
+    let all = t.lines().find(|l| l.starts_with("all 2 frames")).unwrap();
+    // "… MAE <x> mm …": a completion that follows the scan is within a metre on average.
+    let mae: f64 = all
+        .split("MAE ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(mae < 1000.0, "{all}");
+}

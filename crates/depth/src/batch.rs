@@ -3,11 +3,11 @@
 //! is written atomically, and nothing is written into an input directory.
 
 use crate::ip_basic::DepthCompleter;
-use crate::png::{read_depth_png, write_depth_png};
 use crate::project::project_scan;
 use crate::{DepthError, Result};
 use fusiondet_dataset::SensorFrame;
 use fusiondet_kitti::{FormatError, FrameDir};
+use fusiondet_kitti::{read_depth_png, write_depth_png};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 

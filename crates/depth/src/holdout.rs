@@ -3,9 +3,9 @@
 
 use crate::Result;
 use crate::ip_basic::DepthCompleter;
-use crate::map::DepthMap;
 use crate::metrics::{DepthErrors, depth_errors};
 use fusiondet_dataset::rng::Sampler;
+use fusiondet_kitti::DepthMap;
 
 /// Splits `sparse` into (kept, held out): each measured pixel is held out with
 /// probability `fraction`, drawn from `seed` (the same seed holds out the same pixels).

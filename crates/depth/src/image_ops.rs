@@ -8,7 +8,7 @@
 //! the definitions matters more here than speed, and the tests check each on small
 //! hand-made arrays.
 
-use crate::map::DepthMap;
+use fusiondet_kitti::DepthMap;
 
 /// A structuring element: the offsets (dx, dy) it covers.
 #[derive(Debug, Clone, PartialEq)]

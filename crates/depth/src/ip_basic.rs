@@ -11,10 +11,10 @@
 //! 6. 5×5 median;
 //! 7. blur: a 5×5 Gaussian on the valid pixels only, or the bilateral filter (5, σ_color
 //!    1.5, σ_space 2.0) over the whole image;
-//! 8. re-invert the valid pixels.
+//! 8. re-invert the valid pixels; what is left at or below 0.1 m is empty (0).
 
 use crate::image_ops::{Kernel, bilateral, close, dilate, fill_where, gaussian5, median5};
-use crate::map::DepthMap;
+use fusiondet_kitti::DepthMap;
 
 /// Depths at or below this are "no measurement" (IP-Basic's threshold).
 const VALID: f32 = 0.1;
@@ -109,6 +109,13 @@ pub fn complete(sparse: &DepthMap, settings: &IpBasic) -> DepthMap {
         }
     };
     invert_valid(&mut map, settings.max_depth);
+    // What the blur spread into empty pixels (the bilateral filter leaves values like
+    // 1e-8 there) is no measurement: IP-Basic's 16-bit output rounds it to 0, and so do we.
+    for d in &mut map.data {
+        if *d <= VALID {
+            *d = 0.0;
+        }
+    }
     map
 }
 
@@ -152,6 +159,32 @@ mod tests {
             // Dilation takes the nearest of the neighbours within 2 pixels of sampling:
             // the error is bounded by the plane's change over a few pixels.
             assert!(worst < 0.1, "{blur:?}: {worst} m");
+        }
+    }
+
+    #[test]
+    fn blurring_leaves_no_near_zero_depths_behind() {
+        // Two sampled patches far apart: the bilateral filter spreads tiny values into
+        // the empty pixels between them, which must come out as empty, not as 1e-8 m.
+        let mut sparse = DepthMap::empty(40, 10);
+        for y in 0..10 {
+            for x in (0..6).chain(34..40) {
+                sparse.set(x, y, 12.0);
+            }
+        }
+        for blur in [Blur::Gaussian, Blur::Bilateral] {
+            let out = complete(
+                &sparse,
+                &IpBasic {
+                    blur,
+                    ..Default::default()
+                },
+            );
+            assert!(
+                out.data.iter().all(|&d| d == 0.0 || d > VALID),
+                "{blur:?}: a near-zero depth is left"
+            );
+            assert_eq!(out.get(20, 5), 0.0, "{blur:?}: the gap stays empty");
         }
     }
 

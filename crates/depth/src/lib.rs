@@ -1,7 +1,8 @@
 //! Depth completion, DASANet's camera branch: the sparse LiDAR depth projected into the
 //! image ([`project_scan`]) made dense ([`complete`], IP-Basic's classical pipeline:
 //! Ku, Harakeh, Waslander, CRV 2018), in the KITTI depth-completion format
-//! ([`read_depth_png`] / [`write_depth_png`]: 16-bit PNG, metres × 256, 0 = empty).
+//! ([`read_depth_png`] / [`write_depth_png`], the format's home is `fusiondet-kitti`:
+//! 16-bit PNG, metres × 256, 0 = empty).
 //!
 //! [`DepthCompleter`] is the interface a learned completion can implement later.
 
@@ -9,17 +10,14 @@ pub mod batch;
 pub mod holdout;
 pub mod image_ops;
 pub mod ip_basic;
-pub mod map;
 pub mod metrics;
-pub mod png;
 pub mod project;
 
 pub use batch::{BatchSummary, complete_dir, complete_frames};
+pub use fusiondet_kitti::{DepthMap, read_depth_png, write_depth_png};
 pub use holdout::{holdout_errors, split_holdout};
 pub use ip_basic::{Blur, DepthCompleter, IpBasic, complete};
-pub use map::DepthMap;
 pub use metrics::{DepthErrors, depth_errors};
-pub use png::{read_depth_png, write_depth_png};
 pub use project::project_scan;
 
 /// Errors of depth maps and their files.

@@ -1,8 +1,8 @@
 //! The KITTI depth-completion errors against a ground truth: MAE and RMSE in mm, iMAE and
 //! iRMSE in 1/km, over the pixels the ground truth measures.
 
-use crate::map::DepthMap;
 use crate::{DepthError, Result};
+use fusiondet_kitti::DepthMap;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DepthErrors {

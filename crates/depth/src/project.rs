@@ -2,8 +2,8 @@
 //! through P2, its depth the rectified-camera z, the nearest point kept per pixel (the
 //! pixel whose square contains the projection).
 
-use crate::map::DepthMap;
 use fusiondet_dataset::SensorFrame;
+use fusiondet_kitti::DepthMap;
 
 /// Points nearer than this (rectified z, metres) are not projected.
 const NEAR: f64 = 0.1;

@@ -1,5 +1,6 @@
 //! Where the files of a KITTI-format dataset live:
-//! `ROOT/training/{velodyne,calib,label_2,image_2}/NNNNNN.*`, `ROOT/ImageSets/*.txt`,
+//! `ROOT/training/{velodyne,calib,label_2,image_2}/NNNNNN.*` (and `depth_2/` in simulated
+//! data sets), `ROOT/ImageSets/*.txt`,
 //! `ROOT/rgb_detections/rgb_detection_{split}.txt`.
 
 use std::path::{Path, PathBuf};
@@ -25,6 +26,11 @@ impl FrameDir {
     }
     pub fn image(&self, id: &str) -> PathBuf {
         self.root.join("image_2").join(format!("{id}.png"))
+    }
+    /// The dense depth of the image_2 view (KITTI depth-completion PNG), which the
+    /// simulator writes as ground truth for depth completion.
+    pub fn depth(&self, id: &str) -> PathBuf {
+        self.root.join("depth_2").join(format!("{id}.png"))
     }
 }
 

@@ -3,6 +3,7 @@
 
 pub mod atomic;
 pub mod calib;
+pub mod depth;
 pub mod detections2d;
 pub mod error;
 pub mod image;
@@ -13,6 +14,7 @@ pub mod velodyne;
 
 pub use atomic::write_atomic;
 pub use calib::{Calib, Mat33, Mat34, read_calib, write_calib};
+pub use depth::{DepthMap, read_depth_png, write_depth_png};
 pub use detections2d::{Detection2d, read_detections2d, write_detections2d};
 pub use error::{FormatError, Result};
 pub use label::{Box2d, Box3d, Object, ObjectClass, read_objects, write_objects};

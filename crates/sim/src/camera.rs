@@ -42,6 +42,9 @@ pub struct Render {
     pub image: RgbImage,
     /// Primitive index seen at each pixel (row-major), or [`SKY`].
     pub prim: Vec<u32>,
+    /// Depth of the surface seen at each pixel (row-major): its rectified-camera z in
+    /// metres, 0 for sky. The ground truth of depth completion.
+    pub depth: Vec<f32>,
     pub width: u32,
     pub height: u32,
 }
@@ -117,36 +120,44 @@ pub fn render(scene: &Scene, cam: &CameraModel, spec: &CameraSpec) -> Render {
         || CameraGrid::new(scene, cam, &rays, w, h, 8),
         || spec.shadows.then(|| ShadowGrid::new(scene, 1.0, 250.0)),
     );
-    let rows: Vec<(Vec<u8>, Vec<u32>)> = (0..h)
+    // The rectified-camera z of a LiDAR-frame point: the third row of velo_to_rect.
+    let z_row: [f64; 4] = std::array::from_fn(|c| cam.velo_to_rect[(2, c)]);
+    let rect_z = |p: V3| z_row[0] * p.x + z_row[1] * p.y + z_row[2] * p.z + z_row[3];
+    let rows: Vec<(Vec<u8>, Vec<u32>, Vec<f32>)> = (0..h)
         .into_par_iter()
         .map(|v| {
             let mut rgb = Vec::with_capacity(3 * w as usize);
             let mut ids = Vec::with_capacity(w as usize);
+            let mut depths = Vec::with_capacity(w as usize);
             for u in 0..w {
                 let d = rays.dir(u as f64, v as f64).normalized();
                 let cands = grid.candidates(u, v);
-                let (c, id) = shade(scene, cands, shadows.as_ref(), rays.origin, d, spec);
+                let (c, id, t) = shade(scene, cands, shadows.as_ref(), rays.origin, d, spec);
                 rgb.extend(c.iter().map(|&x| to_u8(x)));
                 ids.push(id);
+                depths.push(t.map_or(0.0, |t| rect_z(rays.origin + d * t) as f32));
             }
-            (rgb, ids)
+            (rgb, ids, depths)
         })
         .collect();
     let mut pixels = Vec::with_capacity((3 * w * h) as usize);
     let mut prim = Vec::with_capacity((w * h) as usize);
-    for (r, i) in rows {
+    let mut depth = Vec::with_capacity((w * h) as usize);
+    for (r, i, z) in rows {
         pixels.extend(r);
         prim.extend(i);
+        depth.extend(z);
     }
     Render {
         image: RgbImage::from_raw(w, h, pixels).expect("buffer has the image size"),
         prim,
+        depth,
         width: w,
         height: h,
     }
 }
 
-/// The colour seen along one ray and the primitive hit.
+/// The colour seen along one ray, the primitive hit and the distance to it.
 fn shade(
     scene: &Scene,
     cands: &[Candidate],
@@ -154,9 +165,9 @@ fn shade(
     o: V3,
     d: V3,
     spec: &CameraSpec,
-) -> ([f64; 3], u32) {
+) -> ([f64; 3], u32, Option<f64>) {
     let Some(hit) = cast_candidates(scene, cands, o, d, 0.05, spec.max_range) else {
-        return (sky(d), SKY);
+        return (sky(d), SKY, None);
     };
     let p = o + d * hit.t;
     let sample = scene.surface_at(&hit, p);
@@ -191,7 +202,7 @@ fn shade(
     for k in 0..3 {
         c[k] += (SKY_HORIZON[k] - c[k]) * haze;
     }
-    (c, hit.prim)
+    (c, hit.prim, Some(hit.t))
 }
 
 #[cfg(test)]

@@ -93,7 +93,7 @@ fn is_ours(dir: &str, name: &str) -> bool {
     match dir {
         "velodyne" => temp || (frame && ext == "bin"),
         "calib" | "label_2" => temp || (frame && ext == "txt"),
-        "image_2" => temp || (frame && ext == "png"),
+        "image_2" | "depth_2" => temp || (frame && ext == "png"),
         "ImageSets" => temp || matches!(name, "train.txt" | "val.txt" | "trainval.txt"),
         "rgb_detections" => {
             temp || matches!(name, "rgb_detection_train.txt" | "rgb_detection_val.txt")
@@ -126,6 +126,7 @@ fn prepare_dir(opts: &DatasetOptions) -> Result<DatasetDir, SimError> {
                 ("training/calib", "calib"),
                 ("training/label_2", "label_2"),
                 ("training/image_2", "image_2"),
+                ("training/depth_2", "depth_2"),
                 ("ImageSets", "ImageSets"),
                 ("rgb_detections", "rgb_detections"),
                 ("", ""),
@@ -147,7 +148,7 @@ fn prepare_dir(opts: &DatasetOptions) -> Result<DatasetDir, SimError> {
     }
     let ds = DatasetDir::new(root);
     let training = ds.training();
-    for sub in ["velodyne", "calib", "label_2", "image_2"] {
+    for sub in ["velodyne", "calib", "label_2", "image_2", "depth_2"] {
         let dir = training.root.join(sub);
         std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
     }
@@ -157,12 +158,18 @@ fn prepare_dir(opts: &DatasetOptions) -> Result<DatasetDir, SimError> {
     Ok(ds)
 }
 
-/// Writes one simulated frame's four files (the label last).
+/// Writes one simulated frame's five files (the label last).
 pub fn write_frame(ds: &DatasetDir, f: &crate::SimFrame) -> Result<(), SimError> {
     let t = ds.training();
     write_velodyne(&t.velodyne(&f.id), &f.points)?;
     write_calib(&t.calib(&f.id), &f.calib)?;
     fusiondet_kitti::image::write_png(&t.image(&f.id), &f.image)?;
+    let depth = fusiondet_kitti::DepthMap {
+        width: f.image.width() as usize,
+        height: f.image.height() as usize,
+        data: f.depth.clone(),
+    };
+    fusiondet_kitti::write_depth_png(&t.depth(&f.id), &depth)?;
     write_objects(&t.label(&f.id), &f.objects)?;
     Ok(())
 }

@@ -117,6 +117,9 @@ pub struct SimFrame {
     pub image: RgbImage,
     /// Primitive seen at each pixel ([`camera::SKY`] for sky).
     pub pixel_prim: Vec<u32>,
+    /// Rectified-camera depth of the surface seen at each pixel (0 for sky): the dense
+    /// truth of depth completion, written to `training/depth_2/`.
+    pub depth: Vec<f32>,
     /// The `label_2` lines.
     pub objects: Vec<Object>,
     /// Every object that shows in the image, labelled or not.
@@ -191,6 +194,7 @@ pub fn simulate_frame(seed: u64, index: usize, cfg: &SimConfig) -> SimFrame {
         rays: scan.rays,
         image: render.image,
         pixel_prim: render.prim,
+        depth: render.depth,
         objects,
         views,
         detections,

@@ -110,3 +110,34 @@ fn points_project_onto_the_surface_they_hit() {
         "{same_kind} of {all} points land on their kind of surface"
     );
 }
+
+/// The dense depth (the truth of depth completion) agrees with the scan: a LiDAR return
+/// projected into the image lies at about the depth the camera sees at that pixel, and
+/// sky pixels have none.
+#[test]
+fn dense_depth_agrees_with_the_scan_and_is_empty_on_sky() {
+    let f = frame();
+    let (w, h) = f.image.dimensions();
+    assert_eq!(f.depth.len(), (w * h) as usize);
+    for (depth, prim) in f.depth.iter().zip(&f.pixel_prim) {
+        assert_eq!(*depth == 0.0, *prim == SKY);
+    }
+    let cam = f.calib.camera_model().unwrap();
+    let mut diffs: Vec<f64> = f
+        .points
+        .iter()
+        .filter_map(|p| {
+            let rect = cam.velo_to_rect([p[0] as f64, p[1] as f64, p[2] as f64]);
+            let (u, v, _) = cam.rect_to_image(rect);
+            let inside = rect[2] > 1.0 && u >= 0.0 && v >= 0.0 && u < w as f64 && v < h as f64;
+            inside.then(|| {
+                let seen = f.depth[v as usize * w as usize + u as usize] as f64;
+                (seen - rect[2]).abs() / rect[2]
+            })
+        })
+        .collect();
+    assert!(diffs.len() > 10_000, "{}", diffs.len());
+    diffs.sort_by(f64::total_cmp);
+    let median = diffs[diffs.len() / 2];
+    assert!(median < 0.01, "median relative difference {median}");
+}

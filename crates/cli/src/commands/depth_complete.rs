@@ -2,7 +2,9 @@
 //! in the KITTI depth-completion format; the work lives in `fusiondet-depth`.
 
 use anyhow::bail;
-use fusiondet_depth::{Blur, DepthCompleter, IpBasic, read_depth_png, write_depth_png};
+use fusiondet_depth::{
+    Blur, DepthCompleter, DepthErrors, DepthMap, IpBasic, read_depth_png, write_depth_png,
+};
 use fusiondet_kitti::FrameDir;
 use std::path::PathBuf;
 
@@ -54,8 +56,18 @@ pub struct DepthCompleteArgs {
     /// With --data-dir: measure instead of writing. Hold out this share of each frame's
     /// projected LiDAR pixels (seeded by --seed), complete from the rest and print MAE,
     /// RMSE (mm), iMAE and iRMSE (1/km) on the held-out pixels.
-    #[arg(long, requires = "data_dir", conflicts_with = "out_dir")]
+    #[arg(long, requires = "data_dir", conflicts_with_all = ["out_dir", "truth_dir"])]
     pub holdout: Option<f64>,
+    /// With --data-dir: measure instead of writing, against the dense depth maps in this
+    /// directory (`<id>.png`; a simulated data set has them in training/depth_2/), on the
+    /// pixels a LiDAR-based truth covers: up to --max-depth, at or below each column's
+    /// topmost scanned pixel.
+    #[arg(long, requires = "data_dir", conflicts_with = "out_dir")]
+    pub truth_dir: Option<PathBuf>,
+    /// Ground-truth depths beyond this (metres) are left out of --truth-dir errors
+    /// (KITTI's depth-completion truth ends near 80 m).
+    #[arg(long, default_value_t = 80.0)]
+    pub max_depth: f32,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
 }
@@ -90,14 +102,29 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    if let (Some(fraction), Some(dir)) = (args.holdout, &args.data_dir) {
-        return holdout(
-            &FrameDir::new(dir),
-            &args.ids,
-            fraction,
-            args.seed,
-            &completer,
-        );
+    if let Some(dir) = &args.data_dir {
+        let frames = FrameDir::new(dir);
+        if let Some(fraction) = args.holdout {
+            if !(fraction > 0.0 && fraction < 1.0) {
+                bail!("--holdout must be in (0, 1), got {fraction}");
+            }
+            return measure(&frames, &args.ids, &|k, _, sparse| {
+                let seed = args.seed ^ k as u64;
+                Ok(fusiondet_depth::holdout_errors(
+                    sparse, fraction, seed, &completer,
+                )?)
+            });
+        }
+        if let Some(truth_dir) = &args.truth_dir {
+            return measure(&frames, &args.ids, &|_, id, sparse| {
+                let path = truth_dir.join(format!("{id}.png"));
+                let mut truth = read_depth_png(&path)?;
+                keep_comparable(&mut truth, sparse, args.max_depth);
+                let dense = completer.complete(sparse);
+                fusiondet_depth::depth_errors(&dense, &truth)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+            });
+        }
     }
     let Some(out_dir) = &args.out_dir else {
         bail!("give --sparse FILE --out FILE, or --sparse-dir / --data-dir with --out-dir DIR");
@@ -119,41 +146,58 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Held-out accuracy over the frames of a KITTI directory, pixel-weighted.
-fn holdout(
-    frames: &FrameDir,
-    ids: &[String],
-    fraction: f64,
-    seed: u64,
-    completer: &IpBasic,
-) -> anyhow::Result<()> {
-    if !(fraction > 0.0 && fraction < 1.0) {
-        bail!("--holdout must be in (0, 1), got {fraction}");
+/// Leaves in the truth only what a LiDAR-based truth (KITTI's) covers: depths up to
+/// `max_depth`, at or below the topmost scanned pixel of each column.
+fn keep_comparable(truth: &mut DepthMap, sparse: &DepthMap, max_depth: f32) {
+    for x in 0..truth.width.min(sparse.width) {
+        let top = (0..sparse.height)
+            .find(|&y| sparse.get(x, y) > 0.0)
+            .unwrap_or(sparse.height);
+        for y in 0..truth.height {
+            if y < top || truth.get(x, y) > max_depth {
+                truth.set(x, y, 0.0);
+            }
+        }
     }
-    let ids = if ids.is_empty() {
+}
+
+/// The ids given, or every frame with a velodyne scan.
+fn ids_or_all(frames: &FrameDir, ids: &[String]) -> anyhow::Result<Vec<String>> {
+    Ok(if ids.is_empty() {
         fusiondet_kitti::layout::list_frame_ids(&frames.root.join("velodyne"), "bin")?
     } else {
         ids.to_vec()
-    };
-    let (mut n, mut ae, mut se, mut iae, mut ise) = (0usize, 0.0, 0.0, 0.0, 0.0);
+    })
+}
+
+/// Errors of each frame (projected scan → `errors_of`) and over all, pixel-weighted.
+fn measure(
+    frames: &FrameDir,
+    ids: &[String],
+    errors_of: &dyn Fn(usize, &str, &DepthMap) -> anyhow::Result<DepthErrors>,
+) -> anyhow::Result<()> {
+    let ids = ids_or_all(frames, ids)?;
+    let (mut n, mut missing, mut ae, mut se, mut iae, mut ise) =
+        (0usize, 0usize, 0.0, 0.0, 0.0, 0.0);
     for (k, id) in ids.iter().enumerate() {
         let frame = fusiondet_dataset::SensorFrame::load(frames, id, false)?;
         let sparse = fusiondet_depth::project_scan(&frame);
-        let e = fusiondet_depth::holdout_errors(&sparse, fraction, seed ^ k as u64, completer)?;
+        let e = errors_of(k, id, &sparse)?;
         let m = e.pixels as f64;
         n += e.pixels;
+        missing += e.missing;
         ae += e.mae_mm * m;
         se += e.rmse_mm * e.rmse_mm * m;
         iae += e.imae_per_km * m;
         ise += e.irmse_per_km * e.irmse_per_km * m;
         println!(
-            "{id}: {} held-out pixels, MAE {:.1} mm, RMSE {:.1} mm, iMAE {:.2} /km, iRMSE {:.2} /km",
-            e.pixels, e.mae_mm, e.rmse_mm, e.imae_per_km, e.irmse_per_km
+            "{id}: {} pixels ({} left empty), MAE {:.1} mm, RMSE {:.1} mm, iMAE {:.2} /km, iRMSE {:.2} /km",
+            e.pixels, e.missing, e.mae_mm, e.rmse_mm, e.imae_per_km, e.irmse_per_km
         );
     }
     let m = n.max(1) as f64;
     println!(
-        "all {} frames: {n} held-out pixels, MAE {:.1} mm, RMSE {:.1} mm, iMAE {:.2} /km, iRMSE {:.2} /km",
+        "all {} frames: {n} pixels ({missing} left empty), MAE {:.1} mm, RMSE {:.1} mm, iMAE {:.2} /km, iRMSE {:.2} /km",
         ids.len(),
         ae / m,
         (se / m).sqrt(),

@@ -1,10 +1,42 @@
 //! The KITTI depth-completion file format: a 16-bit grey PNG whose value is the depth in
-//! metres × 256 (0 = no measurement), so depths up to 255.99 m in steps of 1/256 m.
+//! metres × 256 (0 = no measurement), so depths up to 255.99 m in steps of 1/256 m; and
+//! the depth image it holds.
 
-use crate::map::DepthMap;
-use crate::{DepthError, Result};
-use fusiondet_kitti::FormatError;
+use crate::error::{FormatError, Result};
 use std::path::Path;
+
+/// A dense image of depths in metres (row-major, f32; 0 = no measurement).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthMap {
+    pub width: usize,
+    pub height: usize,
+    /// `height` rows of `width` depths.
+    pub data: Vec<f32>,
+}
+
+impl DepthMap {
+    /// An empty map (every pixel without measurement).
+    pub fn empty(width: usize, height: usize) -> DepthMap {
+        DepthMap {
+            width,
+            height,
+            data: vec![0.0; width * height],
+        }
+    }
+
+    pub fn get(&self, x: usize, y: usize) -> f32 {
+        self.data[y * self.width + x]
+    }
+
+    pub fn set(&mut self, x: usize, y: usize, depth: f32) {
+        self.data[y * self.width + x] = depth;
+    }
+
+    /// Pixels with a measurement.
+    pub fn valid_count(&self) -> usize {
+        self.data.iter().filter(|&&d| d > 0.0).count()
+    }
+}
 
 /// Reads a depth PNG; anything but a 16-bit single-channel PNG is an error naming the file.
 pub fn read_depth_png(path: &Path) -> Result<DepthMap> {
@@ -15,13 +47,13 @@ pub fn read_depth_png(path: &Path) -> Result<DepthMap> {
         .decode()
         .map_err(|e| FormatError::file(path, format!("cannot decode the PNG: {e}")))?;
     let image::DynamicImage::ImageLuma16(gray) = decoded else {
-        return Err(DepthError::Format(FormatError::file(
+        return Err(FormatError::file(
             path,
             format!(
                 "a depth map must be a 16-bit grey PNG (metres × 256), this one is {:?}",
                 decoded.color()
             ),
-        )));
+        ));
     };
     let (w, h) = gray.dimensions();
     Ok(DepthMap {
@@ -39,13 +71,15 @@ pub fn read_depth_png(path: &Path) -> Result<DepthMap> {
 /// clamped to the format's range, negative or non-finite ones are refused.
 pub fn write_depth_png(path: &Path, map: &DepthMap) -> Result<()> {
     if let Some(i) = map.data.iter().position(|d| !(d.is_finite() && *d >= 0.0)) {
-        return Err(DepthError::Mismatch(format!(
-            "{}: pixel ({}, {}) has depth {}, which the format cannot hold",
-            path.display(),
-            i % map.width.max(1),
-            i / map.width.max(1),
-            map.data[i]
-        )));
+        return Err(FormatError::file(
+            path,
+            format!(
+                "pixel ({}, {}) has depth {}, which the format cannot hold",
+                i % map.width.max(1),
+                i / map.width.max(1),
+                map.data[i]
+            ),
+        ));
     }
     let values: Vec<u16> = map
         .data
@@ -62,7 +96,7 @@ pub fn write_depth_png(path: &Path, map: &DepthMap) -> Result<()> {
             image::ImageFormat::Png,
         )
         .map_err(|e| FormatError::file(path, format!("cannot encode the PNG: {e}")))?;
-    fusiondet_kitti::write_atomic(path, &bytes)?;
+    crate::write_atomic(path, &bytes)?;
     Ok(())
 }
 
