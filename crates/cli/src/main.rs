@@ -40,6 +40,8 @@ enum Command {
     Bench(commands::bench::BenchArgs),
     /// Dense depth from sparse depth (IP-Basic), or from each frame's projected LiDAR scan.
     DepthComplete(commands::depth_complete::DepthCompleteArgs),
+    /// Coloured pseudo point clouds from completed depth (DASANet's second input).
+    PseudoPoints(commands::pseudo_points::PseudoPointsArgs),
 }
 
 fn main() -> ExitCode {
@@ -56,6 +58,7 @@ fn main() -> ExitCode {
         Command::OmegaStudy(args) => commands::omega_study::run(args),
         Command::Bench(args) => commands::bench::run(args),
         Command::DepthComplete(args) => commands::depth_complete::run(args),
+        Command::PseudoPoints(args) => commands::pseudo_points::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

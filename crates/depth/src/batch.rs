@@ -4,6 +4,7 @@
 
 use crate::ip_basic::DepthCompleter;
 use crate::project::project_scan;
+use crate::pseudo::{Thinning, pseudo_points, write_pseudo_points};
 use crate::{DepthError, Result};
 use fusiondet_dataset::SensorFrame;
 use fusiondet_kitti::{FormatError, FrameDir};
@@ -89,6 +90,82 @@ pub fn complete_frames(
     out_dir: &Path,
     completer: &(dyn DepthCompleter + Sync),
 ) -> Result<BatchSummary> {
+    let ids = frame_ids(frames, ids)?;
+    refuse_input_dir(out_dir, &[&frames.root, &frames.root.join("image_2")])?;
+    let results = ids
+        .par_iter()
+        .map(|id| {
+            let frame = SensorFrame::load(frames, id, false)?;
+            let sparse = project_scan(&frame);
+            let dense = completer.complete(&sparse);
+            write_depth_png(&out_dir.join(format!("{id}.png")), &dense)?;
+            Ok((sparse.valid_count(), dense.valid_count()))
+        })
+        .collect();
+    summarise(results)
+}
+
+/// What a pseudo-point run did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PseudoSummary {
+    pub frames: usize,
+    pub points: usize,
+}
+
+/// Writes `out_dir/<id>.bin` for each frame: its completed depth (read from
+/// `depth_dir/<id>.png`, else the projected scan completed by `completer`) back-projected
+/// with the colours of `image_2`.
+pub fn pseudo_frames(
+    frames: &FrameDir,
+    ids: &[String],
+    depth_dir: Option<&Path>,
+    out_dir: &Path,
+    completer: &(dyn DepthCompleter + Sync),
+    thinning: Option<Thinning>,
+) -> Result<PseudoSummary> {
+    let ids = frame_ids(frames, ids)?;
+    let mut inputs = vec![frames.root.as_path()];
+    inputs.extend(depth_dir);
+    refuse_input_dir(out_dir, &inputs)?;
+    let counts: Vec<Result<usize>> = ids
+        .par_iter()
+        .map(|id| {
+            let frame = SensorFrame::load(frames, id, false)?;
+            let image = frame.image()?;
+            let depth = match depth_dir {
+                Some(dir) => {
+                    let path = dir.join(format!("{id}.png"));
+                    let map = read_depth_png(&path)?;
+                    if (map.width, map.height) != (image.width() as usize, image.height() as usize)
+                    {
+                        return Err(DepthError::Mismatch(format!(
+                            "{}: the depth map is {}×{} but image_2 is {}×{}",
+                            path.display(),
+                            map.width,
+                            map.height,
+                            image.width(),
+                            image.height()
+                        )));
+                    }
+                    map
+                }
+                None => completer.complete(&project_scan(&frame)),
+            };
+            let points = pseudo_points(&depth, &image, &frame.camera, thinning)?;
+            write_pseudo_points(&out_dir.join(format!("{id}.bin")), &points)?;
+            Ok(points.len())
+        })
+        .collect();
+    let mut summary = PseudoSummary::default();
+    for c in counts {
+        summary.points += c?;
+        summary.frames += 1;
+    }
+    Ok(summary)
+}
+
+/// The ids given, or every frame with a `velodyne/*.bin`; none is an error.
+fn frame_ids(frames: &FrameDir, ids: &[String]) -> Result<Vec<String>> {
     let ids = if ids.is_empty() {
         let velodyne = frames.root.join("velodyne");
         fusiondet_kitti::layout::list_frame_ids(&velodyne, "bin")
@@ -102,16 +179,5 @@ pub fn complete_frames(
             frames.root.display()
         )));
     }
-    refuse_input_dir(out_dir, &[&frames.root, &frames.root.join("image_2")])?;
-    let results = ids
-        .par_iter()
-        .map(|id| {
-            let frame = SensorFrame::load(frames, id, false)?;
-            let sparse = project_scan(&frame);
-            let dense = completer.complete(&sparse);
-            write_depth_png(&out_dir.join(format!("{id}.png")), &dense)?;
-            Ok((sparse.valid_count(), dense.valid_count()))
-        })
-        .collect();
-    summarise(results)
+    Ok(ids)
 }

@@ -4,6 +4,7 @@
 //! ([`read_depth_png`] / [`write_depth_png`], the format's home is `fusiondet-kitti`:
 //! 16-bit PNG, metres × 256, 0 = empty).
 //!
+//! [`pseudo_points`] back-projects a completed map into a coloured pseudo point cloud.
 //! [`DepthCompleter`] is the interface a learned completion can implement later.
 
 pub mod batch;
@@ -12,13 +13,15 @@ pub mod image_ops;
 pub mod ip_basic;
 pub mod metrics;
 pub mod project;
+pub mod pseudo;
 
-pub use batch::{BatchSummary, complete_dir, complete_frames};
+pub use batch::{BatchSummary, PseudoSummary, complete_dir, complete_frames, pseudo_frames};
 pub use fusiondet_kitti::{DepthMap, read_depth_png, write_depth_png};
 pub use holdout::{holdout_errors, split_holdout};
 pub use ip_basic::{Blur, DepthCompleter, IpBasic, complete};
 pub use metrics::{DepthErrors, depth_errors};
 pub use project::project_scan;
+pub use pseudo::{PseudoPoint, Thinning, pseudo_points, read_pseudo_points, write_pseudo_points};
 
 /// Errors of depth maps and their files.
 #[derive(Debug, thiserror::Error)]

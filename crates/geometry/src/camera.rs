@@ -88,6 +88,24 @@ impl CameraModel {
         [x.x, x.y, x.z]
     }
 
+    /// Back-projects pixel (u, v) to the rectified-camera point whose z (the depth a
+    /// depth map stores) is `z`: solves P2 · [x, y, z, 1] = w · [u, v, 1] for x, y and w.
+    /// `None` when the ray through (u, v) runs parallel to the z = const plane.
+    pub fn image_to_rect_at_z(&self, u: f64, v: f64, z: f64) -> Option<[f64; 3]> {
+        let p = &self.p2;
+        // Unknowns (x, y, w): row r of P2 gives p_r0 x + p_r1 y − s_r w = −(p_r2 z + p_r3),
+        // with s = (u, v, 1).
+        let s = [u, v, 1.0];
+        let a = Matrix3::from_fn(|r, c| match c {
+            0 => p[(r, 0)],
+            1 => p[(r, 1)],
+            _ => -s[r],
+        });
+        let b = Vector3::from_fn(|r, _| -(p[(r, 2)] * z + p[(r, 3)]));
+        let x = a.try_inverse()? * b;
+        Some([x.x, x.y, z])
+    }
+
     pub fn velo_to_image(&self, p: [f64; 3]) -> (f64, f64, f64) {
         self.rect_to_image(self.velo_to_rect(p))
     }
@@ -130,6 +148,18 @@ pub(crate) mod tests {
         // LiDAR forward is camera depth.
         let r = cam.velo_to_rect([10.0, 0.0, 0.0]);
         assert!((r[2] - 10.0).abs() < 0.5 && r[0].abs() < 0.5);
+    }
+
+    #[test]
+    fn back_projection_at_a_given_z_returns_the_point() {
+        let cam = sample_camera();
+        for p in [[2.0, 1.5, 20.0], [-7.5, 0.3, 4.2], [0.0, -1.0, 60.0]] {
+            let (u, v, _) = cam.rect_to_image(p);
+            let back = cam.image_to_rect_at_z(u, v, p[2]).unwrap();
+            for k in 0..3 {
+                assert!((back[k] - p[k]).abs() < 1e-9, "{p:?} -> {back:?}");
+            }
+        }
     }
 
     #[test]

@@ -8,6 +8,7 @@ pub mod detect;
 pub mod eval;
 pub mod info;
 pub mod omega_study;
+pub mod pseudo_points;
 pub mod simulate;
 pub mod train;
 pub mod viz;

@@ -1,0 +1,53 @@
+//! `fusiondet pseudo-points`: each frame's completed depth back-projected into a coloured
+//! pseudo point cloud (DASANet's second input); the work lives in `fusiondet-depth`.
+
+use fusiondet_depth::{IpBasic, Thinning};
+use fusiondet_kitti::FrameDir;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+#[command(after_help = "\
+Writes OUT_DIR/<id>.bin: little-endian float32 x 8 per point: x, y, z (LiDAR frame, metres), \
+r, g, b (0-255, from image_2), u, v (pixel column and row). One point per completed pixel, \
+back-projected through the pixel centre at its depth with the inverse of R0_rect and \
+Tr_velo_to_cam and P2's focal, centre and baseline terms.")]
+pub struct PseudoPointsArgs {
+    /// KITTI training/ directory (velodyne/, calib/, image_2/).
+    #[arg(long)]
+    pub data_dir: PathBuf,
+    /// Completed depth maps (`<id>.png`, e.g. from `fusiondet depth-complete`); without
+    /// it, each frame's scan is projected and completed here (IP-Basic fast, bilateral).
+    #[arg(long)]
+    pub depth_dir: Option<PathBuf>,
+    /// Output directory (must not be an input directory).
+    #[arg(long)]
+    pub out_dir: PathBuf,
+    /// Frame ids (default: every frame with a velodyne scan).
+    #[arg(long, value_delimiter = ',')]
+    pub ids: Vec<String>,
+    /// SFD's near-range thinning: where x < 13 m keep only pixels with odd u and v.
+    #[arg(long)]
+    pub thin: bool,
+}
+
+pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
+    let summary = fusiondet_depth::pseudo_frames(
+        &FrameDir::new(&args.data_dir),
+        &args.ids,
+        args.depth_dir.as_deref(),
+        &args.out_dir,
+        &IpBasic {
+            blur: fusiondet_depth::Blur::Bilateral,
+            ..Default::default()
+        },
+        args.thin.then(Thinning::default),
+    )?;
+    println!(
+        "{} frames: {} pseudo points ({:.0} per frame) -> {}",
+        summary.frames,
+        summary.points,
+        summary.points as f64 / summary.frames.max(1) as f64,
+        args.out_dir.display()
+    );
+    Ok(())
+}
