@@ -41,6 +41,40 @@ fn pseudo_points_carry_colour_and_pixel_and_project_back_onto_it() {
         let c = image.get_pixel(p.uv[0] as u32, p.uv[1] as u32).0;
         assert_eq!(p.rgb, c.map(f32::from));
     }
+
+    // The picture: pseudo points on the bird's-eye view, the depth above the image.
+    let depth = dir.path().join("depth");
+    let o = run(
+        "depth-complete",
+        &[
+            "--data-dir",
+            s(&training),
+            "--ids",
+            "000001",
+            "--out-dir",
+            s(&depth),
+        ],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+    let picture = dir.path().join("frame.png");
+    let o = run(
+        "viz",
+        &[
+            "--data-dir",
+            s(&training),
+            "--id",
+            "1",
+            "--pseudo-dir",
+            s(&full),
+            "--depth-dir",
+            s(&depth),
+            "--out",
+            s(&picture),
+        ],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+    let drawn = fusiondet_kitti::image::read_image(&picture).unwrap();
+    assert!(drawn.height() > 2 * 375, "{}", drawn.height());
 }
 
 #[test]

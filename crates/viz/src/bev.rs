@@ -196,6 +196,22 @@ pub fn draw_points(
     dimmed
 }
 
+/// Pseudo points (LiDAR frame, metres) in their own colour, one pixel each: drawn under
+/// the LiDAR points, which they densify.
+pub fn draw_pseudo_points(
+    img: &mut RgbImage,
+    map: &BevMap,
+    cam: &CameraModel,
+    points: &[[f32; 3]],
+) {
+    for p in points {
+        let r = cam.velo_to_rect(p.map(f64::from));
+        if let Some((col, row)) = map.pixel_of(r[0], r[2]) {
+            img.put_pixel(col, row, style::PSEUDO);
+        }
+    }
+}
+
 /// Brightness kept by points outside the camera's view.
 pub const OUT_OF_VIEW: f64 = 0.45;
 

@@ -7,7 +7,7 @@ use crate::camera_view;
 use crate::legend::{Entry, Icon, render_legend};
 use crate::style::{self, BACKGROUND, Source};
 use fusiondet_geometry::CameraModel;
-use fusiondet_kitti::{LidarPoint, Object, ObjectClass};
+use fusiondet_kitti::{DepthMap, LidarPoint, Object, ObjectClass};
 use image::{GenericImage, RgbImage};
 
 /// Everything drawn for one frame.
@@ -27,6 +27,10 @@ pub struct FrameView {
     pub detections: Option<Vec<Object>>,
     /// Remarks printed under the legend, e.g. that a result file was missing.
     pub notes: Vec<String>,
+    /// Pseudo points (LiDAR frame, metres), drawn on the bird's-eye view when present.
+    pub pseudo_points: Option<Vec<[f32; 3]>>,
+    /// A completed depth map of the image, drawn as a colour map above it when present.
+    pub depth: Option<DepthMap>,
 }
 
 /// How to draw; the defaults suit KITTI's 1242×375 images.
@@ -122,6 +126,13 @@ pub fn render_camera(view: &FrameView, options: &RenderOptions) -> RgbImage {
     img
 }
 
+/// A depth map as a colour image (near warm, far dark, empty the background).
+pub fn render_depth(depth: &DepthMap) -> RgbImage {
+    RgbImage::from_fn(depth.width as u32, depth.height as u32, |x, y| {
+        style::depth_colour(depth.get(x as usize, y as usize) as f64)
+    })
+}
+
 /// The bird's-eye view, `width` pixels wide; also returns how many points were dimmed
 /// for lying outside the camera's view.
 pub fn render_bev(view: &FrameView, options: &RenderOptions, width: u32) -> (RgbImage, usize) {
@@ -129,6 +140,9 @@ pub fn render_bev(view: &FrameView, options: &RenderOptions, width: u32) -> (Rgb
     let mut img = RgbImage::from_pixel(map.width, map.height, BACKGROUND);
     bev::draw_grid(&mut img, &map, options.grid_step, options.text_scale);
     bev::draw_fov(&mut img, &map, &view.camera, view.image.width());
+    if let Some(points) = &view.pseudo_points {
+        bev::draw_pseudo_points(&mut img, &map, &view.camera, points);
+    }
     let dimmed = bev::draw_points(
         &mut img,
         &map,
@@ -178,6 +192,18 @@ fn legend_entries(view: &FrameView, options: &RenderOptions, dimmed: usize) -> V
     if dimmed > 0 {
         entries.push(Entry::new(Icon::DimRamp, "outside image"));
     }
+    if let Some(points) = &view.pseudo_points {
+        entries.push(Entry::new(
+            Icon::Swatch(style::PSEUDO),
+            format!("pseudo points ({})", points.len()),
+        ));
+    }
+    if view.depth.is_some() {
+        entries.push(Entry::new(
+            Icon::DepthRamp,
+            format!("depth 0-{:.0} m", style::DEPTH_RAMP_FAR),
+        ));
+    }
     entries
 }
 
@@ -214,5 +240,36 @@ pub fn render_frame_with(view: &FrameView, options: &RenderOptions) -> RgbImage 
         &view.notes,
         options.text_scale,
     );
-    stack_vertical(&[legend, camera, bev], 4)
+    let mut parts = vec![legend];
+    parts.extend(view.depth.as_ref().map(render_depth));
+    parts.extend([camera, bev]);
+    stack_vertical(&parts, 4)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::load::load_frame;
+    use crate::testutil::{count_colour, sample_dir};
+
+    #[test]
+    fn pseudo_points_and_depth_are_drawn_when_given() {
+        let mut view = load_frame(&sample_dir(), "000001", None).unwrap();
+        let plain = render_frame(&view);
+        assert_eq!(count_colour(&plain, style::PSEUDO), 0);
+        // A row of pseudo points 20 m ahead (LiDAR x forward, y left).
+        view.pseudo_points = Some(
+            (0..50)
+                .map(|k| [20.0, -5.0 + 0.2 * k as f32, -1.0])
+                .collect(),
+        );
+        let mut depth = DepthMap::empty(view.image.width() as usize, view.image.height() as usize);
+        depth.data[..1000].fill(10.0);
+        view.depth = Some(depth);
+        let rich = render_frame(&view);
+        assert!(count_colour(&rich, style::PSEUDO) >= 20);
+        // The depth panel (as tall as the image) sits between legend and image.
+        assert!(rich.height() >= plain.height() + view.image.height());
+        assert!(count_colour(&rich, style::depth_colour(10.0)) >= 1000);
+    }
 }

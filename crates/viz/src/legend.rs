@@ -19,6 +19,10 @@ pub enum Icon {
     Ramp,
     /// A dimmed ramp: points outside the camera's view.
     DimRamp,
+    /// A small square of one colour (pseudo points).
+    Swatch(Rgb<u8>),
+    /// The depth colour ramp from near to [`style::DEPTH_RAMP_FAR`].
+    DepthRamp,
 }
 
 /// One legend entry.
@@ -41,7 +45,7 @@ impl Entry {
 
 fn icon_width(icon: Icon, scale: u32) -> u32 {
     match icon {
-        Icon::Ramp | Icon::DimRamp => 6 * GLYPH * scale,
+        Icon::Ramp | Icon::DimRamp | Icon::DepthRamp => 6 * GLYPH * scale,
         _ => 4 * GLYPH * scale,
     }
 }
@@ -88,6 +92,29 @@ fn draw_icon(img: &mut RgbImage, icon: Icon, x: i32, y: i32, scale: u32) {
             line(img, (tx, top), (tx, bottom), TEXT, 1);
             line(img, (tx, mid), (x1, mid), TEXT, 2);
             line(img, (x1, top), (x1, bottom), TEXT, 1);
+        }
+        Icon::Swatch(colour) => {
+            fill_rect(
+                img,
+                x + w / 4,
+                y + h / 4,
+                (w / 2) as u32,
+                (h / 2).max(1) as u32,
+                colour,
+            );
+        }
+        Icon::DepthRamp => {
+            for k in 0..w {
+                let depth = style::DEPTH_RAMP_FAR * (k + 1) as f64 / w as f64;
+                fill_rect(
+                    img,
+                    x + k,
+                    y + h / 4,
+                    1,
+                    (h / 2).max(1) as u32,
+                    style::depth_colour(depth),
+                );
+            }
         }
         Icon::Ramp | Icon::DimRamp => {
             for k in 0..w {

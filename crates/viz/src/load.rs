@@ -80,6 +80,8 @@ pub fn load_frame(
         ground_truth: frame.objects,
         detections,
         notes,
+        pseudo_points: None,
+        depth: None,
     })
 }
 

@@ -127,6 +127,32 @@ pub fn height_colour(height: f64) -> Rgb<u8> {
     Rgb([mix(0), mix(1), mix(2)])
 }
 
+/// Pseudo points (back-projected completed depth) on the bird's-eye view: a muted violet,
+/// apart from the box colours and the LiDAR height ramp.
+pub const PSEUDO: Rgb<u8> = Rgb([150, 95, 175]);
+
+/// Depth (metres) that maps to the far end of the depth colour ramp.
+pub const DEPTH_RAMP_FAR: f64 = 80.0;
+
+/// Colour of a depth in the depth panel: warm yellow near, through red and violet, to a
+/// dark blue at [`DEPTH_RAMP_FAR`] and beyond; no depth is the background.
+pub fn depth_colour(depth: f64) -> Rgb<u8> {
+    if depth <= 0.0 {
+        return BACKGROUND;
+    }
+    const STOPS: [[f64; 3]; 4] = [
+        [255.0, 230.0, 90.0],
+        [230.0, 80.0, 60.0],
+        [130.0, 50.0, 150.0],
+        [30.0, 35.0, 90.0],
+    ];
+    let t = (depth / DEPTH_RAMP_FAR).clamp(0.0, 1.0) * (STOPS.len() - 1) as f64;
+    let i = (t.floor() as usize).min(STOPS.len() - 2);
+    let f = t - i as f64;
+    let mix = |k: usize| (STOPS[i][k] + f * (STOPS[i + 1][k] - STOPS[i][k])).round() as u8;
+    Rgb([mix(0), mix(1), mix(2)])
+}
+
 /// `colour` scaled towards black by `factor` in [0, 1] (used for points outside
 /// the camera's field of view, which the image cannot confirm).
 pub fn dim(colour: Rgb<u8>, factor: f64) -> Rgb<u8> {
@@ -149,6 +175,16 @@ mod tests {
             assert!(l >= last, "brightness falls at {k}");
             last = l;
         }
+    }
+
+    #[test]
+    fn depth_ramp_runs_from_warm_to_dark_and_empty_is_background() {
+        assert_eq!(depth_colour(0.0), BACKGROUND);
+        assert_eq!(depth_colour(200.0), depth_colour(DEPTH_RAMP_FAR));
+        let lum = |c: Rgb<u8>| c.0.iter().map(|&v| v as u32).sum::<u32>();
+        assert!(lum(depth_colour(2.0)) > lum(depth_colour(70.0)));
+        assert_ne!(PSEUDO, GT);
+        assert_ne!(PSEUDO, DETECTION);
     }
 
     #[test]

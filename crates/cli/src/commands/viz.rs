@@ -34,6 +34,14 @@ pub struct VizArgs {
     /// Do not draw KITTI's DontCare regions (faint dashed 2D boxes on the image).
     #[arg(long)]
     pub no_dont_care: bool,
+    /// Directory of pseudo point clouds (`<id>.bin`, from `fusiondet pseudo-points`),
+    /// drawn on the bird's-eye view in their own colour.
+    #[arg(long)]
+    pub pseudo_dir: Option<PathBuf>,
+    /// Directory of completed depth maps (`<id>.png`, from `fusiondet depth-complete`),
+    /// drawn as a colour map above the image.
+    #[arg(long)]
+    pub depth_dir: Option<PathBuf>,
 }
 
 /// Normalises a frame id: digits only, zero-padded to KITTI's six.
@@ -60,8 +68,27 @@ pub fn run(args: VizArgs) -> anyhow::Result<()> {
         }
     }
     let frames = FrameDir::new(&args.data_dir);
-    let view = load_frame(&frames, &id, args.result_dir.as_deref())
+    let mut view = load_frame(&frames, &id, args.result_dir.as_deref())
         .with_context(|| format!("cannot load frame {id} from {}", args.data_dir.display()))?;
+    if let Some(dir) = &args.pseudo_dir {
+        let points = fusiondet_depth::read_pseudo_points(&dir.join(format!("{id}.bin")))?;
+        view.pseudo_points = Some(points.iter().map(|p| p.xyz).collect());
+    }
+    if let Some(dir) = &args.depth_dir {
+        let path = dir.join(format!("{id}.png"));
+        let depth = fusiondet_depth::read_depth_png(&path)?;
+        if (depth.width as u32, depth.height as u32) != view.image.dimensions() {
+            bail!(
+                "{}: the depth map is {}x{} but the image {}x{}",
+                path.display(),
+                depth.width,
+                depth.height,
+                view.image.width(),
+                view.image.height()
+            );
+        }
+        view.depth = Some(depth);
+    }
     for note in &view.notes {
         eprintln!("warning: {note}");
     }
