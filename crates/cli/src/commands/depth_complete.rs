@@ -12,6 +12,9 @@ use std::path::PathBuf;
 pub enum Method {
     /// IP-Basic's fast pipeline.
     Fast,
+    /// IP-Basic's multiscale pipeline (per-range dilations; the image above the scan
+    /// stays empty with --no-extrapolate).
+    Multiscale,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -45,14 +48,18 @@ pub struct DepthCompleteArgs {
     /// Frame ids for --data-dir (default: every frame with a velodyne scan).
     #[arg(long, value_delimiter = ',')]
     pub ids: Vec<String>,
+    /// The pipeline (default: the one that measured best here; see the README).
     #[arg(long, value_enum, default_value = "fast")]
     pub method: Method,
-    /// The last smoothing step (IP-Basic's fast default: bilateral).
-    #[arg(long, value_enum, default_value = "bilateral")]
+    /// The last smoothing step.
+    #[arg(long, value_enum, default_value = "gaussian")]
     pub blur: BlurArg,
-    /// Extend each column's top depth upward and fill large holes (31x31).
-    #[arg(long)]
+    /// Extend each column's top depth upward and fill large holes (31x31): the default.
+    #[arg(long, overrides_with = "no_extrapolate")]
     pub extrapolate: bool,
+    /// Leave the image above the scan empty.
+    #[arg(long)]
+    pub no_extrapolate: bool,
     /// With --data-dir: measure instead of writing. Hold out this share of each frame's
     /// projected LiDAR pixels (seeded by --seed), complete from the rest and print MAE,
     /// RMSE (mm), iMAE and iRMSE (1/km) on the held-out pixels.
@@ -73,9 +80,12 @@ pub struct DepthCompleteArgs {
 }
 
 pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
-    let Method::Fast = args.method;
     let completer = IpBasic {
-        extrapolate: args.extrapolate,
+        method: match args.method {
+            Method::Fast => fusiondet_depth::Method::Fast,
+            Method::Multiscale => fusiondet_depth::Method::Multiscale,
+        },
+        extrapolate: !args.no_extrapolate,
         blur: match args.blur {
             BlurArg::Gaussian => Blur::Gaussian,
             BlurArg::Bilateral => Blur::Bilateral,

@@ -16,7 +16,8 @@ pub struct PseudoPointsArgs {
     #[arg(long)]
     pub data_dir: PathBuf,
     /// Completed depth maps (`<id>.png`, e.g. from `fusiondet depth-complete`); without
-    /// it, each frame's scan is projected and completed here (IP-Basic fast, bilateral).
+    /// it, each frame's scan is projected and completed here with depth-complete's
+    /// defaults (IP-Basic fast, Gaussian, extrapolated).
     #[arg(long)]
     pub depth_dir: Option<PathBuf>,
     /// Output directory (must not be an input directory).
@@ -36,10 +37,7 @@ pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
         &args.ids,
         args.depth_dir.as_deref(),
         &args.out_dir,
-        &IpBasic {
-            blur: fusiondet_depth::Blur::Bilateral,
-            ..Default::default()
-        },
+        &IpBasic::measured_best(),
         args.thin.then(Thinning::default),
     )?;
     println!(
