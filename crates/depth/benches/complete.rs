@@ -5,7 +5,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use fusiondet_dataset::SensorFrame;
-use fusiondet_depth::{Blur, IpBasic, complete, project_scan};
+use fusiondet_depth::{Blur, IpBasic, Method, complete, project_scan};
 use fusiondet_kitti::FrameDir;
 use std::hint::black_box;
 use std::path::Path;
@@ -19,12 +19,31 @@ fn bench(c: &mut Criterion) {
         b.iter(|| project_scan(black_box(&frame)))
     });
     let sparse = project_scan(&frame);
-    for (name, blur) in [("gaussian", Blur::Gaussian), ("bilateral", Blur::Bilateral)] {
-        let settings = IpBasic {
-            blur,
-            ..Default::default()
-        };
-        c.bench_function(&format!("ip-basic fast {name}"), |b| {
+    for (name, settings) in [
+        (
+            "gaussian",
+            IpBasic {
+                blur: Blur::Gaussian,
+                ..Default::default()
+            },
+        ),
+        (
+            "bilateral",
+            IpBasic {
+                blur: Blur::Bilateral,
+                ..Default::default()
+            },
+        ),
+        ("gaussian extrapolated (default)", IpBasic::measured_best()),
+        (
+            "multiscale gaussian",
+            IpBasic {
+                method: Method::Multiscale,
+                ..Default::default()
+            },
+        ),
+    ] {
+        c.bench_function(&format!("ip-basic {name}"), |b| {
             b.iter(|| complete(black_box(&sparse), &settings))
         });
     }

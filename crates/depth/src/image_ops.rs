@@ -14,8 +14,21 @@ use fusiondet_kitti::DepthMap;
 #[derive(Debug, Clone, PartialEq)]
 pub struct Kernel {
     offsets: Vec<(i32, i32)>,
-    /// Side of a full square kernel (lets dilation and erosion run separably).
-    full: Option<usize>,
+    /// How dilation and erosion may run through 1-D windows instead of the offsets.
+    shape: Shape,
+}
+
+/// Shapes with a fast exact decomposition into 1-D windows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Shape {
+    /// A k×k square: a row window, then a column window.
+    Full(usize),
+    /// A k×k cross: the larger of a row window and a column window of the same pixel.
+    Cross(usize),
+    /// A diamond of radius r: r rounds of the 3×3 cross (the L1 ball of radius r is r
+    /// L1 balls of radius 1 added up; inside a rectangle every step between two pixels
+    /// stays inside, so ignoring the outside keeps it exact).
+    Diamond(usize),
 }
 
 impl Kernel {
@@ -26,7 +39,7 @@ impl Kernel {
             offsets: (-r..=r)
                 .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
                 .collect(),
-            full: Some(k),
+            shape: Shape::Full(k),
         }
     }
 
@@ -38,7 +51,7 @@ impl Kernel {
                 .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
                 .filter(|(dx, dy)| dx.abs() + dy.abs() <= r)
                 .collect(),
-            full: None,
+            shape: Shape::Diamond(r as usize),
         }
     }
 
@@ -50,7 +63,7 @@ impl Kernel {
                 .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
                 .filter(|(dx, dy)| *dx == 0 || *dy == 0)
                 .collect(),
-            full: None,
+            shape: Shape::Cross(k),
         }
     }
 }
@@ -102,11 +115,34 @@ fn morph(map: &DepthMap, kernel: &Kernel, op: Extremum) -> DepthMap {
     if map.data.is_empty() {
         return map.clone();
     }
-    if let Some(k) = kernel.full {
-        // A square is a row window followed by a column window: the same extremum.
-        let rows = line_extremum(map, k / 2, true, op);
-        return line_extremum(&rows, k / 2, false, op);
+    match kernel.shape {
+        Shape::Full(k) => {
+            let rows = line_extremum(map, k / 2, true, op);
+            line_extremum(&rows, k / 2, false, op)
+        }
+        Shape::Cross(k) => {
+            let mut out = line_extremum(map, k / 2, true, op);
+            let columns = line_extremum(map, k / 2, false, op);
+            for (a, b) in out.data.iter_mut().zip(&columns.data) {
+                *a = op.pick(*a, *b);
+            }
+            out
+        }
+        Shape::Diamond(r) => {
+            let cross = Kernel::cross(3);
+            let mut out = map.clone();
+            for _ in 0..r {
+                out = morph(&out, &cross, op);
+            }
+            out
+        }
     }
+}
+
+/// The definition: the extremum over every offset of the kernel inside the image (what
+/// the decompositions above are tested against).
+#[cfg(test)]
+fn morph_by_offsets(map: &DepthMap, kernel: &Kernel, op: Extremum) -> DepthMap {
     let (w, h) = (map.width as i32, map.height as i32);
     let mut out = DepthMap::empty(map.width, map.height);
     for y in 0..h {
@@ -148,12 +184,21 @@ pub fn fill_where(map: &mut DepthMap, source: &DepthMap, mask: impl Fn(f32) -> b
     }
 }
 
-/// The 5×5 median, the border replicated.
+/// The 5×5 median, the border replicated. Rows whose whole 5-row window is empty (the
+/// image above a scan) are left empty without looking: the median of zeros.
 pub fn median5(map: &DepthMap) -> DepthMap {
     let (w, h) = (map.width as i64, map.height as i64);
     let mut out = DepthMap::empty(map.width, map.height);
+    let row_has_data: Vec<bool> = map
+        .data
+        .chunks(map.width.max(1))
+        .map(|row| row.iter().any(|&d| d != 0.0))
+        .collect();
     let mut window = [0f32; 25];
     for y in 0..h {
+        if !(y - 2..=y + 2).any(|yy| row_has_data[yy.clamp(0, h - 1) as usize]) {
+            continue;
+        }
         for x in 0..w {
             let mut n = 0;
             for dy in -2..=2i64 {
@@ -164,8 +209,8 @@ pub fn median5(map: &DepthMap) -> DepthMap {
                     n += 1;
                 }
             }
-            window.sort_unstable_by(f32::total_cmp);
-            out.set(x as usize, y as usize, window[12]);
+            let (_, median, _) = window.select_nth_unstable_by(12, f32::total_cmp);
+            out.set(x as usize, y as usize, *median);
         }
     }
     out
@@ -196,12 +241,20 @@ pub fn gaussian5(map: &DepthMap) -> DepthMap {
         for y in 0..h {
             for x in 0..w {
                 let mut acc = 0f32;
+                let (i, n) = if along_rows { (x, w) } else { (y, h) };
+                let interior = i >= 2 && i + 2 < n;
                 for (k, weight) in weights.iter().enumerate() {
                     let o = k as i64 - 2;
-                    let v = if along_rows {
-                        src.get(reflect101(x + o, w), y as usize)
+                    // Away from the border the reflection is the identity.
+                    let j = if interior {
+                        (i + o) as usize
                     } else {
-                        src.get(x as usize, reflect101(y + o, h))
+                        reflect101(i + o, n)
+                    };
+                    let v = if along_rows {
+                        src.get(j, y as usize)
+                    } else {
+                        src.get(x as usize, j)
                     };
                     acc += weight * v;
                 }
@@ -275,18 +328,41 @@ mod tests {
                 assert_eq!(d.get(x, y), if inside { 5.0 } else { 0.0 }, "({x}, {y})");
             }
         }
-        // The separable full square equals the explicit one.
-        let full = dilate(&m, &Kernel::full(3));
-        let explicit = morph(
-            &m,
-            &Kernel {
-                offsets: Kernel::full(3).offsets,
-                full: None,
-            },
-            Extremum::Max,
-        );
-        assert_eq!(full, explicit);
-        assert_eq!(full.valid_count(), 9);
+        assert_eq!(dilate(&m, &Kernel::full(3)).valid_count(), 9);
+    }
+
+    #[test]
+    fn fast_decompositions_equal_the_definition() {
+        // Random values (fixed seed) on an odd-sized image, every kernel in use, both
+        // extrema: the 1-D decompositions give exactly the offsets' answer, borders too.
+        let mut rng = fusiondet_dataset::rng::Sampler::new(5);
+        let data: Vec<f32> = (0..23 * 17)
+            .map(|_| {
+                if rng.chance(0.3) {
+                    rng.range(1.0, 90.0) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let m = map(23, 17, &data);
+        for kernel in [
+            Kernel::full(3),
+            Kernel::full(5),
+            Kernel::full(9),
+            Kernel::cross(3),
+            Kernel::cross(5),
+            Kernel::cross(7),
+            Kernel::diamond(5),
+        ] {
+            for op in [Extremum::Max, Extremum::Min] {
+                assert_eq!(
+                    morph(&m, &kernel, op),
+                    morph_by_offsets(&m, &kernel, op),
+                    "{kernel:?}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -16,8 +16,8 @@ pub struct PseudoPointsArgs {
     #[arg(long)]
     pub data_dir: PathBuf,
     /// Completed depth maps (`<id>.png`, e.g. from `fusiondet depth-complete`); without
-    /// it, each frame's scan is projected and completed here with depth-complete's
-    /// defaults (IP-Basic fast, Gaussian, extrapolated).
+    /// it, each frame's scan is projected and completed here: IP-Basic fast with the
+    /// Gaussian and without extrapolation, so no points are invented above the scan.
     #[arg(long)]
     pub depth_dir: Option<PathBuf>,
     /// Output directory (must not be an input directory).
@@ -37,7 +37,10 @@ pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
         &args.ids,
         args.depth_dir.as_deref(),
         &args.out_dir,
-        &IpBasic::measured_best(),
+        &IpBasic {
+            extrapolate: false,
+            ..IpBasic::measured_best()
+        },
         args.thin.then(Thinning::default),
     )?;
     println!(
