@@ -120,10 +120,15 @@ pub fn height_colour(height: f64) -> Rgb<u8> {
         [120.0, 210.0, 255.0],
         [235.0, 240.0, 255.0],
     ];
-    let t = (height / HEIGHT_RAMP_TOP).clamp(0.0, 1.0) * (STOPS.len() - 1) as f64;
-    let i = (t.floor() as usize).min(STOPS.len() - 2);
+    ramp(&STOPS, height / HEIGHT_RAMP_TOP)
+}
+
+/// The colour at `t` in [0, 1] (clamped) of a ramp through evenly spaced `stops`.
+fn ramp(stops: &[[f64; 3]], t: f64) -> Rgb<u8> {
+    let t = t.clamp(0.0, 1.0) * (stops.len() - 1) as f64;
+    let i = (t.floor() as usize).min(stops.len() - 2);
     let f = t - i as f64;
-    let mix = |k: usize| (STOPS[i][k] + f * (STOPS[i + 1][k] - STOPS[i][k])).round() as u8;
+    let mix = |k: usize| (stops[i][k] + f * (stops[i + 1][k] - stops[i][k])).round() as u8;
     Rgb([mix(0), mix(1), mix(2)])
 }
 
@@ -146,11 +151,7 @@ pub fn depth_colour(depth: f64) -> Rgb<u8> {
         [130.0, 50.0, 150.0],
         [30.0, 35.0, 90.0],
     ];
-    let t = (depth / DEPTH_RAMP_FAR).clamp(0.0, 1.0) * (STOPS.len() - 1) as f64;
-    let i = (t.floor() as usize).min(STOPS.len() - 2);
-    let f = t - i as f64;
-    let mix = |k: usize| (STOPS[i][k] + f * (STOPS[i + 1][k] - STOPS[i][k])).round() as u8;
-    Rgb([mix(0), mix(1), mix(2)])
+    ramp(&STOPS, depth / DEPTH_RAMP_FAR)
 }
 
 /// `colour` scaled towards black by `factor` in [0, 1] (used for points outside

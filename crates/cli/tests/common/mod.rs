@@ -31,3 +31,14 @@ pub fn text(b: &[u8]) -> String {
 pub fn all_output(o: &Output) -> String {
     format!("{}{}", text(&o.stdout), text(&o.stderr))
 }
+
+/// Runs `fusiondet SUBCOMMAND ARGS...`, which must fail with `needle` in its output.
+pub fn assert_fails_with(subcommand: &str, args: &[&str], needle: &str) {
+    let o = run(subcommand, args);
+    let out = all_output(&o);
+    assert!(
+        !o.status.success(),
+        "{subcommand} {args:?} succeeded:\n{out}"
+    );
+    assert!(out.contains(needle), "expected `{needle}` in:\n{out}");
+}
