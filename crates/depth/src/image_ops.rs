@@ -175,10 +175,10 @@ pub fn close(map: &DepthMap, kernel: &Kernel) -> DepthMap {
     erode(&dilate(map, kernel), kernel)
 }
 
-/// Replaces the pixels where `mask` holds by `source`'s.
-pub fn fill_where(map: &mut DepthMap, source: &DepthMap, mask: impl Fn(f32) -> bool) {
-    for (d, s) in map.data.iter_mut().zip(&source.data) {
-        if mask(*d) {
+/// Replaces `map`'s pixels where `keep(pixel index, old value)` holds by `source`'s.
+pub fn replace_where(map: &mut DepthMap, source: &DepthMap, keep: impl Fn(usize, f32) -> bool) {
+    for (i, (d, s)) in map.data.iter_mut().zip(&source.data).enumerate() {
+        if keep(i, *d) {
             *d = *s;
         }
     }

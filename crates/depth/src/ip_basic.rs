@@ -26,7 +26,7 @@
 //! 7. 5×5 median, then the Gaussian or the bilateral filter (5, σ_color 0.5, σ_space 2.0),
 //!    each kept on valid pixels inside the mask; re-invert.
 
-use crate::image_ops::{Kernel, bilateral, close, dilate, fill_where, gaussian5, median5};
+use crate::image_ops::{Kernel, bilateral, close, dilate, gaussian5, median5, replace_where};
 use fusiondet_kitti::DepthMap;
 
 /// Depths at or below this are "no measurement" (IP-Basic's threshold).
@@ -135,15 +135,6 @@ pub fn complete(sparse: &DepthMap, settings: &IpBasic) -> DepthMap {
     map
 }
 
-/// Replaces `map`'s pixels where `keep(pixel index, old value)` holds by `source`'s.
-fn replace_where(map: &mut DepthMap, source: &DepthMap, keep: impl Fn(usize, f32) -> bool) {
-    for (i, (d, s)) in map.data.iter_mut().zip(&source.data).enumerate() {
-        if keep(i, *d) {
-            *d = *s;
-        }
-    }
-}
-
 /// Multiscale step 1: the inverted depths with each range's returns dilated by its own
 /// cross (≤ 15 m: 7×7, 15–30 m: 5×5, > 30 m: 3×3), merged far to near.
 fn range_dilation(sparse: &DepthMap, max_depth: f32) -> DepthMap {
@@ -187,7 +178,7 @@ fn multiscale(sparse: &DepthMap, settings: &IpBasic) -> DepthMap {
     if settings.extrapolate {
         extend_columns_upward(&mut map);
         let filled = dilate(&map, &Kernel::full(31));
-        fill_where(&mut map, &filled, |d| d < VALID);
+        replace_where(&mut map, &filled, |_, d| d < VALID);
     }
     for _ in 0..6 {
         let filled = dilate(&map, &Kernel::full(5));
@@ -210,26 +201,20 @@ fn fast(sparse: &DepthMap, settings: &IpBasic) -> DepthMap {
     map = dilate(&map, &Kernel::diamond(5));
     map = close(&map, &Kernel::full(5));
     let filled = dilate(&map, &Kernel::full(7));
-    fill_where(&mut map, &filled, |d| d < VALID);
+    replace_where(&mut map, &filled, |_, d| d < VALID);
     if settings.extrapolate {
         extend_columns_upward(&mut map);
         let filled = dilate(&map, &Kernel::full(31));
-        fill_where(&mut map, &filled, |d| d < VALID);
+        replace_where(&mut map, &filled, |_, d| d < VALID);
     }
     map = median5(&map);
-    map = match settings.blur {
-        Blur::Bilateral => bilateral(&map, 5, 1.5, 2.0),
+    match settings.blur {
+        Blur::Bilateral => map = bilateral(&map, 5, 1.5, 2.0),
         Blur::Gaussian => {
             let blurred = gaussian5(&map);
-            let mut out = map.clone();
-            for (d, b) in out.data.iter_mut().zip(&blurred.data) {
-                if *d > VALID {
-                    *d = *b;
-                }
-            }
-            out
+            replace_where(&mut map, &blurred, |_, d| d > VALID);
         }
-    };
+    }
     invert_valid(&mut map, settings.max_depth);
     map
 }
