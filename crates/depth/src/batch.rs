@@ -132,26 +132,21 @@ pub fn pseudo_frames(
         .map(|id| {
             let frame = SensorFrame::load(frames, id, false)?;
             let image = frame.image()?;
-            let depth = match depth_dir {
+            let (depth, source) = match depth_dir {
                 Some(dir) => {
                     let path = dir.join(format!("{id}.png"));
-                    let map = read_depth_png(&path)?;
-                    if (map.width, map.height) != (image.width() as usize, image.height() as usize)
-                    {
-                        return Err(DepthError::Mismatch(format!(
-                            "{}: the depth map is {}×{} but image_2 is {}×{}",
-                            path.display(),
-                            map.width,
-                            map.height,
-                            image.width(),
-                            image.height()
-                        )));
-                    }
-                    map
+                    (read_depth_png(&path)?, Some(path))
                 }
-                None => completer.complete(&project_scan(&frame)),
+                None => (completer.complete(&project_scan(&frame)), None),
             };
-            let points = pseudo_points(&depth, &image, &frame.camera, thinning)?;
+            // A given map of another size than image_2 is refused naming its file.
+            let points =
+                pseudo_points(&depth, &image, &frame.camera, thinning).map_err(
+                    |e| match &source {
+                        Some(path) => DepthError::Mismatch(format!("{}: {e}", path.display())),
+                        None => e,
+                    },
+                )?;
             write_pseudo_points(&out_dir.join(format!("{id}.bin")), &points)?;
             Ok(points.len())
         })
@@ -165,7 +160,7 @@ pub fn pseudo_frames(
 }
 
 /// The ids given, or every frame with a `velodyne/*.bin`; none is an error.
-fn frame_ids(frames: &FrameDir, ids: &[String]) -> Result<Vec<String>> {
+pub fn frame_ids(frames: &FrameDir, ids: &[String]) -> Result<Vec<String>> {
     let ids = if ids.is_empty() {
         let velodyne = frames.root.join("velodyne");
         fusiondet_kitti::layout::list_frame_ids(&velodyne, "bin")

@@ -15,11 +15,13 @@ pub mod metrics;
 pub mod project;
 pub mod pseudo;
 
-pub use batch::{BatchSummary, PseudoSummary, complete_dir, complete_frames, pseudo_frames};
+pub use batch::{
+    BatchSummary, PseudoSummary, complete_dir, complete_frames, frame_ids, pseudo_frames,
+};
 pub use fusiondet_kitti::{DepthMap, read_depth_png, write_depth_png};
 pub use holdout::{holdout_errors, split_holdout};
 pub use ip_basic::{Blur, DepthCompleter, IpBasic, Method, complete};
-pub use metrics::{DepthErrors, depth_errors};
+pub use metrics::{DepthErrors, depth_errors, restrict_to_scan_coverage};
 pub use project::project_scan;
 pub use pseudo::{PseudoPoint, Thinning, pseudo_points, read_pseudo_points, write_pseudo_points};
 

@@ -129,7 +129,7 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
             return measure(&frames, &args.ids, &|_, id, sparse| {
                 let path = truth_dir.join(format!("{id}.png"));
                 let mut truth = read_depth_png(&path)?;
-                keep_comparable(&mut truth, sparse, args.max_depth);
+                fusiondet_depth::restrict_to_scan_coverage(&mut truth, sparse, args.max_depth);
                 let dense = completer.complete(sparse);
                 fusiondet_depth::depth_errors(&dense, &truth)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
@@ -156,63 +156,30 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Leaves in the truth only what a LiDAR-based truth (KITTI's) covers: depths up to
-/// `max_depth`, at or below the topmost scanned pixel of each column.
-fn keep_comparable(truth: &mut DepthMap, sparse: &DepthMap, max_depth: f32) {
-    for x in 0..truth.width.min(sparse.width) {
-        let top = (0..sparse.height)
-            .find(|&y| sparse.get(x, y) > 0.0)
-            .unwrap_or(sparse.height);
-        for y in 0..truth.height {
-            if y < top || truth.get(x, y) > max_depth {
-                truth.set(x, y, 0.0);
-            }
-        }
-    }
-}
-
-/// The ids given, or every frame with a velodyne scan.
-fn ids_or_all(frames: &FrameDir, ids: &[String]) -> anyhow::Result<Vec<String>> {
-    Ok(if ids.is_empty() {
-        fusiondet_kitti::layout::list_frame_ids(&frames.root.join("velodyne"), "bin")?
-    } else {
-        ids.to_vec()
-    })
-}
-
-/// Errors of each frame (projected scan → `errors_of`) and over all, pixel-weighted.
+/// Prints the errors of each frame (projected scan → `errors_of`) and over all of them.
 fn measure(
     frames: &FrameDir,
     ids: &[String],
     errors_of: &dyn Fn(usize, &str, &DepthMap) -> anyhow::Result<DepthErrors>,
 ) -> anyhow::Result<()> {
-    let ids = ids_or_all(frames, ids)?;
-    let (mut n, mut missing, mut ae, mut se, mut iae, mut ise) =
-        (0usize, 0usize, 0.0, 0.0, 0.0, 0.0);
+    let ids = fusiondet_depth::frame_ids(frames, ids)?;
+    let line = |e: &DepthErrors| {
+        format!(
+            "{} pixels ({} left empty), MAE {:.1} mm, RMSE {:.1} mm, iMAE {:.2} /km, iRMSE {:.2} /km",
+            e.pixels, e.missing, e.mae_mm, e.rmse_mm, e.imae_per_km, e.irmse_per_km
+        )
+    };
+    let mut per_frame = Vec::with_capacity(ids.len());
     for (k, id) in ids.iter().enumerate() {
         let frame = fusiondet_dataset::SensorFrame::load(frames, id, false)?;
-        let sparse = fusiondet_depth::project_scan(&frame);
-        let e = errors_of(k, id, &sparse)?;
-        let m = e.pixels as f64;
-        n += e.pixels;
-        missing += e.missing;
-        ae += e.mae_mm * m;
-        se += e.rmse_mm * e.rmse_mm * m;
-        iae += e.imae_per_km * m;
-        ise += e.irmse_per_km * e.irmse_per_km * m;
-        println!(
-            "{id}: {} pixels ({} left empty), MAE {:.1} mm, RMSE {:.1} mm, iMAE {:.2} /km, iRMSE {:.2} /km",
-            e.pixels, e.missing, e.mae_mm, e.rmse_mm, e.imae_per_km, e.irmse_per_km
-        );
+        let e = errors_of(k, id, &fusiondet_depth::project_scan(&frame))?;
+        println!("{id}: {}", line(&e));
+        per_frame.push(e);
     }
-    let m = n.max(1) as f64;
     println!(
-        "all {} frames: {n} pixels ({missing} left empty), MAE {:.1} mm, RMSE {:.1} mm, iMAE {:.2} /km, iRMSE {:.2} /km",
+        "all {} frames: {}",
         ids.len(),
-        ae / m,
-        (se / m).sqrt(),
-        iae / m,
-        (ise / m).sqrt()
+        line(&DepthErrors::pool(&per_frame))
     );
     Ok(())
 }
