@@ -164,12 +164,7 @@ pub fn write_frame(ds: &DatasetDir, f: &crate::SimFrame) -> Result<(), SimError>
     write_velodyne(&t.velodyne(&f.id), &f.points)?;
     write_calib(&t.calib(&f.id), &f.calib)?;
     fusiondet_kitti::image::write_png(&t.image(&f.id), &f.image)?;
-    let depth = fusiondet_kitti::DepthMap {
-        width: f.image.width() as usize,
-        height: f.image.height() as usize,
-        data: f.depth.clone(),
-    };
-    fusiondet_kitti::write_depth_png(&t.depth(&f.id), &depth)?;
+    fusiondet_kitti::write_depth_png(&t.depth(&f.id), &f.depth)?;
     write_objects(&t.label(&f.id), &f.objects)?;
     Ok(())
 }

@@ -119,7 +119,7 @@ pub struct SimFrame {
     pub pixel_prim: Vec<u32>,
     /// Rectified-camera depth of the surface seen at each pixel (0 for sky): the dense
     /// truth of depth completion, written to `training/depth_2/`.
-    pub depth: Vec<f32>,
+    pub depth: fusiondet_kitti::DepthMap,
     /// The `label_2` lines.
     pub objects: Vec<Object>,
     /// Every object that shows in the image, labelled or not.
@@ -194,7 +194,11 @@ pub fn simulate_frame(seed: u64, index: usize, cfg: &SimConfig) -> SimFrame {
         rays: scan.rays,
         image: render.image,
         pixel_prim: render.prim,
-        depth: render.depth,
+        depth: fusiondet_kitti::DepthMap {
+            width: render.width as usize,
+            height: render.height as usize,
+            data: render.depth,
+        },
         objects,
         views,
         detections,

@@ -118,8 +118,8 @@ fn points_project_onto_the_surface_they_hit() {
 fn dense_depth_agrees_with_the_scan_and_is_empty_on_sky() {
     let f = frame();
     let (w, h) = f.image.dimensions();
-    assert_eq!(f.depth.len(), (w * h) as usize);
-    for (depth, prim) in f.depth.iter().zip(&f.pixel_prim) {
+    assert_eq!((f.depth.width, f.depth.height), (w as usize, h as usize));
+    for (depth, prim) in f.depth.data.iter().zip(&f.pixel_prim) {
         assert_eq!(*depth == 0.0, *prim == SKY);
     }
     let cam = f.calib.camera_model().unwrap();
@@ -131,7 +131,7 @@ fn dense_depth_agrees_with_the_scan_and_is_empty_on_sky() {
             let (u, v, _) = cam.rect_to_image(rect);
             let inside = rect[2] > 1.0 && u >= 0.0 && v >= 0.0 && u < w as f64 && v < h as f64;
             inside.then(|| {
-                let seen = f.depth[v as usize * w as usize + u as usize] as f64;
+                let seen = f.depth.get(u as usize, v as usize) as f64;
                 (seen - rect[2]).abs() / rect[2]
             })
         })
