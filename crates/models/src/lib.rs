@@ -36,6 +36,7 @@ pub mod loss;
 pub mod model;
 pub mod pointnet;
 pub mod synthetic;
+pub mod voxel_rcnn;
 
 pub use checkpoint::{
     load_checkpoint, read_checkpoint_config, read_checkpoint_kind, save_checkpoint,

@@ -8,6 +8,7 @@
 pub mod mlp;
 pub mod norm;
 pub mod segment;
+pub mod sparse;
 
 pub use mlp::{MlpLayer, mlp_stack};
 pub use norm::{NormConfig, batch_norm, masked_batch_norm};

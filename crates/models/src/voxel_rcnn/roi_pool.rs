@@ -1,0 +1,515 @@
+//! Voxel RoI pooling (Voxel R-CNN, Section 3.2): a 6 × 6 × 6 grid of points inside each
+//! RoI gathers, at several backbone levels, the voxels around it. The neighbours of a
+//! grid point are found by a voxel query — the cube of ±`query_range` voxels around the
+//! grid point's voxel, scanned in (z, y, x) raster order, keeping the voxels whose centres
+//! lie within `radius`, the first `samples` of them (OpenPCDet's order). Per level:
+//! features through a linear layer + BN, relative positions through another, summed,
+//! ReLU, max over the neighbours, a linear layer + BN + ReLU.
+//!
+//! The query is index work on the CPU ([`RoiGridIndex`]); the network part
+//! ([`RoiGridPool`]) gathers with the index, so gradients reach the backbone.
+
+use super::backbone3d::SparseMap;
+use super::config::{HEAD_NORM, PoolLevelConfig, RoiHeadConfig};
+use burn::nn::{BatchNorm, Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+use fusiondet_nn::batch_norm;
+use fusiondet_nn::sparse::SparseSites;
+use rayon::prelude::*;
+
+/// A RoI in the LiDAR frame: centre (x, y, z), sizes (dx, dy, dz), heading about +z.
+pub type RoiBox = [f64; 7];
+
+/// Where voxel (z, y, x) of a map lies: the voxel grid's origin (the point range's
+/// minimum corner) and the voxel size at that map's stride, in metres.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VoxelGeometry {
+    pub origin: [f64; 3],
+    /// Input voxel size (x, y, z).
+    pub voxel_size: [f64; 3],
+}
+
+impl VoxelGeometry {
+    /// Voxel size of a map downsampled `stride` times (OpenPCDet uses the nominal stride
+    /// on every axis, also where a stage's padding makes the z grid not divide exactly).
+    pub fn level_voxel_size(&self, stride: usize) -> [f64; 3] {
+        self.voxel_size.map(|v| v * stride as f64)
+    }
+
+    /// Centre of voxel `[z, y, x]` of a map at `stride`, as (x, y, z).
+    pub fn voxel_centre(&self, coord: [i32; 3], stride: usize) -> [f64; 3] {
+        let size = self.level_voxel_size(stride);
+        let [z, y, x] = coord;
+        [
+            (x as f64 + 0.5) * size[0] + self.origin[0],
+            (y as f64 + 0.5) * size[1] + self.origin[1],
+            (z as f64 + 0.5) * size[2] + self.origin[2],
+        ]
+    }
+}
+
+/// The grid points of a RoI, (x, y, z), x index outermost: cell centres of a g × g × g
+/// split of the box, rotated by its heading.
+pub fn roi_grid_points(roi: &RoiBox, grid: usize) -> Vec<[f64; 3]> {
+    let [cx, cy, cz, dx, dy, dz, heading] = *roi;
+    let (sin, cos) = heading.sin_cos();
+    let local = |i: usize, d: f64| ((i as f64 + 0.5) / grid as f64 - 0.5) * d;
+    let mut points = Vec::with_capacity(grid * grid * grid);
+    for i in 0..grid {
+        for j in 0..grid {
+            for k in 0..grid {
+                let (lx, ly, lz) = (local(i, dx), local(j, dy), local(k, dz));
+                points.push([cx + lx * cos - ly * sin, cy + lx * sin + ly * cos, cz + lz]);
+            }
+        }
+    }
+    points
+}
+
+/// The neighbour index of every grid point at one level.
+#[derive(Debug, Clone)]
+pub struct LevelIndex {
+    /// [grid points · samples] rows into the level's features; `sentinel` (= the row
+    /// count, a zero row appended by the network) for a grid point with no neighbour.
+    pub rows: Vec<i64>,
+    /// [grid points · samples · 3] neighbour centre minus grid point (zero for none), f32.
+    pub offsets: Vec<f32>,
+    pub sentinel: i64,
+    /// Grid points that found no neighbour (diagnostics).
+    pub empty: usize,
+}
+
+/// Grid points of all RoIs of a batch and their neighbours at every pooling level.
+#[derive(Debug, Clone)]
+pub struct RoiGridIndex {
+    pub num_rois: usize,
+    pub points_per_roi: usize,
+    pub levels: Vec<LevelIndex>,
+}
+
+/// Backbone stride of stage `stage` (1–4).
+pub fn stage_stride(stage: usize) -> usize {
+    1 << (stage - 1)
+}
+
+impl RoiGridIndex {
+    /// `rois[b]` are the RoIs of batch item b; `sites[l]` the active sites of level l's
+    /// stage; `levels` their settings.
+    pub fn new(
+        rois: &[Vec<RoiBox>],
+        sites: &[&SparseSites],
+        levels: &[PoolLevelConfig],
+        grid: usize,
+        geometry: &VoxelGeometry,
+    ) -> RoiGridIndex {
+        let points: Vec<(usize, [f64; 3])> = rois
+            .iter()
+            .enumerate()
+            .flat_map(|(b, list)| {
+                list.iter()
+                    .flat_map(move |r| roi_grid_points(r, grid).into_iter().map(move |p| (b, p)))
+            })
+            .collect();
+        let levels = levels
+            .iter()
+            .zip(sites)
+            .map(|(level, sites)| query_level(&points, sites, level, geometry))
+            .collect();
+        RoiGridIndex {
+            num_rois: rois.iter().map(Vec::len).sum(),
+            points_per_roi: grid * grid * grid,
+            levels,
+        }
+    }
+}
+
+/// The voxel query of every grid point at one level, over a dense lookup table of the
+/// level's active sites (a table read per visited cell is several times faster than a
+/// hash lookup, and a level's grid is at most tens of millions of cells).
+fn query_level(
+    points: &[(usize, [f64; 3])],
+    sites: &SparseSites,
+    level: &PoolLevelConfig,
+    geometry: &VoxelGeometry,
+) -> LevelIndex {
+    let [nz, ny, nx] = sites.spatial_shape();
+    let stride = stage_stride(level.stage);
+    let size = geometry.level_voxel_size(stride);
+    let cells = nz * ny * nx;
+    let mut table = vec![-1i32; sites.batch_size() * cells];
+    for (row, c) in sites.coords().iter().enumerate() {
+        let [b, z, y, x] = c.map(|v| v as usize);
+        table[b * cells + (z * ny + y) * nx + x] = row as i32;
+    }
+    let centres: Vec<[f64; 3]> = sites
+        .coords()
+        .iter()
+        .map(|c| geometry.voxel_centre([c[1], c[2], c[3]], stride))
+        .collect();
+    let r2 = level.radius * level.radius;
+    // Cells farther than the radius along an axis cannot hold a neighbour: skip them.
+    let reach: [i64; 3] = std::array::from_fn(|a| {
+        let axis_size = [size[2], size[1], size[0]][a];
+        (level.query_range[a] as i64).min((level.radius / axis_size).floor() as i64 + 1)
+    });
+    let sentinel = sites.len() as i64;
+    let s = level.samples;
+    let per_point: Vec<(Vec<i64>, Vec<f32>)> = points
+        .par_iter()
+        .map(|&(b, p)| {
+            let centre_cell = [
+                ((p[2] - geometry.origin[2]) / size[2]).floor() as i64,
+                ((p[1] - geometry.origin[1]) / size[1]).floor() as i64,
+                ((p[0] - geometry.origin[0]) / size[0]).floor() as i64,
+            ];
+            let mut found: Vec<usize> = Vec::with_capacity(s);
+            'scan: for dz in -reach[0]..=reach[0] {
+                let z = centre_cell[0] + dz;
+                if z < 0 || z >= nz as i64 {
+                    continue;
+                }
+                for dy in -reach[1]..=reach[1] {
+                    let y = centre_cell[1] + dy;
+                    if y < 0 || y >= ny as i64 {
+                        continue;
+                    }
+                    let base = b * cells + (z as usize * ny + y as usize) * nx;
+                    for dx in -reach[2]..=reach[2] {
+                        let x = centre_cell[2] + dx;
+                        if x < 0 || x >= nx as i64 {
+                            continue;
+                        }
+                        let row = table[base + x as usize];
+                        if row < 0 {
+                            continue;
+                        }
+                        let c = centres[row as usize];
+                        let d2 =
+                            (c[0] - p[0]).powi(2) + (c[1] - p[1]).powi(2) + (c[2] - p[2]).powi(2);
+                        if d2 <= r2 {
+                            found.push(row as usize);
+                            if found.len() == s {
+                                break 'scan;
+                            }
+                        }
+                    }
+                }
+            }
+            let mut rows = Vec::with_capacity(s);
+            let mut offsets = Vec::with_capacity(3 * s);
+            for j in 0..s {
+                // Unfilled slots repeat the first neighbour (a repeat does not change a max).
+                match found.get(j).or(found.first()) {
+                    Some(&row) => {
+                        rows.push(row as i64);
+                        let c = centres[row];
+                        offsets.extend([
+                            (c[0] - p[0]) as f32,
+                            (c[1] - p[1]) as f32,
+                            (c[2] - p[2]) as f32,
+                        ]);
+                    }
+                    None => {
+                        rows.push(sentinel);
+                        offsets.extend([0.0; 3]);
+                    }
+                }
+            }
+            (rows, offsets)
+        })
+        .collect();
+    let empty = per_point.iter().filter(|(r, _)| r[0] == sentinel).count();
+    let mut rows = Vec::with_capacity(points.len() * s);
+    let mut offsets = Vec::with_capacity(points.len() * s * 3);
+    for (r, o) in per_point {
+        rows.extend(r);
+        offsets.extend(o);
+    }
+    LevelIndex {
+        rows,
+        offsets,
+        sentinel,
+        empty,
+    }
+}
+
+/// A linear layer without bias followed by batch norm.
+#[derive(Module, Debug)]
+pub struct LinearBn {
+    pub linear: Linear,
+    pub norm: BatchNorm,
+}
+
+impl LinearBn {
+    pub fn new(channels: [usize; 2], device: &Device) -> Self {
+        Self {
+            linear: LinearConfig::new(channels[0], channels[1])
+                .with_bias(false)
+                .init(device),
+            norm: batch_norm(channels[1], &HEAD_NORM, device),
+        }
+    }
+
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        self.norm.forward(self.linear.forward(x))
+    }
+}
+
+/// One pooling level's layers.
+#[derive(Module, Debug)]
+pub struct PoolLevel {
+    pub features: LinearBn,
+    pub positions: LinearBn,
+    pub out: LinearBn,
+    #[module(skip)]
+    pub samples: usize,
+}
+
+#[derive(Module, Debug)]
+pub struct RoiGridPool {
+    pub levels: Vec<PoolLevel>,
+}
+
+impl RoiGridPool {
+    /// `channels[l]`: the feature width of level l's stage.
+    pub fn new(config: &RoiHeadConfig, channels: &[usize], device: &Device) -> Self {
+        let levels = config
+            .levels
+            .iter()
+            .zip(channels)
+            .map(|(l, &c)| PoolLevel {
+                features: LinearBn::new([c, l.mid_channels], device),
+                positions: LinearBn::new([3, l.mid_channels], device),
+                out: LinearBn::new([l.mid_channels, l.out_channels], device),
+                samples: l.samples,
+            })
+            .collect();
+        Self { levels }
+    }
+
+    /// Pooled features [RoIs, grid points · Σ out channels], grid-point major.
+    pub fn forward(&self, maps: &[&SparseMap], index: &RoiGridIndex) -> Tensor<2> {
+        let points = index.num_rois * index.points_per_roi;
+        let mut pooled = Vec::with_capacity(self.levels.len());
+        for ((layer, map), level) in self.levels.iter().zip(maps).zip(&index.levels) {
+            let device = map.features.device();
+            let s = layer.samples;
+            let features = layer.features.forward(map.features.clone());
+            let [_, mid] = features.dims();
+            // The appended zero row is what an empty neighbourhood gathers.
+            let features = Tensor::cat(vec![features, Tensor::zeros([1, mid], &device)], 0);
+            let rows = Tensor::<1, Int>::from_data(
+                TensorData::new(level.rows.clone(), [points * s]),
+                &device,
+            );
+            let gathered = features.select(0, rows);
+            let offsets = Tensor::<2>::from_data(
+                TensorData::new(level.offsets.clone(), [points * s, 3]),
+                &device,
+            );
+            let positions = layer.positions.forward(offsets);
+            let summed = relu(gathered + positions)
+                .reshape([points, s, mid])
+                .max_dim(1)
+                .reshape([points, mid]);
+            pooled.push(relu(layer.out.forward(summed)));
+        }
+        let grid = Tensor::cat(pooled, 1);
+        let [_, c] = grid.dims();
+        grid.reshape([index.num_rois, index.points_per_roi * c])
+    }
+
+    /// Multiply-adds of one pass: the per-voxel layer over each level's sites, and the
+    /// position and output layers over every grid point's neighbours.
+    pub fn multiply_adds(&self, voxels: &[usize], grid_points: usize) -> u64 {
+        self.levels
+            .iter()
+            .zip(voxels)
+            .map(|(l, &n)| {
+                let [c, mid] = l.features.linear.weight.dims();
+                let [_, out] = l.out.linear.weight.dims();
+                (n * c * mid + grid_points * l.samples * 3 * mid + grid_points * mid * out) as u64
+            })
+            .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+
+    fn splitmix(state: &mut u64) -> f64 {
+        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = *state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    fn matrix(t: Tensor<2>) -> Vec<Vec<f32>> {
+        let [_, c] = t.dims();
+        let v = t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
+        v.chunks(c).map(<[f32]>::to_vec).collect()
+    }
+
+    /// x W followed by inference batch norm, from the layer's own tensors.
+    fn linear_bn(layer: &LinearBn, x: &[f32]) -> Vec<f32> {
+        let w = matrix(layer.linear.weight.val());
+        let vec1 = |t: Tensor<1>| t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
+        let (gamma, beta) = (vec1(layer.norm.gamma.val()), vec1(layer.norm.beta.val()));
+        let (mean, var) = (
+            vec1(layer.norm.running_mean.value()),
+            vec1(layer.norm.running_var.value()),
+        );
+        let eps = layer.norm.epsilon as f32;
+        (0..w[0].len())
+            .map(|o| {
+                let y: f32 = x.iter().zip(&w).map(|(a, row)| a * row[o]).sum();
+                (y - mean[o]) / (var[o] + eps).sqrt() * gamma[o] + beta[o]
+            })
+            .collect()
+    }
+
+    /// The query and the pooled features by brute force: every site of the level tested
+    /// against every grid point, neighbours ordered by their (dz, dy, dx) cell offset.
+    #[test]
+    fn pooling_matches_a_brute_force_reference() {
+        let device = Device::flex();
+        let mut state = 7u64;
+        let geometry = VoxelGeometry {
+            origin: [0.0, -2.0, -1.0],
+            voxel_size: [0.1, 0.1, 0.2],
+        };
+        let level = PoolLevelConfig {
+            stage: 2,
+            mid_channels: 4,
+            out_channels: 3,
+            query_range: [2, 3, 3],
+            radius: 0.45,
+            samples: 5,
+        };
+        // Stage 2 (stride 2): cells 0.2 × 0.2 × 0.4 m over a [6, 20, 20] grid, 2 items.
+        let shape = [6, 20, 20];
+        let mut coords = Vec::new();
+        while coords.len() < 500 {
+            let c = [
+                (splitmix(&mut state) * 2.0) as i32,
+                (splitmix(&mut state) * 6.0) as i32,
+                (splitmix(&mut state) * 20.0) as i32,
+                (splitmix(&mut state) * 20.0) as i32,
+            ];
+            if !coords.contains(&c) {
+                coords.push(c);
+            }
+        }
+        let sites = Arc::new(SparseSites::new(coords, shape, 2).unwrap());
+        let channels = 6;
+        let feats: Vec<f32> = (0..sites.len() * channels)
+            .map(|_| splitmix(&mut state) as f32 - 0.5)
+            .collect();
+        let map = SparseMap {
+            features: Tensor::from_data(
+                TensorData::new(feats.clone(), [sites.len(), channels]),
+                &device,
+            ),
+            sites: sites.clone(),
+        };
+        // Two RoIs in item 0, one in item 1 (one partly outside the grid).
+        let rois = vec![
+            vec![
+                [2.0, 0.0, 0.2, 1.6, 1.0, 0.8, 0.4],
+                [0.3, -1.8, 0.0, 1.0, 1.0, 1.0, -1.2],
+            ],
+            vec![[1.5, 0.5, 0.5, 2.0, 1.2, 1.0, 2.0]],
+        ];
+        let grid = 3;
+        let index = RoiGridIndex::new(
+            &rois,
+            &[&sites],
+            std::slice::from_ref(&level),
+            grid,
+            &geometry,
+        );
+        let config = RoiHeadConfig {
+            grid_size: grid,
+            levels: vec![level.clone()],
+            ..RoiHeadConfig::default()
+        };
+        let pool = RoiGridPool::new(&config, &[channels], &device);
+        let out = matrix(pool.forward(&[&map], &index));
+
+        let layer = &pool.levels[0];
+        let size = geometry.level_voxel_size(2);
+        let mut empties = 0;
+        for (b, list) in rois.iter().enumerate() {
+            for (r, roi) in list.iter().enumerate() {
+                let roi_row = rois[..b].iter().map(Vec::len).sum::<usize>() + r;
+                for (g, p) in roi_grid_points(roi, grid).iter().enumerate() {
+                    let cell =
+                        [2, 1, 0].map(|a| ((p[a] - geometry.origin[a]) / size[a]).floor() as i64);
+                    let mut near: Vec<([i64; 3], usize)> = sites
+                        .coords()
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, c)| c[0] as usize == b)
+                        .filter_map(|(row, c)| {
+                            let d = [0, 1, 2].map(|a| c[a + 1] as i64 - cell[a]);
+                            let centre = geometry.voxel_centre([c[1], c[2], c[3]], 2);
+                            let d2: f64 = (0..3).map(|a| (centre[a] - p[a]).powi(2)).sum();
+                            let inside = (0..3)
+                                .all(|a| d[a].unsigned_abs() as usize <= level.query_range[a]);
+                            (inside && d2 <= level.radius * level.radius).then_some((d, row))
+                        })
+                        .collect();
+                    near.sort();
+                    near.truncate(level.samples);
+                    let mut pooled = vec![f32::NEG_INFINITY; level.mid_channels];
+                    if near.is_empty() {
+                        empties += 1;
+                        let pos = linear_bn(&layer.positions, &[0.0; 3]);
+                        for (m, v) in pooled.iter_mut().zip(pos) {
+                            *m = v.max(0.0);
+                        }
+                    }
+                    for &(_, row) in &near {
+                        let f = linear_bn(
+                            &layer.features,
+                            &feats[row * channels..(row + 1) * channels],
+                        );
+                        let c = geometry.voxel_centre(
+                            [
+                                sites.coords()[row][1],
+                                sites.coords()[row][2],
+                                sites.coords()[row][3],
+                            ],
+                            2,
+                        );
+                        let rel = [0, 1, 2].map(|a| (c[a] - p[a]) as f32);
+                        let pos = linear_bn(&layer.positions, &rel);
+                        for ((m, a), q) in pooled.iter_mut().zip(f).zip(pos) {
+                            *m = m.max((a + q).max(0.0));
+                        }
+                    }
+                    let expected: Vec<f32> = linear_bn(&layer.out, &pooled)
+                        .into_iter()
+                        .map(|v| v.max(0.0))
+                        .collect();
+                    let got = &out[roi_row][g * 3..g * 3 + 3];
+                    for (e, v) in expected.iter().zip(got) {
+                        assert!(
+                            (e - v).abs() < 1e-4,
+                            "roi {roi_row} point {g}: {got:?} vs {expected:?}"
+                        );
+                    }
+                }
+            }
+        }
+        assert_eq!(index.levels[0].empty, empties);
+        assert!(
+            empties > 0 && empties < 3 * 27,
+            "the case has both empty and filled neighbourhoods: {empties}"
+        );
+    }
+}
