@@ -1,0 +1,350 @@
+//! The ground-truth database that augmentation pastes objects from (OpenPCDet's
+//! `gt_database` and `kitti_dbinfos_train.pkl`): for every labelled object of the
+//! training frames (DontCare excepted), its box in the LiDAR frame, its class, KITTI
+//! difficulty and 2D box, and the points of the full scan inside its box, stored
+//! relative to the box centre.
+//!
+//! On disk, a directory of two files, each written atomically:
+//! - `points.bin`: every object's points one after another, float32 little-endian
+//!   (x, y, z, intensity) as KITTI's velodyne files;
+//! - `index.json`: `{"format": "fusiondet-gt-database", "version": 1, "total_points": N,
+//!   "objects": [...]}`, each object with `frame`, `index` (its line among the frame's
+//!   labels), `class` (KITTI's spelling), `bbox` (the [`LidarBox`] fields), `difficulty`
+//!   (0 easy, 1 moderate, 2 hard, −1 none), `bbox_2d` [x1, y1, x2, y2], `offset` (its
+//!   first point in `points.bin`) and `num_points`.
+//!
+//! The index is written last, so a directory whose index reads is complete. Numbers in
+//! the index are decimal: a box reads back to within an ulp or so of what was written.
+
+use crate::boxes::{LidarBox, points_in_box};
+use crate::error::{Result, VoxelError};
+use fusiondet_dataset::SensorFrame;
+use fusiondet_kitti::velodyne::{encode_velodyne, parse_velodyne};
+use fusiondet_kitti::{LidarPoint, Object, ObjectClass, write_atomic};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+const FORMAT: &str = "fusiondet-gt-database";
+const VERSION: u32 = 1;
+pub const INDEX_FILE: &str = "index.json";
+pub const POINTS_FILE: &str = "points.bin";
+
+/// OpenPCDet's KITTI difficulty of a label: 0 easy (2D box ≥ 40 px high counting both
+/// edge pixels, truncation ≤ 0.15, fully visible), 1 moderate (≥ 25 px, ≤ 0.3, at most
+/// partly occluded), 2 hard (≥ 25 px, ≤ 0.5, at most largely occluded), −1 otherwise.
+pub fn kitti_difficulty(object: &Object) -> i8 {
+    let height = object.bbox.y2 - object.bbox.y1 + 1.0;
+    let (t, o) = (object.truncation, object.occlusion);
+    if height >= 40.0 && t <= 0.15 && o <= 0 {
+        0
+    } else if height >= 25.0 && t <= 0.3 && o <= 1 {
+        1
+    } else if height >= 25.0 && t <= 0.5 && o <= 2 {
+        2
+    } else {
+        -1
+    }
+}
+
+/// One object of the database.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DbObject {
+    pub frame: String,
+    /// The object's line among its frame's labels.
+    pub index: usize,
+    #[serde(with = "crate::config::class_name")]
+    pub class: ObjectClass,
+    pub bbox: LidarBox,
+    pub difficulty: i8,
+    pub bbox_2d: [f64; 4],
+    /// Its first point in the database's point array.
+    pub offset: usize,
+    pub num_points: usize,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct IndexFile {
+    format: String,
+    version: u32,
+    total_points: usize,
+    objects: Vec<DbObject>,
+}
+
+/// The database in memory.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct GtDatabase {
+    objects: Vec<DbObject>,
+    points: Vec<LidarPoint>,
+}
+
+impl GtDatabase {
+    pub fn new() -> GtDatabase {
+        GtDatabase::default()
+    }
+
+    /// The objects of one frame (so that frames can be read and cut in parallel and
+    /// the pieces joined with [`GtDatabase::extend`] in frame order).
+    pub fn of_frame(frame: &SensorFrame) -> GtDatabase {
+        let mut db = GtDatabase::new();
+        for (index, object) in frame.objects.iter().enumerate() {
+            if object.class == ObjectClass::DontCare {
+                continue;
+            }
+            let bbox = LidarBox::from_camera(&object.box3d, &frame.camera);
+            let inside = points_in_box(&bbox, &frame.lidar);
+            let points: Vec<LidarPoint> = frame
+                .lidar
+                .iter()
+                .zip(inside)
+                .filter(|(_, i)| *i)
+                .map(|(p, _)| relative(p, &bbox))
+                .collect();
+            let b = &object.bbox;
+            db.push(
+                DbObject {
+                    frame: frame.id.clone(),
+                    index,
+                    class: object.class,
+                    bbox,
+                    difficulty: kitti_difficulty(object),
+                    bbox_2d: [b.x1, b.y1, b.x2, b.y2],
+                    offset: 0,
+                    num_points: 0,
+                },
+                &points,
+            );
+        }
+        db
+    }
+
+    /// The database of several frames, in their order.
+    pub fn from_frames<'a>(frames: impl IntoIterator<Item = &'a SensorFrame>) -> GtDatabase {
+        let mut db = GtDatabase::new();
+        for frame in frames {
+            db.extend(GtDatabase::of_frame(frame));
+        }
+        db
+    }
+
+    /// Adds an object with its points (relative to its box centre); `offset` and
+    /// `num_points` are set here.
+    pub fn push(&mut self, mut object: DbObject, points: &[LidarPoint]) {
+        object.offset = self.points.len();
+        object.num_points = points.len();
+        self.points.extend_from_slice(points);
+        self.objects.push(object);
+    }
+
+    /// Appends another database's objects.
+    pub fn extend(&mut self, other: GtDatabase) {
+        let shift = self.points.len();
+        self.points.extend(other.points);
+        self.objects.extend(other.objects.into_iter().map(|mut o| {
+            o.offset += shift;
+            o
+        }));
+    }
+
+    pub fn objects(&self) -> &[DbObject] {
+        &self.objects
+    }
+
+    pub fn len(&self) -> usize {
+        self.objects.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.objects.is_empty()
+    }
+
+    /// The points of object `i`, relative to its box centre.
+    pub fn points_of(&self, i: usize) -> &[LidarPoint] {
+        let o = &self.objects[i];
+        &self.points[o.offset..o.offset + o.num_points]
+    }
+
+    /// Writes the directory (created if missing): points first, then the index.
+    pub fn save(&self, dir: &Path) -> Result<()> {
+        std::fs::create_dir_all(dir).map_err(|e| db_error(dir, format!("cannot create: {e}")))?;
+        write_atomic(&dir.join(POINTS_FILE), &encode_velodyne(&self.points))?;
+        let index = IndexFile {
+            format: FORMAT.into(),
+            version: VERSION,
+            total_points: self.points.len(),
+            objects: self.objects.clone(),
+        };
+        let text = serde_json::to_string_pretty(&index)
+            .map_err(|e| db_error(dir, format!("cannot encode the index: {e}")))?;
+        write_atomic(&dir.join(INDEX_FILE), (text + "\n").as_bytes())?;
+        Ok(())
+    }
+
+    /// Reads a directory written by [`GtDatabase::save`], checking that the index and
+    /// the points agree.
+    pub fn load(dir: &Path) -> Result<GtDatabase> {
+        let index_path = dir.join(INDEX_FILE);
+        let text = std::fs::read_to_string(&index_path)
+            .map_err(|e| db_error(&index_path, format!("cannot read: {e}")))?;
+        let index: IndexFile = serde_json::from_str(&text)
+            .map_err(|e| db_error(&index_path, format!("not a database index: {e}")))?;
+        if index.format != FORMAT || index.version != VERSION {
+            return Err(db_error(
+                &index_path,
+                format!(
+                    "format {} version {}, expected {FORMAT} version {VERSION}",
+                    index.format, index.version
+                ),
+            ));
+        }
+        let points_path = dir.join(POINTS_FILE);
+        let bytes = std::fs::read(&points_path)
+            .map_err(|e| db_error(&points_path, format!("cannot read: {e}")))?;
+        let points = parse_velodyne(&bytes, &points_path)?;
+        if points.len() != index.total_points {
+            return Err(db_error(
+                &points_path,
+                format!(
+                    "holds {} points but the index says {}; the two files do not belong \
+                     together (rebuild the database)",
+                    points.len(),
+                    index.total_points
+                ),
+            ));
+        }
+        for (i, o) in index.objects.iter().enumerate() {
+            if o.offset
+                .checked_add(o.num_points)
+                .is_none_or(|end| end > points.len())
+            {
+                return Err(db_error(
+                    &index_path,
+                    format!(
+                        "object {i} (frame {} #{}) reaches past the {} points",
+                        o.frame,
+                        o.index,
+                        points.len()
+                    ),
+                ));
+            }
+        }
+        Ok(GtDatabase {
+            objects: index.objects,
+            points,
+        })
+    }
+}
+
+fn relative(p: &LidarPoint, b: &LidarBox) -> LidarPoint {
+    [
+        (p[0] as f64 - b.x) as f32,
+        (p[1] as f64 - b.y) as f32,
+        (p[2] as f64 - b.z) as f32,
+        p[3],
+    ]
+}
+
+fn db_error(path: &Path, message: String) -> VoxelError {
+    VoxelError::Database {
+        path: path.display().to_string(),
+        message,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::tests::kitti_frame;
+    use fusiondet_kitti::Box2d;
+
+    fn object(height: f64, truncation: f64, occlusion: i32) -> Object {
+        Object {
+            class: ObjectClass::Car,
+            truncation,
+            occlusion,
+            alpha: 0.0,
+            bbox: Box2d {
+                x1: 100.0,
+                y1: 100.0,
+                x2: 150.0,
+                y2: 100.0 + height - 1.0,
+            },
+            box3d: Default::default(),
+            score: None,
+        }
+    }
+
+    #[test]
+    fn difficulty_follows_the_kitti_levels() {
+        assert_eq!(kitti_difficulty(&object(40.0, 0.15, 0)), 0);
+        assert_eq!(kitti_difficulty(&object(39.0, 0.0, 0)), 1);
+        assert_eq!(kitti_difficulty(&object(60.0, 0.3, 1)), 1);
+        assert_eq!(kitti_difficulty(&object(60.0, 0.31, 1)), 2);
+        assert_eq!(kitti_difficulty(&object(25.0, 0.5, 2)), 2);
+        assert_eq!(kitti_difficulty(&object(24.0, 0.0, 0)), -1);
+        assert_eq!(kitti_difficulty(&object(60.0, 0.0, 3)), -1);
+    }
+
+    #[test]
+    fn a_kitti_frame_builds_a_database_that_survives_disk() {
+        let frame = kitti_frame("000001");
+        let db = GtDatabase::of_frame(&frame);
+        let labelled = frame
+            .objects
+            .iter()
+            .filter(|o| o.class != ObjectClass::DontCare)
+            .count();
+        assert_eq!(db.len(), labelled);
+        for (i, o) in db.objects().iter().enumerate() {
+            assert_eq!(o.frame, "000001");
+            // Stored relative to the centre: every point lies in the box moved to the origin.
+            let at_origin = LidarBox {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+                ..o.bbox
+            };
+            let pts = db.points_of(i);
+            assert_eq!(pts.len(), o.num_points);
+            let slack = LidarBox {
+                dx: at_origin.dx + 1e-4,
+                dy: at_origin.dy + 1e-4,
+                dz: at_origin.dz + 1e-4,
+                ..at_origin
+            };
+            assert!(points_in_box(&slack, pts).iter().all(|&b| b));
+        }
+        assert!(db.objects().iter().any(|o| o.num_points > 20));
+
+        let dir = tempfile::tempdir().unwrap();
+        let mut two = db.clone();
+        two.extend(db.clone());
+        two.save(dir.path()).unwrap();
+        let back = GtDatabase::load(dir.path()).unwrap();
+        // The points come back bit for bit; the boxes to the last bit or so (JSON).
+        assert_eq!(back.points, two.points);
+        assert_eq!(back.len(), two.len());
+        for (a, b) in back.objects().iter().zip(two.objects()) {
+            let (p, q) = (a.bbox.to_array(), b.bbox.to_array());
+            assert!((0..7).all(|k| (p[k] - q[k]).abs() <= 1e-12 * q[k].abs().max(1.0)));
+            let strip = |o: &DbObject| DbObject {
+                bbox: LidarBox::default(),
+                ..o.clone()
+            };
+            assert_eq!(strip(a), strip(b));
+        }
+        assert_eq!(back.points_of(labelled), db.points_of(0));
+
+        // An index that does not match its points is refused, naming the file.
+        std::fs::write(dir.path().join(POINTS_FILE), [0u8; 32]).unwrap();
+        let err = GtDatabase::load(dir.path()).unwrap_err().to_string();
+        assert!(
+            err.contains(POINTS_FILE) && err.contains("index says"),
+            "{err}"
+        );
+        std::fs::write(dir.path().join(INDEX_FILE), "{}").unwrap();
+        let err = GtDatabase::load(dir.path()).unwrap_err().to_string();
+        assert!(err.contains(INDEX_FILE), "{err}");
+    }
+}
