@@ -11,13 +11,18 @@ pub mod anchor_head;
 pub mod backbone3d;
 pub mod bev;
 pub mod config;
+pub mod loss;
 pub mod roi_head;
 pub mod roi_pool;
+pub mod synthetic;
 
 pub use anchor_head::{AnchorHead, AnchorPredictions};
 pub use backbone3d::{BackboneOutput, BackbonePlan, SparseMap, VoxelBackbone};
 pub use bev::{BevBackbone, height_compression};
 pub use config::{BevConfig, PoolLevelConfig, RoiHeadConfig, VoxelRcnnNetConfig};
+pub use loss::{
+    AnchorLossTargets, RoiLossTargets, VoxelRcnnLoss, VoxelRcnnLossConfig, anchor_loss, roi_loss,
+};
 pub use roi_head::{RoiHead, RoiPredictions};
 pub use roi_pool::{RoiBox, RoiGridIndex, RoiGridPool, VoxelGeometry, roi_grid_points};
 
