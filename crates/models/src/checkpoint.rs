@@ -15,10 +15,10 @@ use burn::store::{BurnpackStore, ModuleSnapshot};
 use std::path::Path;
 
 /// Metadata key of the checkpoint's family ([`DetectorKind::checkpoint_tag`]).
-const KIND_KEY: &str = "fusiondet.model";
-const CONFIG_KEY: &str = "fusiondet.model_config";
+pub(crate) const KIND_KEY: &str = "fusiondet.model";
+pub(crate) const CONFIG_KEY: &str = "fusiondet.model_config";
 
-fn ckpt_err(path: &Path, message: impl Into<String>) -> ModelError {
+pub(crate) fn ckpt_err(path: &Path, message: impl Into<String>) -> ModelError {
     ModelError::Checkpoint {
         path: path.to_path_buf(),
         message: message.into(),
@@ -49,7 +49,7 @@ pub fn read_checkpoint_kind(path: &Path) -> Result<DetectorKind, ModelError> {
     kind_of(path, reader.metadata())
 }
 
-fn kind_of(
+pub(crate) fn kind_of(
     path: &Path,
     meta: &std::collections::BTreeMap<String, String>,
 ) -> Result<DetectorKind, ModelError> {
@@ -74,6 +74,12 @@ pub fn read_checkpoint_config(path: &Path) -> Result<ModelConfig, ModelError> {
     let meta = reader.metadata();
     match kind_of(path, meta)? {
         DetectorKind::Frustum => {}
+        other => {
+            return Err(ckpt_err(
+                path,
+                format!("a {other} checkpoint, not a frustum-family one"),
+            ));
+        }
     }
     let json = meta
         .get(CONFIG_KEY)
@@ -184,10 +190,10 @@ mod tests {
         pack(&ours, Some("fconvnet"));
         assert_eq!(read_checkpoint_kind(&ours).unwrap(), DetectorKind::Frustum);
         let newer = dir.path().join("newer.bpk");
-        pack(&newer, Some("voxel_rcnn"));
+        pack(&newer, Some("point_pillars"));
         let err = read_checkpoint_kind(&newer).unwrap_err().to_string();
         assert!(
-            err.contains("newer.bpk") && err.contains("voxel_rcnn"),
+            err.contains("newer.bpk") && err.contains("point_pillars"),
             "{err}"
         );
         assert!(read_checkpoint_config(&newer).is_err());

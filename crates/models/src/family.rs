@@ -10,15 +10,19 @@ pub enum DetectorKind {
     /// The frustum family: F-ConvNet (with its refinement stage), FCAM and SAF, as
     /// configurations of one pipeline (2D boxes → frustums → sub-frustum PointNets → FCN).
     Frustum,
+    /// Voxel R-CNN (LiDAR only): voxels → sparse 3D backbone → BEV anchor head →
+    /// voxel RoI pooling → RoI head.
+    VoxelRcnn,
 }
 
 impl DetectorKind {
-    pub const ALL: [DetectorKind; 1] = [DetectorKind::Frustum];
+    pub const ALL: [DetectorKind; 2] = [DetectorKind::Frustum, DetectorKind::VoxelRcnn];
 
     /// The name in configurations (`[detector] kind`).
     pub fn name(self) -> &'static str {
         match self {
             DetectorKind::Frustum => "frustum",
+            DetectorKind::VoxelRcnn => "voxel_rcnn",
         }
     }
 
@@ -27,6 +31,7 @@ impl DetectorKind {
     pub fn checkpoint_tag(self) -> &'static str {
         match self {
             DetectorKind::Frustum => "fconvnet",
+            DetectorKind::VoxelRcnn => "voxel_rcnn",
         }
     }
 

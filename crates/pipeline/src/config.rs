@@ -7,7 +7,8 @@
 //! the one parser every command uses.
 
 use crate::error::{PipelineError, Result};
-use crate::schedule::StepDecay;
+use crate::schedule::{OneCycle, StepDecay};
+use crate::voxel_rcnn::VoxelRcnnSection;
 use fusiondet_dataset::ClassSet;
 use fusiondet_frustum::{BoxCoder, FrustumConfig};
 use fusiondet_kitti::ObjectClass;
@@ -36,6 +37,10 @@ pub struct ExperimentConfig {
     /// whose boxes this one refines.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub refine: Option<RefineConfig>,
+    /// The voxel family's sections (`kind = "voxel_rcnn"` only; filled with the
+    /// published values when the file has none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub voxel_rcnn: Option<VoxelRcnnSection>,
 }
 
 /// `[detector]`.
@@ -109,6 +114,48 @@ pub struct TrainConfig {
     pub split: String,
     /// Use at most this many frames of the split (in split order); 0 uses all.
     pub max_frames: usize,
+    /// Adam (L2 weight decay, the frustum detectors) or AdamW (decoupled weight decay,
+    /// OpenPCDet's `adam_onecycle`).
+    pub optimizer: OptimizerKind,
+    /// A per-step one-cycle schedule instead of `lr`'s per-epoch steps.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub one_cycle: Option<OneCycle>,
+    /// Clip each parameter's gradient to this L2 norm (burn clips per parameter tensor;
+    /// OpenPCDet clips the global norm).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub grad_clip_norm: Option<f64>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OptimizerKind {
+    #[default]
+    Adam,
+    AdamW,
+}
+
+impl TrainConfig {
+    /// The rate of step `step` (0-based) of epoch `epoch`, of `steps_per_epoch`.
+    pub fn lr_at(&self, epoch: usize, step: usize, steps_per_epoch: usize) -> f64 {
+        match &self.one_cycle {
+            Some(c) => c.lr_at(epoch * steps_per_epoch + step, self.epochs * steps_per_epoch),
+            None => self.lr.lr_at(epoch),
+        }
+    }
+
+    /// OpenPCDet's Voxel R-CNN training: AdamW with one-cycle (max 0.01), weight decay
+    /// 0.01, batch 2, 80 epochs, gradient clipping at 10.
+    pub fn voxel_rcnn() -> TrainConfig {
+        TrainConfig {
+            epochs: 80,
+            batch_size: 2,
+            weight_decay: 0.01,
+            optimizer: OptimizerKind::AdamW,
+            one_cycle: Some(OneCycle::voxel_rcnn()),
+            grad_clip_norm: Some(10.0),
+            ..TrainConfig::default()
+        }
+    }
 }
 
 /// Test-time settings.
@@ -141,6 +188,7 @@ impl Default for ExperimentConfig {
             train: TrainConfig::default(),
             detect: DetectConfig::default(),
             refine: None,
+            voxel_rcnn: None,
         }
     }
 }
@@ -160,6 +208,9 @@ impl Default for TrainConfig {
             weight_decay: 1e-4,
             split: "train".into(),
             max_frames: 0,
+            optimizer: OptimizerKind::Adam,
+            one_cycle: None,
+            grad_clip_norm: None,
         }
     }
 }
@@ -185,6 +236,38 @@ impl ExperimentConfig {
         };
         let mut config: ExperimentConfig =
             toml::from_str(text).map_err(|e| config_err(e.to_string()))?;
+        let raw: toml::Table = toml::from_str(text).map_err(|e| config_err(e.to_string()))?;
+        match config.kind() {
+            DetectorKind::VoxelRcnn => {
+                for section in ["frustum", "model", "loss", "refine"] {
+                    if raw.contains_key(section) {
+                        return Err(config_err(format!(
+                            "[{section}] configures the frustum family; a voxel_rcnn \
+                             detector is configured in [voxel_rcnn] (remove [{section}])"
+                        )));
+                    }
+                }
+                // The family's own training defaults, overlaid with the file's keys.
+                let mut train = toml::Table::try_from(TrainConfig::voxel_rcnn())
+                    .expect("the training configuration serialises");
+                if let Some(given) = raw.get("train").and_then(|t| t.as_table()) {
+                    train.extend(given.clone());
+                }
+                config.train = train
+                    .try_into()
+                    .map_err(|e: toml::de::Error| config_err(format!("[train] {e}")))?;
+                config.voxel_rcnn.get_or_insert_with(VoxelRcnnSection::default);
+            }
+            DetectorKind::Frustum => {
+                if raw.contains_key("voxel_rcnn") {
+                    return Err(config_err(
+                        "[voxel_rcnn] configures a voxel_rcnn detector, but [detector] kind is \
+                         \"frustum\""
+                            .into(),
+                    ));
+                }
+            }
+        }
         if config.detector.is_none() {
             return Err(config_err(
                 "no [detector] table: name the family, e.g. `[detector]` then \
@@ -194,7 +277,6 @@ impl ExperimentConfig {
             ));
         }
         // The classes live in [dataset]; the frustum data set takes them from there.
-        let raw: toml::Table = toml::from_str(text).map_err(|e| config_err(e.to_string()))?;
         if raw
             .get("frustum")
             .and_then(|f| f.as_table())
@@ -269,6 +351,12 @@ impl ExperimentConfig {
         if let Some(frustum) = table.get_mut("frustum").and_then(|f| f.as_table_mut()) {
             frustum.remove("classes");
         }
+        if self.kind() != DetectorKind::Frustum {
+            // The frustum family's sections do not apply (and are refused on reading).
+            for section in ["frustum", "model", "loss"] {
+                table.remove(section);
+            }
+        }
         toml::to_string_pretty(&table).expect("the experiment configuration serialises")
     }
 
@@ -326,6 +414,34 @@ impl ExperimentConfig {
         }
         if self.detect.batch_size == 0 {
             return bad("detect.batch_size must be at least 1".into());
+        }
+        if let Some(c) = &self.train.one_cycle {
+            c.validate().map_err(|m| PipelineError::Config {
+                path: path.to_path_buf(),
+                message: m,
+            })?;
+        }
+        if self.train.grad_clip_norm.is_some_and(|n| !(n > 0.0)) {
+            return bad("train.grad_clip_norm must be positive".into());
+        }
+        if let Some(v) = &self.voxel_rcnn {
+            v.validate().map_err(|m| PipelineError::Config {
+                path: path.to_path_buf(),
+                message: m,
+            })?;
+            if self.dataset.classes.len() != v.anchors.classes.len()
+                || self
+                    .dataset
+                    .classes
+                    .iter()
+                    .zip(&v.anchors.classes)
+                    .any(|(name, a)| *name != a.class.to_string())
+            {
+                return bad(format!(
+                    "[dataset] classes {:?} must be the classes of [voxel_rcnn.anchors], in order",
+                    self.dataset.classes
+                ));
+            }
         }
         if self.train.lr.base_lr.is_nan() || self.train.lr.base_lr <= 0.0 {
             return bad("train.lr.base_lr must be positive".into());

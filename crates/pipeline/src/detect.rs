@@ -6,6 +6,8 @@ use crate::config::ExperimentConfig;
 use crate::device::ComputeDevice;
 use crate::error::{PipelineError, Result};
 use crate::frustum::FrustumDetector;
+use crate::voxel_rcnn::VoxelRcnnDetector;
+use fusiondet_dataset::SensorFrame;
 use burn::prelude::*;
 use fusiondet_frustum::{FrameSource, InMemoryFrames, SkipCounts};
 use fusiondet_kitti::{DatasetDir, Detection2d, Object, read_detections2d, write_objects};
@@ -90,6 +92,7 @@ pub struct FrameResults {
 /// A trained detector of any family, chosen by the family its checkpoint records.
 pub enum Detector {
     Frustum(FrustumDetector),
+    VoxelRcnn(VoxelRcnnDetector),
 }
 
 /// A split prepared for one family's detector (the frames in the family's form, and
@@ -100,12 +103,17 @@ pub enum SplitInputs {
         frames: InMemoryFrames,
         detections: Vec<Detection2d>,
     },
+    /// Whole frames (the full scan; no 2D detections needed).
+    Lidar {
+        frames: fusiondet_dataset::InMemoryFrames<SensorFrame>,
+    },
 }
 
 impl SplitInputs {
     pub fn frames(&self) -> usize {
         match self {
             SplitInputs::Frustum { frames, .. } => frames.len(),
+            SplitInputs::Lidar { frames } => frames.len(),
         }
     }
 
@@ -113,6 +121,7 @@ impl SplitInputs {
     pub fn detections_2d(&self) -> usize {
         match self {
             SplitInputs::Frustum { detections, .. } => detections.len(),
+            SplitInputs::Lidar { .. } => 0,
         }
     }
 }
@@ -137,12 +146,16 @@ impl Detector {
             DetectorKind::Frustum => {
                 Detector::Frustum(FrustumDetector::load(config, checkpoint, device)?)
             }
+            DetectorKind::VoxelRcnn => {
+                Detector::VoxelRcnn(VoxelRcnnDetector::load(config, checkpoint, device)?)
+            }
         })
     }
 
     pub fn config(&self) -> &ExperimentConfig {
         match self {
             Detector::Frustum(d) => &d.config,
+            Detector::VoxelRcnn(d) => &d.config,
         }
     }
 
@@ -167,6 +180,9 @@ impl Detector {
                     detections: read_detections2d(&path)?,
                 })
             }
+            Detector::VoxelRcnn(_) => Ok(SplitInputs::Lidar {
+                frames: fusiondet_dataset::load_split(data_dir, split, max_frames, false)?,
+            }),
         }
     }
 
@@ -181,6 +197,12 @@ impl Detector {
             (Detector::Frustum(d), SplitInputs::Frustum { frames, detections }) => {
                 d.detect_frames(device, frames.clone(), detections, timing)
             }
+            (Detector::VoxelRcnn(d), SplitInputs::Lidar { frames }) => {
+                d.detect_frames(device, frames, timing)
+            }
+            _ => Err(PipelineError::Invalid(
+                "the split was read for another detector family".into(),
+            )),
         }
     }
 }
@@ -190,6 +212,7 @@ impl Detector {
 pub fn trained_parameters(config: &ExperimentConfig) -> Result<usize> {
     match config.kind() {
         DetectorKind::Frustum => crate::frustum::trained_parameters(config),
+        DetectorKind::VoxelRcnn => crate::voxel_rcnn::trained_parameters(config),
     }
 }
 

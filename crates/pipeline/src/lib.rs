@@ -13,11 +13,12 @@ pub mod metrics_log;
 pub mod run_dir;
 pub mod schedule;
 pub mod trainer;
+pub mod voxel_rcnn;
 
 pub use bench::{BenchOptions, DetectBench, bench_detect, frames_per_second};
 pub use config::{
     DatasetFormat, DatasetSection, DetectConfig, DetectorSection, ExperimentConfig, RefineConfig,
-    TrainConfig,
+    OptimizerKind, TrainConfig,
 };
 pub use detect::{
     DetectOptions, DetectSummary, Detector, FrameResults, SplitInputs, StageTimes, detect,

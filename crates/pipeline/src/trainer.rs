@@ -4,14 +4,15 @@
 //! state) and metrics, and exact resume. [`train`] picks the family from the
 //! configuration's `[detector] kind`.
 
-use crate::config::ExperimentConfig;
+use crate::config::{ExperimentConfig, OptimizerKind};
 use crate::device::ComputeDevice;
 use crate::error::{PipelineError, Result};
 use crate::metrics_log::MetricsLog;
 use crate::run_dir::{RunDir, RunState};
 use burn::module::Module;
 use burn::optim::decay::WeightDecayConfig;
-use burn::optim::{AdamConfig, GradientsParams, OptimizerRecord};
+use burn::optim::grad_clipping::GradientClippingConfig;
+use burn::optim::{AdamConfig, AdamWConfig, GradientsParams, OptimizerRecord};
 use burn::prelude::*;
 use fusiondet_models::DetectorKind;
 use serde_json::json;
@@ -37,6 +38,8 @@ pub struct TrainSummary {
     pub frames: usize,
     /// Training samples per epoch (frustums for the frustum family).
     pub samples: usize,
+    /// What a sample is ("frustums", "frames").
+    pub sample_noun: &'static str,
     pub epochs_run: usize,
     pub epochs_done: usize,
     pub final_loss: Option<f64>,
@@ -84,6 +87,7 @@ pub trait TrainingTask: Sync {
 pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     match options.config.kind() {
         DetectorKind::Frustum => crate::frustum::train(options),
+        DetectorKind::VoxelRcnn => crate::voxel_rcnn::train(options),
     }
 }
 
@@ -160,9 +164,20 @@ pub fn run_training<T: TrainingTask>(
     }
 
     let ad = options.device.device().autodiff();
-    let mut optim = AdamConfig::new()
-        .with_weight_decay(Some(WeightDecayConfig::new(cfg.train.weight_decay as f32)))
-        .init();
+    let clipping = cfg
+        .train
+        .grad_clip_norm
+        .map(|n| GradientClippingConfig::Norm(n as f32));
+    let mut optim = match cfg.train.optimizer {
+        OptimizerKind::Adam => AdamConfig::new()
+            .with_weight_decay(Some(WeightDecayConfig::new(cfg.train.weight_decay as f32)))
+            .with_grad_clipping(clipping)
+            .init(),
+        OptimizerKind::AdamW => AdamWConfig::new()
+            .with_weight_decay(cfg.train.weight_decay as f32)
+            .with_grad_clipping(clipping)
+            .init(),
+    };
     let (mut model, start_epoch) = match &resumed {
         Some(state) => {
             let model = task.load_model(&run.root.join(&state.model), &ad)?;
@@ -181,9 +196,10 @@ pub fn run_training<T: TrainingTask>(
 
     let mut final_loss = None;
     for epoch in start_epoch..cfg.train.epochs {
-        let lr = cfg.train.lr.lr_at(epoch);
         let started = Instant::now();
         let batches = task.epoch_batches(epoch);
+        let steps_per_epoch = batches.len();
+        let mut lr = cfg.train.lr_at(epoch, 0, steps_per_epoch);
         let progress = bar(batches.len(), options.progress);
         progress.set_prefix(format!("epoch {}/{}", epoch + 1, cfg.train.epochs));
         let mut sums: Vec<(&'static str, f64)> = Vec::new();
@@ -202,6 +218,7 @@ pub fn run_training<T: TrainingTask>(
             for prepared in rx {
                 let batch = prepared?;
                 let net = slot.take().expect("the model is put back after every step");
+                lr = cfg.train.lr_at(epoch, steps, steps_per_epoch);
                 let loss = task.loss(&net, batch, &ad)?;
                 let grads = GradientsParams::from_grads(loss.total.backward(), &net);
                 slot = Some(optim.step(lr, net, grads));
@@ -262,6 +279,7 @@ pub fn run_training<T: TrainingTask>(
     Ok(TrainSummary {
         frames: task.frames(),
         samples: task.samples(),
+        sample_noun: task.sample_noun(),
         epochs_run: cfg.train.epochs.saturating_sub(start_epoch),
         epochs_done: cfg.train.epochs.max(start_epoch),
         final_loss,

@@ -1,6 +1,7 @@
 //! `fusiondet detect`: runs a trained frustum detector on a split and writes KITTI results.
 
 use fusiondet_pipeline::{ComputeDevice, DetectOptions, ExperimentConfig, detect};
+use fusiondet_models::DetectorKind;
 use std::path::PathBuf;
 
 /// The arguments `detect` and `bench` share: a model, its configuration, the frames and
@@ -53,6 +54,7 @@ pub struct DetectArgs {
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     let config = args.input.experiment_config()?;
+    let kind = config.kind();
     let input = args.input;
     let s = detect(&DetectOptions {
         config,
@@ -64,18 +66,29 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         device: input.device,
     })?;
     let skipped = s.skipped;
-    println!(
-        "{} frames, {} 2D detections -> {} frustums -> {} boxes written to {}",
-        s.frames,
-        s.detections_2d,
-        s.samples,
-        s.boxes_written,
-        args.out.display()
-    );
-    println!(
-        "skipped frustums: {} outside the image, {} too small, {} without points, {} in frames not in the split",
-        skipped.outside_image, skipped.too_small, skipped.no_points, skipped.unknown_frame
-    );
+    match kind {
+        DetectorKind::Frustum => {
+            println!(
+                "{} frames, {} 2D detections -> {} frustums -> {} boxes written to {}",
+                s.frames,
+                s.detections_2d,
+                s.samples,
+                s.boxes_written,
+                args.out.display()
+            );
+            println!(
+                "skipped frustums: {} outside the image, {} too small, {} without points, {} in frames not in the split",
+                skipped.outside_image, skipped.too_small, skipped.no_points, skipped.unknown_frame
+            );
+        }
+        DetectorKind::VoxelRcnn => println!(
+            "{} frames ({} with LiDAR points in range) -> {} boxes written to {}",
+            s.frames,
+            s.samples,
+            s.boxes_written,
+            args.out.display()
+        ),
+    }
     let t = &s.timing;
     let stages: Vec<String> = t
         .stages()

@@ -16,6 +16,13 @@ pub struct InfoArgs {
 
 pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     let experiment = ExperimentConfig::from_file(&args.config)?;
+    if let Some(section) = &experiment.voxel_rcnn {
+        print!(
+            "{}",
+            fusiondet_pipeline::voxel_rcnn::info::render_info(&experiment.name, section)?
+        );
+        return Ok(());
+    }
     let config = experiment.network();
     let Some(refine) = &experiment.refine else {
         println!("{}", render_info(&config)?);

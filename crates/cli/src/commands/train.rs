@@ -91,9 +91,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         device: args.device,
     })?;
     println!(
-        "trained on {} frustums from {} frames: {} epoch(s) run, {} done, final loss {}",
-        summary.samples,
-        summary.frames,
+        "trained on {}: {} epoch(s) run, {} done, final loss {}",
+        if summary.sample_noun == "frames" {
+            format!("{} frames", summary.frames)
+        } else {
+            format!(
+                "{} {} from {} frames",
+                summary.samples, summary.sample_noun, summary.frames
+            )
+        },
         summary.epochs_run,
         summary.epochs_done,
         summary

@@ -10,6 +10,7 @@
 pub mod anchor_head;
 pub mod backbone3d;
 pub mod bev;
+pub mod checkpoint;
 pub mod config;
 pub mod loss;
 pub mod roi_head;
@@ -19,6 +20,7 @@ pub mod synthetic;
 pub use anchor_head::{AnchorHead, AnchorPredictions};
 pub use backbone3d::{BackboneOutput, BackbonePlan, SparseMap, VoxelBackbone};
 pub use bev::{BevBackbone, height_compression};
+pub use checkpoint::{VoxelRcnnShape, load_voxel_rcnn, read_voxel_rcnn_shape, save_voxel_rcnn};
 pub use config::{BevConfig, PoolLevelConfig, RoiHeadConfig, VoxelRcnnNetConfig};
 pub use loss::{
     AnchorLossTargets, RoiLossTargets, VoxelRcnnLoss, VoxelRcnnLossConfig, anchor_loss, roi_loss,

@@ -1,0 +1,114 @@
+//! Voxel R-CNN checkpoints: burnpack weights with the family tag and the network's shape
+//! (its configuration and the voxel grid's height) in the metadata, so a checkpoint is
+//! refused by a configuration of another shape or family instead of failing on a tensor.
+
+use super::{VoxelRcnn, VoxelRcnnNetConfig};
+use crate::checkpoint::{CONFIG_KEY, KIND_KEY, ckpt_err, kind_of};
+use crate::error::ModelError;
+use crate::family::DetectorKind;
+use burn::prelude::*;
+use burn::store::burn_pack::Reader;
+use burn::store::{BurnpackStore, ModuleSnapshot};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// What fixes the tensors of a Voxel R-CNN.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VoxelRcnnShape {
+    pub network: VoxelRcnnNetConfig,
+    /// Heights of the input grid (OpenPCDet's sparse shape, 41 for the published one).
+    pub grid_z: usize,
+}
+
+pub fn save_voxel_rcnn(model: &VoxelRcnn, shape: &VoxelRcnnShape, path: &Path) -> Result<(), ModelError> {
+    let config = serde_json::to_string(shape).expect("the network shape serialises");
+    let mut store = BurnpackStore::from_file(path)
+        .auto_extension(false)
+        .overwrite(true)
+        .metadata(KIND_KEY, DetectorKind::VoxelRcnn.checkpoint_tag())
+        .metadata(CONFIG_KEY, config);
+    model
+        .valid()
+        .save_into(&mut store)
+        .map_err(|e| ckpt_err(path, format!("cannot write: {e}")))
+}
+
+/// The shape stored in a Voxel R-CNN checkpoint (refuses other families).
+pub fn read_voxel_rcnn_shape(path: &Path) -> Result<VoxelRcnnShape, ModelError> {
+    let reader = Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
+    let meta = reader.metadata();
+    let kind = kind_of(path, meta)?;
+    if kind != DetectorKind::VoxelRcnn {
+        return Err(ckpt_err(path, format!("a {kind} checkpoint, not a voxel_rcnn one")));
+    }
+    let json = meta
+        .get(CONFIG_KEY)
+        .ok_or_else(|| ckpt_err(path, "no network shape in the metadata"))?;
+    serde_json::from_str(json).map_err(|e| ckpt_err(path, format!("unreadable network shape: {e}")))
+}
+
+/// Loads a checkpoint whose stored shape must equal `shape`.
+pub fn load_voxel_rcnn(shape: &VoxelRcnnShape, path: &Path, device: &Device) -> Result<VoxelRcnn, ModelError> {
+    let stored = read_voxel_rcnn_shape(path)?;
+    if stored != *shape {
+        return Err(ModelError::ConfigMismatch {
+            path: path.to_path_buf(),
+            differences: format!(
+                "the configuration builds {} but the checkpoint holds {}",
+                serde_json::to_string(shape).unwrap_or_default(),
+                serde_json::to_string(&stored).unwrap_or_default()
+            ),
+        });
+    }
+    let mut model = VoxelRcnn::new(&shape.network, shape.grid_z, device).map_err(ModelError::InvalidConfig)?;
+    let mut store = BurnpackStore::from_file(path).auto_extension(false);
+    let result = model
+        .load_from(&mut store)
+        .map_err(|e| ckpt_err(path, format!("cannot load the weights: {e}")))?;
+    if !result.unused.is_empty() {
+        return Err(ckpt_err(path, format!("tensors the network does not have: {:?}", result.unused)));
+    }
+    Ok(model)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::info::trainable_params;
+
+    fn tiny() -> VoxelRcnnShape {
+        let mut network = VoxelRcnnNetConfig::default();
+        network.backbone_channels = [4, 4, 4, 4];
+        network.backbone_out_channels = 4;
+        network.bev.num_filters = vec![4, 4];
+        network.bev.num_upsample_filters = vec![4, 4];
+        network.bev.layer_nums = vec![1, 1];
+        network.roi.grid_size = 2;
+        network.roi.shared_fc = vec![8];
+        network.roi.cls_fc = vec![8];
+        network.roi.reg_fc = vec![8];
+        VoxelRcnnShape { network, grid_z: 41 }
+    }
+
+    #[test]
+    fn round_trips_and_refuses_other_shapes_and_families() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("v.bpk");
+        let device = Device::flex();
+        let shape = tiny();
+        let model = VoxelRcnn::new(&shape.network, shape.grid_z, &device).unwrap();
+        save_voxel_rcnn(&model, &shape, &path).unwrap();
+        assert_eq!(crate::read_checkpoint_kind(&path).unwrap(), DetectorKind::VoxelRcnn);
+        let back = load_voxel_rcnn(&shape, &path, &device).unwrap();
+        assert_eq!(trainable_params(&back), trainable_params(&model));
+        let w = |m: &VoxelRcnn| m.roi_head.reg_out.weight.val().into_data().try_to_vec::<f32>().unwrap();
+        assert_eq!(w(&back), w(&model));
+
+        let mut other = shape.clone();
+        other.network.roi.grid_size = 3;
+        let err = load_voxel_rcnn(&other, &path, &device).unwrap_err().to_string();
+        assert!(err.contains("v.bpk") && err.contains("grid_size"), "{err}");
+        // A frustum-family reader refuses it, and it refuses a frustum checkpoint.
+        assert!(crate::read_checkpoint_config(&path).unwrap_err().to_string().contains("voxel_rcnn"));
+    }
+}

@@ -1,0 +1,212 @@
+//! The voxel family's detector: voxels → stage one → proposals → voxel RoI pooling →
+//! RoI head → refined boxes (score = the RoI head's confidence) → NMS → KITTI results in
+//! the camera frame. Frames are detected one at a time (batch 1, as OpenPCDet's test).
+
+use super::config::VoxelRcnnSection;
+use super::data::{VoxelData, batch_inputs};
+use super::proposals::{decode_proposals, nms_sorted, top_k};
+use crate::config::ExperimentConfig;
+use crate::detect::{FrameResults, StageTimes};
+use crate::error::{PipelineError, Result};
+use burn::prelude::*;
+use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
+use fusiondet_geometry::{alpha_from_ry, project_to_image};
+use fusiondet_kitti::Object;
+use fusiondet_models::voxel_rcnn::{
+    BackboneOutput, RoiBox, RoiGridIndex, RoiPredictions, VoxelGeometry, VoxelRcnn, load_voxel_rcnn,
+};
+use fusiondet_voxel::{LidarBox, Proposal, decode_roi};
+use std::path::Path;
+use std::time::Instant;
+
+pub const STAGE_VOXELIZE: &str = "voxelize";
+pub const STAGE_BACKBONE: &str = "3D backbone (rulebooks, sparse convs)";
+pub const STAGE_BEV: &str = "BEV backbone + anchor head";
+pub const STAGE_PROPOSALS: &str = "proposals (decode, NMS)";
+pub const STAGE_ROI_POOL: &str = "RoI grid pooling";
+pub const STAGE_HEAD: &str = "RoI head";
+pub const STAGE_NMS: &str = "boxes + NMS";
+
+/// The pooling geometry of a configuration's voxel grid.
+pub fn voxel_geometry(section: &VoxelRcnnSection) -> VoxelGeometry {
+    let r = &section.voxels.point_range;
+    VoxelGeometry {
+        origin: [r[0], r[1], r[2]],
+        voxel_size: section.voxels.voxel_size,
+    }
+}
+
+/// A tensor's values (inference copy).
+pub fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
+    t.clone()
+        .into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .expect("f32 tensor data")
+}
+
+/// Stage one's proposals of every frame of a batch.
+pub fn batch_proposals(
+    data: &VoxelData,
+    anchors: &fusiondet_models::voxel_rcnn::AnchorPredictions,
+    nms: &super::config::NmsConfig,
+) -> Vec<Vec<Proposal>> {
+    let [b, a, k] = anchors.cls.dims();
+    let bins = data.assigner.direction_bins();
+    let nb = bins.bins;
+    let (cls, boxes, dir) = (values(&anchors.cls), values(&anchors.boxes), values(&anchors.direction));
+    (0..b)
+        .map(|f| {
+            decode_proposals(
+                data.assigner.anchors(),
+                &data.classes,
+                &bins,
+                &cls[f * a * k..(f + 1) * a * k],
+                &boxes[f * a * 7..(f + 1) * a * 7],
+                &dir[f * a * nb..(f + 1) * a * nb],
+                nms,
+            )
+        })
+        .collect()
+}
+
+/// Stage two over `rois[b]` of each frame b: the grid index and the head's predictions.
+pub fn refine(
+    model: &VoxelRcnn,
+    section: &VoxelRcnnSection,
+    backbone: &BackboneOutput,
+    rois: &[Vec<RoiBox>],
+    timing: Option<&mut StageTimes>,
+) -> RoiPredictions {
+    let t = Instant::now();
+    let levels = &section.network.roi.levels;
+    let sites: Vec<&fusiondet_nn::sparse::SparseSites> =
+        levels.iter().map(|l| backbone.stages[l.stage - 1].sites.as_ref()).collect();
+    let index = RoiGridIndex::new(rois, &sites, levels, section.network.roi.grid_size, &voxel_geometry(section));
+    let maps: Vec<&fusiondet_models::voxel_rcnn::SparseMap> =
+        levels.iter().map(|l| &backbone.stages[l.stage - 1]).collect();
+    let pooled = model.roi_pool.forward(&maps, &index);
+    let pooled_at = Instant::now();
+    let out = model.roi_head.forward(pooled);
+    if let Some(timing) = timing {
+        timing.add(STAGE_ROI_POOL, pooled_at - t);
+        timing.add(STAGE_HEAD, pooled_at.elapsed());
+    }
+    out
+}
+
+/// A LiDAR box as a KITTI result in the camera frame; `None` when it does not project
+/// into the image (the KITTI evaluation needs a 2D box).
+pub fn to_result(b: &LidarBox, class: fusiondet_kitti::ObjectClass, score: f64, frame: &SensorFrame) -> Option<Object> {
+    let box3d = b.to_camera(&frame.camera);
+    let [w, h] = frame.image_size;
+    let bbox = project_to_image(&box3d, &frame.camera, w, h)?;
+    Some(Object {
+        class,
+        truncation: 0.0,
+        occlusion: 0,
+        alpha: alpha_from_ry(box3d.ry, box3d.x, box3d.z),
+        bbox,
+        box3d,
+        score: Some(score),
+    })
+}
+
+/// The final boxes of one frame: refined RoIs scored by the head, thresholded, NMS.
+pub fn final_boxes(
+    section: &VoxelRcnnSection,
+    proposals: &[Proposal],
+    cls: &[f32],
+    codes: &[f32],
+) -> Vec<Proposal> {
+    let post = &section.post;
+    let candidates: Vec<Proposal> = proposals
+        .iter()
+        .enumerate()
+        .map(|(r, p)| {
+            let code: [f64; 7] = std::array::from_fn(|j| codes[r * 7 + j] as f64);
+            Proposal {
+                bbox: decode_roi(&code, &p.bbox),
+                score: 1.0 / (1.0 + (-(cls[r] as f64)).exp()),
+                class: p.class,
+            }
+        })
+        .filter(|p| p.score >= post.score_threshold)
+        .collect();
+    let scores: Vec<f64> = candidates.iter().map(|p| p.score).collect();
+    let order = top_k(&scores, post.nms.pre_max);
+    let sorted: Vec<LidarBox> = order.iter().map(|&i| candidates[i].bbox).collect();
+    nms_sorted(&sorted, post.nms.iou, post.nms.post_max)
+        .into_iter()
+        .map(|j| candidates[order[j]])
+        .collect()
+}
+
+pub struct VoxelRcnnDetector {
+    pub config: ExperimentConfig,
+    pub model: VoxelRcnn,
+    pub data: VoxelData,
+}
+
+impl VoxelRcnnDetector {
+    pub fn section(config: &ExperimentConfig) -> Result<&VoxelRcnnSection> {
+        config.voxel_rcnn.as_ref().ok_or_else(|| {
+            PipelineError::Invalid(format!("{}: not a voxel_rcnn configuration", config.name))
+        })
+    }
+
+    pub fn load(config: ExperimentConfig, checkpoint: &Path, device: &Device) -> Result<Self> {
+        let section = Self::section(&config)?.clone();
+        let model = load_voxel_rcnn(&section.shape(), checkpoint, device)?;
+        Ok(VoxelRcnnDetector {
+            data: VoxelData::new(&section, None)?,
+            model,
+            config,
+        })
+    }
+
+    /// Detects on every frame; a frame without a LiDAR point in range gets no boxes.
+    pub fn detect_frames(
+        &self,
+        device: &Device,
+        frames: &InMemoryFrames<SensorFrame>,
+        timing: &mut StageTimes,
+    ) -> Result<FrameResults> {
+        let section = &self.data.section;
+        let mut results = FrameResults::default();
+        for index in 0..frames.len() {
+            let frame = frames.frame(index)?;
+            let t = Instant::now();
+            let sample = self.data.sample(&frame, None)?;
+            timing.add(STAGE_VOXELIZE, t.elapsed());
+            let objects = results.objects.entry(frame.id.clone()).or_default();
+            if sample.voxels.is_empty() {
+                continue;
+            }
+            let t = Instant::now();
+            let (features, plan) = batch_inputs(std::slice::from_ref(&sample), section.voxels.sparse_shape(), device)?;
+            let backbone = self.model.backbone.forward(features, &plan);
+            let _ = values(&backbone.output.features.clone().slice([0..1, 0..1]));
+            timing.add(STAGE_BACKBONE, t.elapsed());
+            let t = Instant::now();
+            let bev = self.model.bev.forward(fusiondet_models::voxel_rcnn::height_compression(&backbone.output));
+            let anchors = self.model.anchor_head.forward(bev);
+            let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
+            timing.add(STAGE_BEV, t.elapsed());
+            let t = Instant::now();
+            let proposals = batch_proposals(&self.data, &anchors, &section.proposals.test).remove(0);
+            timing.add(STAGE_PROPOSALS, t.elapsed());
+            if proposals.is_empty() {
+                continue;
+            }
+            let rois = vec![proposals.iter().map(|p| p.bbox.to_array()).collect::<Vec<_>>()];
+            let pred = refine(&self.model, section, &backbone, &rois, Some(timing));
+            let t = Instant::now();
+            let kept = final_boxes(section, &proposals, &values(&pred.cls), &values(&pred.boxes));
+            objects.extend(kept.iter().filter_map(|p| to_result(&p.bbox, p.class, p.score, &frame)));
+            results.samples += 1;
+            timing.add(STAGE_NMS, t.elapsed());
+        }
+        Ok(results)
+    }
+}

@@ -1,0 +1,17 @@
+//! The voxel family (Voxel R-CNN) plugged into the generic pipeline: its configuration
+//! section, its frames as voxels and batches ([`data`]), proposals and NMS
+//! ([`proposals`]), its training task and its detector.
+
+pub mod config;
+pub mod data;
+mod detector;
+pub mod info;
+pub mod proposals;
+mod task;
+
+pub use config::{NmsConfig, PostConfig, ProposalConfig, VoxelRcnnSection};
+pub use detector::{
+    STAGE_BACKBONE, STAGE_BEV, STAGE_HEAD, STAGE_NMS, STAGE_PROPOSALS, STAGE_ROI_POOL,
+    STAGE_VOXELIZE, VoxelRcnnDetector,
+};
+pub use task::{GT_DATABASE_DIR, VoxelRcnnTask, seeded_network, train, trained_parameters};

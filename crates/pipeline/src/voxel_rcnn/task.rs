@@ -1,0 +1,197 @@
+//! Training Voxel R-CNN: frames augmented and voxelized on the data thread, stage one's
+//! anchor loss, proposals from its (detached) predictions, RoIs sampled against the
+//! ground truth, stage two's loss; AdamW with the one-cycle schedule by default.
+
+use super::config::VoxelRcnnSection;
+use super::data::{VoxelBatch, VoxelData, collate};
+use super::detector::{batch_proposals, refine};
+use crate::config::ExperimentConfig;
+use crate::error::{PipelineError, Result};
+use crate::trainer::{StepLoss, TrainOptions, TrainSummary, TrainingTask, open_run, run_training};
+use burn::prelude::*;
+use fusiondet_dataset::rng::Sampler;
+use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
+use fusiondet_models::voxel_rcnn::{
+    RoiLossTargets, VoxelRcnn, VoxelRcnnShape, anchor_loss, load_voxel_rcnn, roi_loss, save_voxel_rcnn,
+};
+use fusiondet_models::voxel_rcnn::loss::box_corners;
+use fusiondet_voxel::{GtDatabase, GtSampler, RoiTargets, sample_rois};
+use std::path::Path;
+
+/// Where a run keeps the ground-truth database it built from its training split.
+pub const GT_DATABASE_DIR: &str = "gt_database";
+
+pub struct VoxelRcnnTask<'a> {
+    config: &'a ExperimentConfig,
+    frames: InMemoryFrames<SensorFrame>,
+    data: VoxelData,
+    shape: VoxelRcnnShape,
+    /// The training device: batches (and their rulebooks) are built on it by the data
+    /// thread, ahead of the step.
+    device: Device,
+}
+
+/// A batch and the stream its RoI sampling draws from.
+pub struct TrainBatch {
+    pub batch: VoxelBatch,
+    pub roi_seed: u64,
+}
+
+/// A freshly initialised network whose weights depend on the seed alone.
+pub fn seeded_network(config: &ExperimentConfig, shape: &VoxelRcnnShape, device: &Device) -> Result<VoxelRcnn> {
+    crate::trainer::seeded(config.train.seed, device, || {
+        VoxelRcnn::new(&shape.network, shape.grid_z, device).map_err(PipelineError::Invalid)
+    })
+}
+
+/// Stage two's loss targets from the sampled RoIs of every frame (in batch order).
+fn roi_loss_targets(targets: &[RoiTargets], device: &Device) -> RoiLossTargets {
+    let cls: Vec<f32> = targets.iter().flat_map(|t| t.cls_targets.iter().copied()).collect();
+    let r = cls.len();
+    let mut fg_rows = Vec::new();
+    let (mut reg, mut sizes, mut centres, mut gt_sizes, mut headings) = (vec![], vec![], vec![], vec![], vec![]);
+    let mut row = 0i64;
+    for t in targets {
+        for i in 0..t.len() {
+            if t.reg_valid[i] {
+                fg_rows.push(row);
+                reg.extend(t.reg_targets[i]);
+                let roi = &t.rois[i];
+                sizes.extend([roi.dx as f32, roi.dy as f32, roi.dz as f32]);
+                let g = &t.canonical_gt[i];
+                centres.extend([g.x as f32, g.y as f32, g.z as f32]);
+                gt_sizes.extend([g.dx as f32, g.dy as f32, g.dz as f32]);
+                headings.push(g.heading as f32);
+            }
+            row += 1;
+        }
+    }
+    let f = fg_rows.len();
+    let t2 = |v: Vec<f32>, c: usize| Tensor::<2>::from_data(TensorData::new(v, [f, c]), device);
+    let flipped: Vec<f32> = headings.iter().map(|h| h + std::f32::consts::PI).collect();
+    let corners = |h: Vec<f32>| box_corners(t2(centres.clone(), 3), t2(gt_sizes.clone(), 3), t2(h, 1));
+    RoiLossTargets {
+        cls: Tensor::from_data(TensorData::new(cls, [r, 1]), device),
+        fg_rows: (f > 0).then(|| Tensor::from_data(TensorData::new(fg_rows, [f]), device)),
+        reg: t2(reg, 7),
+        roi_sizes: t2(sizes, 3),
+        gt_corners: corners(headings.clone()),
+        gt_corners_flipped: corners(flipped),
+    }
+}
+
+impl TrainingTask for VoxelRcnnTask<'_> {
+    type Model = VoxelRcnn;
+    type Batch = TrainBatch;
+
+    fn frames(&self) -> usize {
+        self.frames.len()
+    }
+    fn samples(&self) -> usize {
+        self.frames.len()
+    }
+    fn sample_noun(&self) -> &'static str {
+        "frames"
+    }
+    fn new_model(&self, device: &Device) -> Result<VoxelRcnn> {
+        seeded_network(self.config, &self.shape, device)
+    }
+    fn load_model(&self, path: &Path, device: &Device) -> Result<VoxelRcnn> {
+        Ok(load_voxel_rcnn(&self.shape, path, device)?)
+    }
+    fn save_model(&self, model: &VoxelRcnn, path: &Path) -> Result<()> {
+        Ok(save_voxel_rcnn(model, &self.shape, path)?)
+    }
+    fn epoch_batches(&self, epoch: usize) -> Box<dyn ExactSizeIterator<Item = Result<TrainBatch>> + Send + '_> {
+        let cfg = self.config;
+        let seed = cfg.train.seed;
+        let mut order: Vec<usize> = (0..self.frames.len()).collect();
+        Sampler::from_path(seed, &[0x5A11, epoch as u64]).shuffle(&mut order);
+        let batches: Vec<Vec<usize>> = order.chunks(cfg.train.batch_size).map(<[usize]>::to_vec).collect();
+        Box::new(batches.into_iter().enumerate().map(move |(k, frames)| {
+            let device = &self.device;
+            let samples = frames
+                .iter()
+                .map(|&i| {
+                    let frame = self.frames.frame(i)?;
+                    let mut rng = Sampler::from_path(seed, &[0xA06, epoch as u64, i as u64]);
+                    self.data.sample(&frame, Some(&mut rng))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            Ok(TrainBatch {
+                batch: collate(&self.data, samples, true, device)?,
+                roi_seed: fusiondet_dataset::rng::derive(&[seed, 0x2015, epoch as u64, k as u64]),
+            })
+        }))
+    }
+    fn loss(&self, net: &VoxelRcnn, prepared: TrainBatch, device: &Device) -> Result<StepLoss> {
+        let section: &VoxelRcnnSection = &self.data.section;
+        let TrainBatch { batch, roi_seed } = prepared;
+        let features = batch.features.to_device(device);
+        let out = net.stage_one(features, &batch.plan);
+        let targets = batch.anchor_targets.as_ref().expect("training batches carry targets");
+        let [cls, loc, dir] = anchor_loss(&out.anchors, targets, &section.loss);
+        let proposals = batch_proposals(&self.data, &out.anchors, &section.proposals.train);
+        let mut rng = Sampler::new(roi_seed);
+        let sampled = proposals
+            .iter()
+            .zip(&batch.gts)
+            .map(|(p, gts)| sample_rois(p, gts, &section.roi_targets, &mut rng))
+            .collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(|e| PipelineError::Invalid(e.to_string()))?;
+        let rois: Vec<Vec<[f64; 7]>> = sampled.iter().map(|t| t.rois.iter().map(|b| b.to_array()).collect()).collect();
+        let pred = refine(net, section, &out.backbone, &rois, None);
+        let [rcnn_cls, rcnn_reg, corner] = roi_loss(&pred, &roi_loss_targets(&sampled, device), &section.loss);
+        let terms = [("cls", cls), ("loc", loc), ("dir", dir), ("rcnn_cls", rcnn_cls), ("rcnn_reg", rcnn_reg), ("rcnn_corner", corner)];
+        let total = terms.iter().map(|(_, t)| t.clone()).reduce(|a, b| a + b).expect("six terms");
+        let mut components = vec![("total", total.clone().into_scalar::<f32>())];
+        components.extend(terms.iter().map(|(n, t)| (*n, t.clone().into_scalar::<f32>())));
+        Ok(StepLoss { total, components })
+    }
+}
+
+/// The run's ground-truth database: read back on resume, else built from the training
+/// frames and written into the run directory.
+fn gt_database(run_root: &Path, frames: &InMemoryFrames<SensorFrame>) -> Result<GtDatabase> {
+    let dir = run_root.join(GT_DATABASE_DIR);
+    if dir.join("index.json").is_file() {
+        return GtDatabase::load(&dir).map_err(|e| PipelineError::Invalid(e.to_string()));
+    }
+    let all: Vec<std::sync::Arc<SensorFrame>> =
+        (0..frames.len()).map(|i| frames.frame(i)).collect::<std::result::Result<_, _>>()?;
+    let db = GtDatabase::from_frames(all.iter().map(|f| f.as_ref()));
+    db.save(&dir).map_err(|e| PipelineError::Invalid(e.to_string()))?;
+    Ok(db)
+}
+
+/// Trains a Voxel R-CNN.
+pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
+    let cfg = &options.config;
+    cfg.validate(Path::new("the training configuration"))?;
+    let section = super::detector::VoxelRcnnDetector::section(cfg)?.clone();
+    let opened = open_run(options, cfg, |old| old == *cfg)?;
+    let frames: InMemoryFrames<SensorFrame> =
+        fusiondet_dataset::load_split(&options.data_dir, &cfg.train.split, cfg.train.max_frames, true)?;
+    let sampler = if section.augment.sample_groups.is_empty() {
+        None
+    } else {
+        let db = gt_database(&opened.run.root, &frames)?;
+        Some(GtSampler::new(db, &section.augment).map_err(|e| PipelineError::Invalid(e.to_string()))?)
+    };
+    let task = VoxelRcnnTask {
+        config: cfg,
+        data: VoxelData::new(&section, sampler)?,
+        shape: section.shape(),
+        frames,
+        device: options.device.device().autodiff(),
+    };
+    run_training(&task, options, opened)
+}
+
+/// Parameters of the configuration's network.
+pub fn trained_parameters(config: &ExperimentConfig) -> Result<usize> {
+    let section = super::detector::VoxelRcnnDetector::section(config)?;
+    let shape = section.shape();
+    let model = VoxelRcnn::new(&shape.network, shape.grid_z, &Device::flex()).map_err(PipelineError::Invalid)?;
+    Ok(fusiondet_models::info::trainable_params(&model))
+}
