@@ -138,7 +138,10 @@ impl TrainConfig {
     /// The rate of step `step` (0-based) of epoch `epoch`, of `steps_per_epoch`.
     pub fn lr_at(&self, epoch: usize, step: usize, steps_per_epoch: usize) -> f64 {
         match &self.one_cycle {
-            Some(c) => c.lr_at(epoch * steps_per_epoch + step, self.epochs * steps_per_epoch),
+            Some(c) => c.lr_at(
+                epoch * steps_per_epoch + step,
+                self.epochs * steps_per_epoch,
+            ),
             None => self.lr.lr_at(epoch),
         }
     }
@@ -256,7 +259,9 @@ impl ExperimentConfig {
                 config.train = train
                     .try_into()
                     .map_err(|e: toml::de::Error| config_err(format!("[train] {e}")))?;
-                config.voxel_rcnn.get_or_insert_with(VoxelRcnnSection::default);
+                config
+                    .voxel_rcnn
+                    .get_or_insert_with(VoxelRcnnSection::default);
             }
             DetectorKind::Frustum => {
                 if raw.contains_key("voxel_rcnn") {
@@ -421,7 +426,11 @@ impl ExperimentConfig {
                 message: m,
             })?;
         }
-        if self.train.grad_clip_norm.is_some_and(|n| !(n > 0.0)) {
+        if self
+            .train
+            .grad_clip_norm
+            .is_some_and(|n| n.is_nan() || n <= 0.0)
+        {
             return bad("train.grad_clip_norm must be positive".into());
         }
         if let Some(v) = &self.voxel_rcnn {
@@ -685,6 +694,64 @@ mod shipped_configs {
     }
 
     #[test]
+    fn a_voxel_rcnn_file_takes_the_families_published_defaults() {
+        let c = load("voxel-rcnn-car.toml");
+        assert_eq!(c.kind(), DetectorKind::VoxelRcnn);
+        assert_eq!(c.voxel_rcnn, Some(VoxelRcnnSection::default()));
+        assert_eq!(c.train, TrainConfig::voxel_rcnn());
+        assert_eq!(c.train.optimizer, OptimizerKind::AdamW);
+        assert_eq!((c.train.batch_size, c.train.epochs), (2, 80));
+        // A [train] key overrides only itself.
+        let text = "[detector]\nkind = \"voxel_rcnn\"\n[train]\nepochs = 3\n";
+        let c = ExperimentConfig::from_toml_str(text, Path::new("t.toml")).unwrap();
+        assert_eq!(c.train.epochs, 3);
+        assert_eq!(c.train.one_cycle, Some(OneCycle::voxel_rcnn()));
+        // What a run stores reads back to the same configuration.
+        let back =
+            ExperimentConfig::from_toml_str(&c.to_toml_string(), Path::new("r.toml")).unwrap();
+        assert_eq!(back, c);
+        assert!(!c.to_toml_string().contains("[frustum]"));
+    }
+
+    #[test]
+    fn families_refuse_each_others_sections_and_bad_voxel_keys() {
+        let err = |text: &str| {
+            ExperimentConfig::from_toml_str(text, Path::new("x.toml"))
+                .unwrap_err()
+                .to_string()
+        };
+        let e = err("[detector]\nkind = \"voxel_rcnn\"\n[frustum]\npoints_per_frustum = 8\n");
+        assert!(
+            e.contains("x.toml") && e.contains("[frustum] configures the frustum family"),
+            "{e}"
+        );
+        let e = err(
+            "[detector]\nkind = \"frustum\"\n[voxel_rcnn.voxels]\nvoxel_size = [0.1, 0.1, 0.1]\n",
+        );
+        assert!(
+            e.contains("[voxel_rcnn] configures a voxel_rcnn detector"),
+            "{e}"
+        );
+        let e = err(
+            "[detector]\nkind = \"voxel_rcnn\"\n[voxel_rcnn.network]\nanchors_per_location = 3\n",
+        );
+        assert!(
+            e.contains("anchors_per_location is 3") && e.contains("make it 2"),
+            "{e}"
+        );
+        let e = err(
+            "[detector]\nkind = \"voxel_rcnn\"\n[voxel_rcnn.network]\nbackbon_channels = [1, 1, 1, 1]\n",
+        );
+        assert!(e.contains("backbon_channels"), "{e}");
+        let e = err("[detector]\nkind = \"voxel_rcnn\"\n[dataset]\nclasses = [\"Pedestrian\"]\n");
+        assert!(e.contains("classes of [voxel_rcnn.anchors]"), "{e}");
+        let e = err(
+            "[detector]\nkind = \"voxel_rcnn\"\n[train]\none_cycle = { max_lr = 0.01, div_factor = 10.0, pct_start = 1.5 }\n",
+        );
+        assert!(e.contains("pct_start"), "{e}");
+    }
+
+    #[test]
     fn every_shipped_config_loads_and_says_what_it_is() {
         use fusiondet_models::SliceEncoderKind;
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
@@ -695,6 +762,11 @@ mod shipped_configs {
                 let c = ExperimentConfig::from_file(&path).unwrap();
                 let file_stem = path.file_stem().unwrap().to_string_lossy().to_string();
                 assert_eq!(c.name, file_stem, "{}: name", path.display());
+                if c.kind() == DetectorKind::VoxelRcnn {
+                    assert!(file_stem.contains("voxel-rcnn"), "{file_stem}");
+                    names.push(file_stem);
+                    continue;
+                }
                 // The name states the variant (tiny-* are the tiny network's variants):
                 // check that the file holds it.
                 let stem = file_stem.strip_prefix("tiny-").unwrap_or(&file_stem);

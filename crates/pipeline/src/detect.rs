@@ -7,8 +7,8 @@ use crate::device::ComputeDevice;
 use crate::error::{PipelineError, Result};
 use crate::frustum::FrustumDetector;
 use crate::voxel_rcnn::VoxelRcnnDetector;
-use fusiondet_dataset::SensorFrame;
 use burn::prelude::*;
+use fusiondet_dataset::SensorFrame;
 use fusiondet_frustum::{FrameSource, InMemoryFrames, SkipCounts};
 use fusiondet_kitti::{DatasetDir, Detection2d, Object, read_detections2d, write_objects};
 use fusiondet_models::DetectorKind;
@@ -91,8 +91,8 @@ pub struct FrameResults {
 
 /// A trained detector of any family, chosen by the family its checkpoint records.
 pub enum Detector {
-    Frustum(FrustumDetector),
-    VoxelRcnn(VoxelRcnnDetector),
+    Frustum(Box<FrustumDetector>),
+    VoxelRcnn(Box<VoxelRcnnDetector>),
 }
 
 /// A split prepared for one family's detector (the frames in the family's form, and
@@ -144,11 +144,11 @@ impl Detector {
         }
         Ok(match config.kind() {
             DetectorKind::Frustum => {
-                Detector::Frustum(FrustumDetector::load(config, checkpoint, device)?)
+                Detector::Frustum(Box::new(FrustumDetector::load(config, checkpoint, device)?))
             }
-            DetectorKind::VoxelRcnn => {
-                Detector::VoxelRcnn(VoxelRcnnDetector::load(config, checkpoint, device)?)
-            }
+            DetectorKind::VoxelRcnn => Detector::VoxelRcnn(Box::new(VoxelRcnnDetector::load(
+                config, checkpoint, device,
+            )?)),
         })
     }
 

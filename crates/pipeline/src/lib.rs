@@ -17,8 +17,8 @@ pub mod voxel_rcnn;
 
 pub use bench::{BenchOptions, DetectBench, bench_detect, frames_per_second};
 pub use config::{
-    DatasetFormat, DatasetSection, DetectConfig, DetectorSection, ExperimentConfig, RefineConfig,
-    OptimizerKind, TrainConfig,
+    DatasetFormat, DatasetSection, DetectConfig, DetectorSection, ExperimentConfig, OptimizerKind,
+    RefineConfig, TrainConfig,
 };
 pub use detect::{
     DetectOptions, DetectSummary, Detector, FrameResults, SplitInputs, StageTimes, detect,

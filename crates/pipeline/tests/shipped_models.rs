@@ -35,7 +35,12 @@ fn every_shipped_checkpoint_is_small_configured_and_loads() {
         assert_eq!(config.name, format!("{stem}-sim"), "{}", path.display());
         let detector = Detector::load(config, &path, &device)
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        let Detector::Frustum(detector) = detector;
+        let Detector::Frustum(detector) = detector else {
+            panic!(
+                "{}: the shipped models are frustum-family models",
+                path.display()
+            );
+        };
         assert_eq!(
             detector.first_stage.is_some(),
             stem.contains("refine"),

@@ -1,7 +1,7 @@
 //! `fusiondet detect`: runs a trained frustum detector on a split and writes KITTI results.
 
-use fusiondet_pipeline::{ComputeDevice, DetectOptions, ExperimentConfig, detect};
 use fusiondet_models::DetectorKind;
+use fusiondet_pipeline::{ComputeDevice, DetectOptions, ExperimentConfig, detect};
 use std::path::PathBuf;
 
 /// The arguments `detect` and `bench` share: a model, its configuration, the frames and

@@ -3,7 +3,7 @@
 //! convolution and refine it with two submanifold ones, and a (3,1,1) convolution that
 //! leaves two heights for the bird's-eye view. Every layer is conv → BN → ReLU.
 
-use super::config::{BACKBONE_NORM, VoxelRcnnNetConfig};
+use super::config::VoxelRcnnNetConfig;
 use burn::prelude::*;
 use fusiondet_nn::sparse::{ConvGeometry, Rulebook, SparseConv3d, SparseConvBlock, SparseSites};
 use std::sync::Arc;
@@ -110,7 +110,8 @@ pub struct BackboneOutput {
 
 impl VoxelBackbone {
     pub fn new(config: &VoxelRcnnNetConfig, device: &Device) -> Self {
-        let block = |conv| SparseConvBlock::new(conv, &BACKBONE_NORM, device);
+        let norm = config.backbone_norm();
+        let block = |conv| SparseConvBlock::new(conv, &norm, device);
         let subm = |a, b| block(SparseConv3d::submanifold([a, b], [3; 3], device));
         let mut c_in = config.input_channels;
         let mut stages = Vec::with_capacity(4);

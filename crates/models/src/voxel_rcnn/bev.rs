@@ -4,12 +4,13 @@
 //! transposed convolution, all concatenated.
 
 use super::backbone3d::SparseMap;
-use super::config::{BACKBONE_NORM, BevConfig};
+use super::config::BevConfig;
 use burn::nn::BatchNorm;
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+use fusiondet_nn::NormConfig;
 use fusiondet_nn::batch_norm;
 use fusiondet_nn::sparse::to_dense_bev;
 
@@ -26,14 +27,14 @@ pub struct ConvBnRelu {
 }
 
 impl ConvBnRelu {
-    fn new(channels: [usize; 2], stride: usize, device: &Device) -> Self {
+    fn new(channels: [usize; 2], stride: usize, norm: &NormConfig, device: &Device) -> Self {
         Self {
             conv: Conv2dConfig::new(channels, [3, 3])
                 .with_stride([stride, stride])
                 .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
                 .with_bias(false)
                 .init(device),
-            norm: batch_norm(channels[1], &BACKBONE_NORM, device),
+            norm: batch_norm(channels[1], norm, device),
         }
     }
 
@@ -56,14 +57,26 @@ pub struct BevBackbone {
 }
 
 impl BevBackbone {
-    pub fn new(config: &BevConfig, input_channels: usize, device: &Device) -> Self {
+    pub fn new(
+        config: &BevConfig,
+        input_channels: usize,
+        norm: &NormConfig,
+        device: &Device,
+    ) -> Self {
         let mut c_in = input_channels;
         let mut blocks = Vec::new();
         let mut upsample = Vec::new();
         for i in 0..config.layer_nums.len() {
             let f = config.num_filters[i];
-            let mut block = vec![ConvBnRelu::new([c_in, f], config.layer_strides[i], device)];
-            block.extend((0..config.layer_nums[i]).map(|_| ConvBnRelu::new([f, f], 1, device)));
+            let mut block = vec![ConvBnRelu::new(
+                [c_in, f],
+                config.layer_strides[i],
+                norm,
+                device,
+            )];
+            block.extend(
+                (0..config.layer_nums[i]).map(|_| ConvBnRelu::new([f, f], 1, norm, device)),
+            );
             blocks.push(block);
             let (s, u) = (config.upsample_strides[i], config.num_upsample_filters[i]);
             upsample.push(UpsampleBnRelu {
@@ -71,7 +84,7 @@ impl BevBackbone {
                     .with_stride([s, s])
                     .with_bias(false)
                     .init(device),
-                norm: batch_norm(u, &BACKBONE_NORM, device),
+                norm: batch_norm(u, norm, device),
             });
             c_in = f;
         }

@@ -20,7 +20,11 @@ pub struct VoxelRcnnShape {
     pub grid_z: usize,
 }
 
-pub fn save_voxel_rcnn(model: &VoxelRcnn, shape: &VoxelRcnnShape, path: &Path) -> Result<(), ModelError> {
+pub fn save_voxel_rcnn(
+    model: &VoxelRcnn,
+    shape: &VoxelRcnnShape,
+    path: &Path,
+) -> Result<(), ModelError> {
     let config = serde_json::to_string(shape).expect("the network shape serialises");
     let mut store = BurnpackStore::from_file(path)
         .auto_extension(false)
@@ -35,11 +39,15 @@ pub fn save_voxel_rcnn(model: &VoxelRcnn, shape: &VoxelRcnnShape, path: &Path) -
 
 /// The shape stored in a Voxel R-CNN checkpoint (refuses other families).
 pub fn read_voxel_rcnn_shape(path: &Path) -> Result<VoxelRcnnShape, ModelError> {
-    let reader = Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
+    let reader =
+        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
     let meta = reader.metadata();
     let kind = kind_of(path, meta)?;
     if kind != DetectorKind::VoxelRcnn {
-        return Err(ckpt_err(path, format!("a {kind} checkpoint, not a voxel_rcnn one")));
+        return Err(ckpt_err(
+            path,
+            format!("a {kind} checkpoint, not a voxel_rcnn one"),
+        ));
     }
     let json = meta
         .get(CONFIG_KEY)
@@ -48,7 +56,11 @@ pub fn read_voxel_rcnn_shape(path: &Path) -> Result<VoxelRcnnShape, ModelError> 
 }
 
 /// Loads a checkpoint whose stored shape must equal `shape`.
-pub fn load_voxel_rcnn(shape: &VoxelRcnnShape, path: &Path, device: &Device) -> Result<VoxelRcnn, ModelError> {
+pub fn load_voxel_rcnn(
+    shape: &VoxelRcnnShape,
+    path: &Path,
+    device: &Device,
+) -> Result<VoxelRcnn, ModelError> {
     let stored = read_voxel_rcnn_shape(path)?;
     if stored != *shape {
         return Err(ModelError::ConfigMismatch {
@@ -60,13 +72,17 @@ pub fn load_voxel_rcnn(shape: &VoxelRcnnShape, path: &Path, device: &Device) -> 
             ),
         });
     }
-    let mut model = VoxelRcnn::new(&shape.network, shape.grid_z, device).map_err(ModelError::InvalidConfig)?;
+    let mut model =
+        VoxelRcnn::new(&shape.network, shape.grid_z, device).map_err(ModelError::InvalidConfig)?;
     let mut store = BurnpackStore::from_file(path).auto_extension(false);
     let result = model
         .load_from(&mut store)
         .map_err(|e| ckpt_err(path, format!("cannot load the weights: {e}")))?;
     if !result.unused.is_empty() {
-        return Err(ckpt_err(path, format!("tensors the network does not have: {:?}", result.unused)));
+        return Err(ckpt_err(
+            path,
+            format!("tensors the network does not have: {:?}", result.unused),
+        ));
     }
     Ok(model)
 }
@@ -77,9 +93,11 @@ mod tests {
     use crate::info::trainable_params;
 
     fn tiny() -> VoxelRcnnShape {
-        let mut network = VoxelRcnnNetConfig::default();
-        network.backbone_channels = [4, 4, 4, 4];
-        network.backbone_out_channels = 4;
+        let mut network = VoxelRcnnNetConfig {
+            backbone_channels: [4, 4, 4, 4],
+            backbone_out_channels: 4,
+            ..Default::default()
+        };
         network.bev.num_filters = vec![4, 4];
         network.bev.num_upsample_filters = vec![4, 4];
         network.bev.layer_nums = vec![1, 1];
@@ -87,7 +105,10 @@ mod tests {
         network.roi.shared_fc = vec![8];
         network.roi.cls_fc = vec![8];
         network.roi.reg_fc = vec![8];
-        VoxelRcnnShape { network, grid_z: 41 }
+        VoxelRcnnShape {
+            network,
+            grid_z: 41,
+        }
     }
 
     #[test]
@@ -98,17 +119,35 @@ mod tests {
         let shape = tiny();
         let model = VoxelRcnn::new(&shape.network, shape.grid_z, &device).unwrap();
         save_voxel_rcnn(&model, &shape, &path).unwrap();
-        assert_eq!(crate::read_checkpoint_kind(&path).unwrap(), DetectorKind::VoxelRcnn);
+        assert_eq!(
+            crate::read_checkpoint_kind(&path).unwrap(),
+            DetectorKind::VoxelRcnn
+        );
         let back = load_voxel_rcnn(&shape, &path, &device).unwrap();
         assert_eq!(trainable_params(&back), trainable_params(&model));
-        let w = |m: &VoxelRcnn| m.roi_head.reg_out.weight.val().into_data().try_to_vec::<f32>().unwrap();
+        let w = |m: &VoxelRcnn| {
+            m.roi_head
+                .reg_out
+                .weight
+                .val()
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap()
+        };
         assert_eq!(w(&back), w(&model));
 
         let mut other = shape.clone();
         other.network.roi.grid_size = 3;
-        let err = load_voxel_rcnn(&other, &path, &device).unwrap_err().to_string();
+        let err = load_voxel_rcnn(&other, &path, &device)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("v.bpk") && err.contains("grid_size"), "{err}");
         // A frustum-family reader refuses it, and it refuses a frustum checkpoint.
-        assert!(crate::read_checkpoint_config(&path).unwrap_err().to_string().contains("voxel_rcnn"));
+        assert!(
+            crate::read_checkpoint_config(&path)
+                .unwrap_err()
+                .to_string()
+                .contains("voxel_rcnn")
+        );
     }
 }

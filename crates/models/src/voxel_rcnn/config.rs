@@ -6,13 +6,8 @@
 use fusiondet_nn::NormConfig;
 use serde::{Deserialize, Serialize};
 
-/// Every layer of the sparse backbone and the BEV network: no bias, batch norm with
-/// OpenPCDet's eps 1e-3 and momentum 0.01.
-pub const BACKBONE_NORM: NormConfig = NormConfig {
-    bias_before_norm: false,
-    momentum: 0.01,
-    epsilon: 1e-3,
-};
+/// OpenPCDet's batch-norm momentum in the sparse backbone and the BEV network.
+pub const BACKBONE_NORM_MOMENTUM: f64 = 0.01;
 
 /// The RoI head's norms: PyTorch's defaults (eps 1e-5, momentum 0.1).
 pub const HEAD_NORM: NormConfig = NormConfig {
@@ -36,6 +31,9 @@ pub struct VoxelRcnnNetConfig {
     pub num_classes: usize,
     pub num_direction_bins: usize,
     pub roi: RoiHeadConfig,
+    /// Batch-norm momentum of the backbones (OpenPCDet: 0.01, running statistics that
+    /// settle over thousands of steps; a short run needs a larger one).
+    pub norm_momentum: f64,
 }
 
 /// BaseBEVBackbone: blocks of 3×3 convolutions, each upsampled by a transposed
@@ -95,6 +93,7 @@ impl Default for VoxelRcnnNetConfig {
             num_classes: 1,
             num_direction_bins: 2,
             roi: RoiHeadConfig::default(),
+            norm_momentum: BACKBONE_NORM_MOMENTUM,
         }
     }
 }
@@ -134,6 +133,16 @@ impl Default for RoiHeadConfig {
 }
 
 impl VoxelRcnnNetConfig {
+    /// Every layer of the sparse backbone and the BEV network: no bias, batch norm with
+    /// eps 1e-3 and `norm_momentum`.
+    pub fn backbone_norm(&self) -> NormConfig {
+        NormConfig {
+            bias_before_norm: false,
+            momentum: self.norm_momentum,
+            epsilon: 1e-3,
+        }
+    }
+
     /// Channels of backbone stage `stage` (1–4).
     pub fn stage_channels(&self, stage: usize) -> usize {
         self.backbone_channels[stage - 1]
@@ -210,6 +219,12 @@ impl VoxelRcnnNetConfig {
                 "[voxel_rcnn.roi]: fully connected widths must be positive (shared_fc non-empty)"
                     .into(),
             );
+        }
+        if !(self.norm_momentum > 0.0 && self.norm_momentum <= 1.0) {
+            return Err(format!(
+                "[voxel_rcnn.network] norm_momentum {} must lie in (0, 1]",
+                self.norm_momentum
+            ));
         }
         if !(0.0..1.0).contains(&r.dropout) {
             return Err(format!(

@@ -85,7 +85,7 @@ impl VoxelRcnn {
             * config.roi.grid_size.pow(3);
         Ok(Self {
             backbone: VoxelBackbone::new(config, device),
-            bev: BevBackbone::new(&config.bev, bev_in, device),
+            bev: BevBackbone::new(&config.bev, bev_in, &config.backbone_norm(), device),
             anchor_head: AnchorHead::new(
                 bev_out,
                 config.anchors_per_location,

@@ -27,7 +27,10 @@ pub fn to_dense_bev(features: Tensor<2>, sites: &SparseSites) -> Tensor<4> {
     }
     let cells = index.len();
     Tensor::cat(vec![features, Tensor::zeros([1, c], &device)], 0)
-        .select(0, Tensor::from_data(TensorData::new(index, [cells]), &device))
+        .select(
+            0,
+            Tensor::from_data(TensorData::new(index, [cells]), &device),
+        )
         .reshape([b, y, x, z * c])
         .permute([0, 3, 1, 2])
 }

@@ -86,7 +86,9 @@ impl VoxelRcnnSection {
 
     /// Every cross-section constraint; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
-        self.voxels.validate().map_err(|e| format!("[voxel_rcnn.voxels] {e}"))?;
+        self.voxels
+            .validate()
+            .map_err(|e| format!("[voxel_rcnn.voxels] {e}"))?;
         self.anchors
             .validate(&self.voxels)
             .map_err(|e| format!("[voxel_rcnn.anchors] {e}"))?;
@@ -94,7 +96,9 @@ impl VoxelRcnnSection {
         self.roi_targets
             .validate()
             .map_err(|e| format!("[voxel_rcnn.roi_targets] {e}"))?;
-        self.augment.validate().map_err(|e| format!("[voxel_rcnn.augment] {e}"))?;
+        self.augment
+            .validate()
+            .map_err(|e| format!("[voxel_rcnn.augment] {e}"))?;
         if self.network.anchors_per_location != self.anchors.per_location() {
             return Err(format!(
                 "[voxel_rcnn.network] anchors_per_location is {}, but [voxel_rcnn.anchors] \
@@ -137,7 +141,11 @@ impl VoxelRcnnSection {
                  multiple of 8, the sparse backbone's stride"
             ));
         }
-        for (name, n) in [("proposals.train", &self.proposals.train), ("proposals.test", &self.proposals.test), ("post.nms", &self.post.nms)] {
+        for (name, n) in [
+            ("proposals.train", &self.proposals.train),
+            ("proposals.test", &self.proposals.test),
+            ("post.nms", &self.post.nms),
+        ] {
             if n.pre_max == 0 || n.post_max == 0 || !(0.0..=1.0).contains(&n.iou) {
                 return Err(format!(
                     "[voxel_rcnn.{name}]: pre_max and post_max must be at least 1 and iou in [0, 1]"

@@ -50,17 +50,32 @@ impl VoxelData {
 
     /// The frame's sample; `augment_with` draws the training augmentation and the
     /// voxel-cap sampling (detection passes `None`: no augmentation, scan order).
-    pub fn sample(&self, frame: &SensorFrame, augment_with: Option<&mut Sampler>) -> Result<VoxelSample> {
+    pub fn sample(
+        &self,
+        frame: &SensorFrame,
+        augment_with: Option<&mut Sampler>,
+    ) -> Result<VoxelSample> {
         let mut scene = Scene::from_frame(frame, self.section.voxels.fov_only);
         let voxels = match augment_with {
             Some(rng) => {
-                augment(&mut scene, &self.section.augment, self.gt_sampler.as_ref(), rng).map_err(voxel_err)?;
+                augment(
+                    &mut scene,
+                    &self.section.augment,
+                    self.gt_sampler.as_ref(),
+                    rng,
+                )
+                .map_err(voxel_err)?;
                 scene.keep_targets(&self.classes, &self.section.voxels);
-                self.voxelizer.voxelize(&scene.points, self.section.voxels.max_voxels(true), Some(rng))
+                self.voxelizer.voxelize(
+                    &scene.points,
+                    self.section.voxels.max_voxels(true),
+                    Some(rng),
+                )
             }
             None => {
                 scene.keep_targets(&self.classes, &self.section.voxels);
-                self.voxelizer.voxelize(&scene.points, self.section.voxels.max_voxels(false), None)
+                self.voxelizer
+                    .voxelize(&scene.points, self.section.voxels.max_voxels(false), None)
             }
         };
         Ok(VoxelSample {
@@ -83,7 +98,11 @@ pub struct VoxelBatch {
 
 /// Sites and mean features of `samples` as one batch; refuses a batch without a voxel
 /// (the network has nothing to run on).
-pub fn batch_inputs(samples: &[VoxelSample], sparse_shape: [usize; 3], device: &Device) -> Result<(Tensor<2>, BackbonePlan)> {
+pub fn batch_inputs(
+    samples: &[VoxelSample],
+    sparse_shape: [usize; 3],
+    device: &Device,
+) -> Result<(Tensor<2>, BackbonePlan)> {
     let coords: Vec<[i32; 4]> = samples
         .iter()
         .enumerate()
@@ -96,17 +115,27 @@ pub fn batch_inputs(samples: &[VoxelSample], sparse_shape: [usize; 3], device: &
              field of view): nothing to detect on"
         )));
     }
-    let features: Vec<f32> = samples.iter().flat_map(|s| s.voxels.flat_features()).collect();
+    let features: Vec<f32> = samples
+        .iter()
+        .flat_map(|s| s.voxels.flat_features())
+        .collect();
     let n = coords.len();
     let sites = SparseSites::new(coords, sparse_shape, samples.len())
         .map_err(|e| PipelineError::Invalid(format!("voxel sites: {e}")))?;
     let plan = BackbonePlan::new(Arc::new(sites), device);
-    Ok((Tensor::from_data(TensorData::new(features, [n, 4]), device), plan))
+    Ok((
+        Tensor::from_data(TensorData::new(features, [n, 4]), device),
+        plan,
+    ))
 }
 
 /// The anchor targets of a batch as the loss takes them: per frame, each cared anchor
 /// weighted by 1 / (the frame's positives, at least 1).
-pub fn anchor_targets(data: &VoxelData, samples: &[VoxelSample], device: &Device) -> AnchorLossTargets {
+pub fn anchor_targets(
+    data: &VoxelData,
+    samples: &[VoxelSample],
+    device: &Device,
+) -> AnchorLossTargets {
     let b = samples.len();
     let a = data.assigner.anchors().len();
     let k = data.classes.len();
@@ -145,7 +174,12 @@ pub fn anchor_targets(data: &VoxelData, samples: &[VoxelSample], device: &Device
 }
 
 /// A training or detection batch of `samples`.
-pub fn collate(data: &VoxelData, samples: Vec<VoxelSample>, with_targets: bool, device: &Device) -> Result<VoxelBatch> {
+pub fn collate(
+    data: &VoxelData,
+    samples: Vec<VoxelSample>,
+    with_targets: bool,
+    device: &Device,
+) -> Result<VoxelBatch> {
     let (features, plan) = batch_inputs(&samples, data.section.voxels.sparse_shape(), device)?;
     let anchor_targets = with_targets.then(|| anchor_targets(data, &samples, device));
     Ok(VoxelBatch {

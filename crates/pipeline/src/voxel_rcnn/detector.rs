@@ -54,7 +54,11 @@ pub fn batch_proposals(
     let [b, a, k] = anchors.cls.dims();
     let bins = data.assigner.direction_bins();
     let nb = bins.bins;
-    let (cls, boxes, dir) = (values(&anchors.cls), values(&anchors.boxes), values(&anchors.direction));
+    let (cls, boxes, dir) = (
+        values(&anchors.cls),
+        values(&anchors.boxes),
+        values(&anchors.direction),
+    );
     (0..b)
         .map(|f| {
             decode_proposals(
@@ -80,11 +84,21 @@ pub fn refine(
 ) -> RoiPredictions {
     let t = Instant::now();
     let levels = &section.network.roi.levels;
-    let sites: Vec<&fusiondet_nn::sparse::SparseSites> =
-        levels.iter().map(|l| backbone.stages[l.stage - 1].sites.as_ref()).collect();
-    let index = RoiGridIndex::new(rois, &sites, levels, section.network.roi.grid_size, &voxel_geometry(section));
-    let maps: Vec<&fusiondet_models::voxel_rcnn::SparseMap> =
-        levels.iter().map(|l| &backbone.stages[l.stage - 1]).collect();
+    let sites: Vec<&fusiondet_nn::sparse::SparseSites> = levels
+        .iter()
+        .map(|l| backbone.stages[l.stage - 1].sites.as_ref())
+        .collect();
+    let index = RoiGridIndex::new(
+        rois,
+        &sites,
+        levels,
+        section.network.roi.grid_size,
+        &voxel_geometry(section),
+    );
+    let maps: Vec<&fusiondet_models::voxel_rcnn::SparseMap> = levels
+        .iter()
+        .map(|l| &backbone.stages[l.stage - 1])
+        .collect();
     let pooled = model.roi_pool.forward(&maps, &index);
     let pooled_at = Instant::now();
     let out = model.roi_head.forward(pooled);
@@ -97,7 +111,12 @@ pub fn refine(
 
 /// A LiDAR box as a KITTI result in the camera frame; `None` when it does not project
 /// into the image (the KITTI evaluation needs a 2D box).
-pub fn to_result(b: &LidarBox, class: fusiondet_kitti::ObjectClass, score: f64, frame: &SensorFrame) -> Option<Object> {
+pub fn to_result(
+    b: &LidarBox,
+    class: fusiondet_kitti::ObjectClass,
+    score: f64,
+    frame: &SensorFrame,
+) -> Option<Object> {
     let box3d = b.to_camera(&frame.camera);
     let [w, h] = frame.image_size;
     let bbox = project_to_image(&box3d, &frame.camera, w, h)?;
@@ -184,26 +203,49 @@ impl VoxelRcnnDetector {
                 continue;
             }
             let t = Instant::now();
-            let (features, plan) = batch_inputs(std::slice::from_ref(&sample), section.voxels.sparse_shape(), device)?;
+            let (features, plan) = batch_inputs(
+                std::slice::from_ref(&sample),
+                section.voxels.sparse_shape(),
+                device,
+            )?;
             let backbone = self.model.backbone.forward(features, &plan);
             let _ = values(&backbone.output.features.clone().slice([0..1, 0..1]));
             timing.add(STAGE_BACKBONE, t.elapsed());
             let t = Instant::now();
-            let bev = self.model.bev.forward(fusiondet_models::voxel_rcnn::height_compression(&backbone.output));
+            let bev = self
+                .model
+                .bev
+                .forward(fusiondet_models::voxel_rcnn::height_compression(
+                    &backbone.output,
+                ));
             let anchors = self.model.anchor_head.forward(bev);
             let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
             timing.add(STAGE_BEV, t.elapsed());
             let t = Instant::now();
-            let proposals = batch_proposals(&self.data, &anchors, &section.proposals.test).remove(0);
+            let proposals =
+                batch_proposals(&self.data, &anchors, &section.proposals.test).remove(0);
             timing.add(STAGE_PROPOSALS, t.elapsed());
             if proposals.is_empty() {
                 continue;
             }
-            let rois = vec![proposals.iter().map(|p| p.bbox.to_array()).collect::<Vec<_>>()];
+            let rois = vec![
+                proposals
+                    .iter()
+                    .map(|p| p.bbox.to_array())
+                    .collect::<Vec<_>>(),
+            ];
             let pred = refine(&self.model, section, &backbone, &rois, Some(timing));
             let t = Instant::now();
-            let kept = final_boxes(section, &proposals, &values(&pred.cls), &values(&pred.boxes));
-            objects.extend(kept.iter().filter_map(|p| to_result(&p.bbox, p.class, p.score, &frame)));
+            let kept = final_boxes(
+                section,
+                &proposals,
+                &values(&pred.cls),
+                &values(&pred.boxes),
+            );
+            objects.extend(
+                kept.iter()
+                    .filter_map(|p| to_result(&p.bbox, p.class, p.score, &frame)),
+            );
             results.samples += 1;
             timing.add(STAGE_NMS, t.elapsed());
         }

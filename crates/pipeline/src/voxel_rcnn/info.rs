@@ -28,7 +28,8 @@ pub fn stage_costs(section: &VoxelRcnnSection, model: &VoxelRcnn) -> StageCosts 
     // The sweep's sites on this grid (its own z extent), as the backbone gets them.
     let shape = v.sparse_shape();
     let coords: Vec<[i32; 4]> = sweep.sites.coords().to_vec();
-    let sites = fusiondet_nn::sparse::SparseSites::new(coords, shape, 1).expect("the sweep lies in the grid");
+    let sites = fusiondet_nn::sparse::SparseSites::new(coords, shape, 1)
+        .expect("the sweep lies in the grid");
     let voxels = sites.len();
     let plan = BackbonePlan::new(Arc::new(sites), &device);
     let net = &section.network;
@@ -40,22 +41,40 @@ pub fn stage_costs(section: &VoxelRcnnSection, model: &VoxelRcnn) -> StageCosts 
         * (map[1] * net.bev.upsample_strides[0] / net.bev.layer_strides[0]);
     let rois = section.proposals.test.post_max;
     let grid_points = rois * net.roi.grid_size.pow(3);
-    let level_voxels: Vec<usize> = net.roi.levels.iter().map(|l| plan.site_counts()[l.stage - 1]).collect();
+    let level_voxels: Vec<usize> = net
+        .roi
+        .levels
+        .iter()
+        .map(|l| plan.site_counts()[l.stage - 1])
+        .collect();
     StageCosts {
         voxels,
         rows: vec![
             ("3D backbone", plan.multiply_adds(net)),
-            ("BEV backbone", BevBackbone::multiply_adds(&net.bev, bev_in, map)),
-            ("anchor head", model.anchor_head.multiply_adds(bev_out, anchor_cells)),
-            ("RoI grid pooling", model.roi_pool.multiply_adds(&level_voxels, grid_points)),
-            ("RoI head", model.roi_head.multiply_adds_per_roi() * rois as u64),
+            (
+                "BEV backbone",
+                BevBackbone::multiply_adds(&net.bev, bev_in, map),
+            ),
+            (
+                "anchor head",
+                model.anchor_head.multiply_adds(bev_out, anchor_cells),
+            ),
+            (
+                "RoI grid pooling",
+                model.roi_pool.multiply_adds(&level_voxels, grid_points),
+            ),
+            (
+                "RoI head",
+                model.roi_head.multiply_adds_per_roi() * rois as u64,
+            ),
         ],
     }
 }
 
 pub fn render_info(name: &str, section: &VoxelRcnnSection) -> Result<String> {
     let shape = section.shape();
-    let model = VoxelRcnn::new(&shape.network, shape.grid_z, &Device::flex()).map_err(PipelineError::Invalid)?;
+    let model = VoxelRcnn::new(&shape.network, shape.grid_z, &Device::flex())
+        .map_err(PipelineError::Invalid)?;
     let v = &section.voxels;
     let [nx, ny, nz] = v.grid_size();
     let mut out = String::new();
@@ -75,7 +94,13 @@ pub fn render_info(name: &str, section: &VoxelRcnnSection) -> Result<String> {
         shape.network.bev.layer_nums,
         shape.network.anchors_per_location,
         shape.network.roi.grid_size,
-        shape.network.roi.levels.iter().map(|l| l.stage).collect::<Vec<_>>(),
+        shape
+            .network
+            .roi
+            .levels
+            .iter()
+            .map(|l| l.stage)
+            .collect::<Vec<_>>(),
     );
     let _ = writeln!(out, "{:<32} {:>12}", "module", "parameters");
     for (module, n) in model.param_rows() {

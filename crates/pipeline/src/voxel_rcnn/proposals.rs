@@ -90,7 +90,9 @@ pub fn decode_proposals(
             let code: [f64; 7] = std::array::from_fn(|j| boxes[i * 7 + j] as f64);
             let mut b = decode(&code, &anchors.boxes[i]);
             let d = &dir[i * nb..(i + 1) * nb];
-            let bin = (0..nb).max_by(|&a, &c| d[a].total_cmp(&d[c]).then(c.cmp(&a))).unwrap_or(0);
+            let bin = (0..nb)
+                .max_by(|&a, &c| d[a].total_cmp(&d[c]).then(c.cmp(&a)))
+                .unwrap_or(0);
             b.heading = bins.apply(b.heading, bin);
             b
         })
@@ -130,7 +132,12 @@ mod tests {
     #[test]
     fn nms_suppresses_overlaps_only_and_caps_the_count() {
         // 0 and 1 overlap by IoU 3/5 (shifted 1 m along a 4 m box); 2 is far; 3 crosses 0.
-        let boxes = [car(0.0, 0.0, 0.0), car(1.0, 0.0, 0.0), car(20.0, 0.0, 0.0), car(0.0, 0.0, 1.2)];
+        let boxes = [
+            car(0.0, 0.0, 0.0),
+            car(1.0, 0.0, 0.0),
+            car(20.0, 0.0, 0.0),
+            car(0.0, 0.0, 1.2),
+        ];
         assert_eq!(nms_sorted(&boxes, 0.5, 10), vec![0, 2]);
         assert_eq!(nms_sorted(&boxes, 0.7, 10), vec![0, 1, 2]);
         assert_eq!(nms_sorted(&boxes, 0.7, 2), vec![0, 1]);

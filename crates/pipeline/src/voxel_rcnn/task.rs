@@ -11,10 +11,11 @@ use crate::trainer::{StepLoss, TrainOptions, TrainSummary, TrainingTask, open_ru
 use burn::prelude::*;
 use fusiondet_dataset::rng::Sampler;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
-use fusiondet_models::voxel_rcnn::{
-    RoiLossTargets, VoxelRcnn, VoxelRcnnShape, anchor_loss, load_voxel_rcnn, roi_loss, save_voxel_rcnn,
-};
 use fusiondet_models::voxel_rcnn::loss::box_corners;
+use fusiondet_models::voxel_rcnn::{
+    RoiLossTargets, VoxelRcnn, VoxelRcnnShape, anchor_loss, load_voxel_rcnn, roi_loss,
+    save_voxel_rcnn,
+};
 use fusiondet_voxel::{GtDatabase, GtSampler, RoiTargets, sample_rois};
 use std::path::Path;
 
@@ -38,7 +39,11 @@ pub struct TrainBatch {
 }
 
 /// A freshly initialised network whose weights depend on the seed alone.
-pub fn seeded_network(config: &ExperimentConfig, shape: &VoxelRcnnShape, device: &Device) -> Result<VoxelRcnn> {
+pub fn seeded_network(
+    config: &ExperimentConfig,
+    shape: &VoxelRcnnShape,
+    device: &Device,
+) -> Result<VoxelRcnn> {
     crate::trainer::seeded(config.train.seed, device, || {
         VoxelRcnn::new(&shape.network, shape.grid_z, device).map_err(PipelineError::Invalid)
     })
@@ -46,10 +51,14 @@ pub fn seeded_network(config: &ExperimentConfig, shape: &VoxelRcnnShape, device:
 
 /// Stage two's loss targets from the sampled RoIs of every frame (in batch order).
 fn roi_loss_targets(targets: &[RoiTargets], device: &Device) -> RoiLossTargets {
-    let cls: Vec<f32> = targets.iter().flat_map(|t| t.cls_targets.iter().copied()).collect();
+    let cls: Vec<f32> = targets
+        .iter()
+        .flat_map(|t| t.cls_targets.iter().copied())
+        .collect();
     let r = cls.len();
     let mut fg_rows = Vec::new();
-    let (mut reg, mut sizes, mut centres, mut gt_sizes, mut headings) = (vec![], vec![], vec![], vec![], vec![]);
+    let (mut reg, mut sizes, mut centres, mut gt_sizes, mut headings) =
+        (vec![], vec![], vec![], vec![], vec![]);
     let mut row = 0i64;
     for t in targets {
         for i in 0..t.len() {
@@ -69,7 +78,8 @@ fn roi_loss_targets(targets: &[RoiTargets], device: &Device) -> RoiLossTargets {
     let f = fg_rows.len();
     let t2 = |v: Vec<f32>, c: usize| Tensor::<2>::from_data(TensorData::new(v, [f, c]), device);
     let flipped: Vec<f32> = headings.iter().map(|h| h + std::f32::consts::PI).collect();
-    let corners = |h: Vec<f32>| box_corners(t2(centres.clone(), 3), t2(gt_sizes.clone(), 3), t2(h, 1));
+    let corners =
+        |h: Vec<f32>| box_corners(t2(centres.clone(), 3), t2(gt_sizes.clone(), 3), t2(h, 1));
     RoiLossTargets {
         cls: Tensor::from_data(TensorData::new(cls, [r, 1]), device),
         fg_rows: (f > 0).then(|| Tensor::from_data(TensorData::new(fg_rows, [f]), device)),
@@ -102,12 +112,18 @@ impl TrainingTask for VoxelRcnnTask<'_> {
     fn save_model(&self, model: &VoxelRcnn, path: &Path) -> Result<()> {
         Ok(save_voxel_rcnn(model, &self.shape, path)?)
     }
-    fn epoch_batches(&self, epoch: usize) -> Box<dyn ExactSizeIterator<Item = Result<TrainBatch>> + Send + '_> {
+    fn epoch_batches(
+        &self,
+        epoch: usize,
+    ) -> Box<dyn ExactSizeIterator<Item = Result<TrainBatch>> + Send + '_> {
         let cfg = self.config;
         let seed = cfg.train.seed;
         let mut order: Vec<usize> = (0..self.frames.len()).collect();
         Sampler::from_path(seed, &[0x5A11, epoch as u64]).shuffle(&mut order);
-        let batches: Vec<Vec<usize>> = order.chunks(cfg.train.batch_size).map(<[usize]>::to_vec).collect();
+        let batches: Vec<Vec<usize>> = order
+            .chunks(cfg.train.batch_size)
+            .map(<[usize]>::to_vec)
+            .collect();
         Box::new(batches.into_iter().enumerate().map(move |(k, frames)| {
             let device = &self.device;
             let samples = frames
@@ -129,7 +145,10 @@ impl TrainingTask for VoxelRcnnTask<'_> {
         let TrainBatch { batch, roi_seed } = prepared;
         let features = batch.features.to_device(device);
         let out = net.stage_one(features, &batch.plan);
-        let targets = batch.anchor_targets.as_ref().expect("training batches carry targets");
+        let targets = batch
+            .anchor_targets
+            .as_ref()
+            .expect("training batches carry targets");
         let [cls, loc, dir] = anchor_loss(&out.anchors, targets, &section.loss);
         let proposals = batch_proposals(&self.data, &out.anchors, &section.proposals.train);
         let mut rng = Sampler::new(roi_seed);
@@ -139,13 +158,32 @@ impl TrainingTask for VoxelRcnnTask<'_> {
             .map(|(p, gts)| sample_rois(p, gts, &section.roi_targets, &mut rng))
             .collect::<std::result::Result<Vec<_>, _>>()
             .map_err(|e| PipelineError::Invalid(e.to_string()))?;
-        let rois: Vec<Vec<[f64; 7]>> = sampled.iter().map(|t| t.rois.iter().map(|b| b.to_array()).collect()).collect();
+        let rois: Vec<Vec<[f64; 7]>> = sampled
+            .iter()
+            .map(|t| t.rois.iter().map(|b| b.to_array()).collect())
+            .collect();
         let pred = refine(net, section, &out.backbone, &rois, None);
-        let [rcnn_cls, rcnn_reg, corner] = roi_loss(&pred, &roi_loss_targets(&sampled, device), &section.loss);
-        let terms = [("cls", cls), ("loc", loc), ("dir", dir), ("rcnn_cls", rcnn_cls), ("rcnn_reg", rcnn_reg), ("rcnn_corner", corner)];
-        let total = terms.iter().map(|(_, t)| t.clone()).reduce(|a, b| a + b).expect("six terms");
+        let [rcnn_cls, rcnn_reg, corner] =
+            roi_loss(&pred, &roi_loss_targets(&sampled, device), &section.loss);
+        let terms = [
+            ("cls", cls),
+            ("loc", loc),
+            ("dir", dir),
+            ("rcnn_cls", rcnn_cls),
+            ("rcnn_reg", rcnn_reg),
+            ("rcnn_corner", corner),
+        ];
+        let total = terms
+            .iter()
+            .map(|(_, t)| t.clone())
+            .reduce(|a, b| a + b)
+            .expect("six terms");
         let mut components = vec![("total", total.clone().into_scalar::<f32>())];
-        components.extend(terms.iter().map(|(n, t)| (*n, t.clone().into_scalar::<f32>())));
+        components.extend(
+            terms
+                .iter()
+                .map(|(n, t)| (*n, t.clone().into_scalar::<f32>())),
+        );
         Ok(StepLoss { total, components })
     }
 }
@@ -157,10 +195,12 @@ fn gt_database(run_root: &Path, frames: &InMemoryFrames<SensorFrame>) -> Result<
     if dir.join("index.json").is_file() {
         return GtDatabase::load(&dir).map_err(|e| PipelineError::Invalid(e.to_string()));
     }
-    let all: Vec<std::sync::Arc<SensorFrame>> =
-        (0..frames.len()).map(|i| frames.frame(i)).collect::<std::result::Result<_, _>>()?;
+    let all: Vec<std::sync::Arc<SensorFrame>> = (0..frames.len())
+        .map(|i| frames.frame(i))
+        .collect::<std::result::Result<_, _>>()?;
     let db = GtDatabase::from_frames(all.iter().map(|f| f.as_ref()));
-    db.save(&dir).map_err(|e| PipelineError::Invalid(e.to_string()))?;
+    db.save(&dir)
+        .map_err(|e| PipelineError::Invalid(e.to_string()))?;
     Ok(db)
 }
 
@@ -170,13 +210,20 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     cfg.validate(Path::new("the training configuration"))?;
     let section = super::detector::VoxelRcnnDetector::section(cfg)?.clone();
     let opened = open_run(options, cfg, |old| old == *cfg)?;
-    let frames: InMemoryFrames<SensorFrame> =
-        fusiondet_dataset::load_split(&options.data_dir, &cfg.train.split, cfg.train.max_frames, true)?;
+    let frames: InMemoryFrames<SensorFrame> = fusiondet_dataset::load_split(
+        &options.data_dir,
+        &cfg.train.split,
+        cfg.train.max_frames,
+        true,
+    )?;
     let sampler = if section.augment.sample_groups.is_empty() {
         None
     } else {
         let db = gt_database(&opened.run.root, &frames)?;
-        Some(GtSampler::new(db, &section.augment).map_err(|e| PipelineError::Invalid(e.to_string()))?)
+        Some(
+            GtSampler::new(db, &section.augment)
+                .map_err(|e| PipelineError::Invalid(e.to_string()))?,
+        )
     };
     let task = VoxelRcnnTask {
         config: cfg,
@@ -192,6 +239,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
 pub fn trained_parameters(config: &ExperimentConfig) -> Result<usize> {
     let section = super::detector::VoxelRcnnDetector::section(config)?;
     let shape = section.shape();
-    let model = VoxelRcnn::new(&shape.network, shape.grid_z, &Device::flex()).map_err(PipelineError::Invalid)?;
+    let model = VoxelRcnn::new(&shape.network, shape.grid_z, &Device::flex())
+        .map_err(PipelineError::Invalid)?;
     Ok(fusiondet_models::info::trainable_params(&model))
 }

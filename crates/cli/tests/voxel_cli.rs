@@ -1,0 +1,166 @@
+//! The Voxel R-CNN family from the binary: `info` on the published configuration,
+//! `train` → `detect` → `eval` of the tiny configuration on simulated frames, a frame
+//! without points, and checkpoints given to the wrong family's configuration.
+
+mod common;
+
+use common::{all_output, assert_fails_with, repo_root, run, s};
+
+#[test]
+fn info_counts_the_published_network_and_its_multiply_adds() {
+    let config = repo_root().join("configs/voxel-rcnn-car.toml");
+    let o = run("info", &["--config", s(&config)]);
+    let out = all_output(&o);
+    assert!(o.status.success(), "{out}");
+    let words = out.split_whitespace().collect::<Vec<_>>().join(" ");
+    for needle in [
+        "3D backbone (VoxelBackBone8x) 711872",
+        "BEV backbone 1219328",
+        "anchor head 5140",
+        "RoI grid pooling 9056",
+        "RoI head FCs 5641224",
+        "total 7586620",
+        "Multiply-adds per frame",
+    ] {
+        assert!(words.contains(needle), "missing `{needle}` in\n{out}");
+    }
+}
+
+#[test]
+fn trains_detects_and_evaluates_the_tiny_configuration() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let o = run(
+        "simulate",
+        &["--out", s(&data), "--frames", "6", "--seed", "5"],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+    // One validation frame's scan is empty: it gets an empty result file, no error.
+    let val: Vec<String> = std::fs::read_to_string(data.join("ImageSets/val.txt"))
+        .unwrap()
+        .lines()
+        .map(str::to_string)
+        .collect();
+    std::fs::write(data.join(format!("training/velodyne/{}.bin", val[0])), b"").unwrap();
+
+    let config = repo_root().join("configs/tiny-voxel-rcnn.toml");
+    let run_dir = dir.path().join("run");
+    let o = run(
+        "train",
+        &[
+            "--config",
+            s(&config),
+            "--data",
+            s(&data),
+            "--out",
+            s(&run_dir),
+        ],
+    );
+    let out = all_output(&o);
+    assert!(o.status.success(), "{out}");
+    assert!(out.contains("trained on 3 frames: 4 epoch(s) run"), "{out}");
+    assert!(run_dir.join("gt_database/index.json").is_file());
+    let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap();
+    for term in [
+        "loss_cls",
+        "loss_loc",
+        "loss_dir",
+        "loss_rcnn_cls",
+        "loss_rcnn_reg",
+        "loss_rcnn_corner",
+    ] {
+        assert!(metrics.contains(term), "{term} not logged: {metrics}");
+    }
+
+    let results = dir.path().join("results");
+    let model = run_dir.join("model.bpk");
+    let o = run(
+        "detect",
+        &[
+            "--checkpoint",
+            s(&model),
+            "--data",
+            s(&data),
+            "--out",
+            s(&results),
+        ],
+    );
+    let out = all_output(&o);
+    assert!(o.status.success(), "{out}");
+    assert!(
+        out.contains(&format!(
+            "{} frames ({} with LiDAR points in range)",
+            val.len(),
+            val.len() - 1
+        )),
+        "{out}"
+    );
+    for id in &val {
+        assert!(results.join(format!("{id}.txt")).is_file(), "{id}");
+    }
+    assert_eq!(
+        std::fs::read_to_string(results.join(format!("{}.txt", val[0]))).unwrap(),
+        ""
+    );
+    let o = run(
+        "eval",
+        &[
+            "--label-dir",
+            s(&data.join("training/label_2")),
+            "--result-dir",
+            s(&results),
+            "--split",
+            s(&data.join("ImageSets/val.txt")),
+            "--classes",
+            "Car",
+        ],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+
+    // A checkpoint of one family with the other's configuration is refused by name.
+    let frustum_model = repo_root().join("models/fconvnet-car.bpk");
+    assert_fails_with(
+        "detect",
+        &[
+            "--checkpoint",
+            s(&frustum_model),
+            "--config",
+            s(&config),
+            "--data",
+            s(&data),
+            "--out",
+            s(&dir.path().join("x")),
+        ],
+        "a frustum checkpoint cannot be run with a voxel_rcnn configuration",
+    );
+    assert_fails_with(
+        "detect",
+        &[
+            "--checkpoint",
+            s(&model),
+            "--config",
+            s(&repo_root().join("configs/tiny.toml")),
+            "--data",
+            s(&data),
+            "--out",
+            s(&dir.path().join("y")),
+        ],
+        "a voxel_rcnn checkpoint cannot be run with a frustum configuration",
+    );
+}
+
+#[test]
+fn a_voxel_configuration_refuses_frustum_sections() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.toml");
+    std::fs::write(
+        &path,
+        "[detector]\nkind = \"voxel_rcnn\"\n[dataset]\nclasses = [\"Car\"]\n[model]\nfcn_channels = [8, 8, 8, 8]\n",
+    )
+    .unwrap();
+    assert_fails_with(
+        "info",
+        &["--config", s(&path)],
+        "[model] configures the frustum family",
+    );
+}
