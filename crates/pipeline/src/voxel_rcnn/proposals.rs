@@ -138,10 +138,11 @@ mod tests {
             car(20.0, 0.0, 0.0),
             car(0.0, 0.0, 1.2),
         ];
-        assert_eq!(nms_sorted(&boxes, 0.5, 10), vec![0, 2]);
-        assert_eq!(nms_sorted(&boxes, 0.7, 10), vec![0, 1, 2]);
+        assert_eq!(nms_sorted(&boxes, 0.5, 10), vec![0, 2, 3]);
+        assert_eq!(nms_sorted(&boxes, 0.7, 10), vec![0, 1, 2, 3]);
         assert_eq!(nms_sorted(&boxes, 0.7, 2), vec![0, 1]);
         // Crossing boxes overlap (IoU about 0.37) though their bounds are not apart.
-        assert_eq!(nms_sorted(&[boxes[0], boxes[3]], 0.2, 10), vec![0]);
+        assert_eq!(nms_sorted(&[boxes[0], boxes[3]], 0.3, 10), vec![0]);
+        assert_eq!(nms_sorted(&[boxes[0], boxes[3]], 0.4, 10), vec![0, 1]);
     }
 }
