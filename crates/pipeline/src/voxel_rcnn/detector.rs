@@ -10,7 +10,7 @@ use crate::detect::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
-use fusiondet_geometry::{alpha_from_ry, project_to_image};
+use fusiondet_geometry::{alpha_from_ry, normalize_angle, project_to_image};
 use fusiondet_kitti::Object;
 use fusiondet_models::voxel_rcnn::{
     BackboneOutput, RoiBox, RoiGridIndex, RoiPredictions, VoxelGeometry, VoxelRcnn, load_voxel_rcnn,
@@ -117,7 +117,9 @@ pub fn to_result(
     score: f64,
     frame: &SensorFrame,
 ) -> Option<Object> {
-    let box3d = b.to_camera(&frame.camera);
+    let mut box3d = b.to_camera(&frame.camera);
+    // KITTI results keep ry in (−π, π]; decoded headings may be a turn away.
+    box3d.ry = normalize_angle(box3d.ry);
     let [w, h] = frame.image_size;
     let bbox = project_to_image(&box3d, &frame.camera, w, h)?;
     Some(Object {
