@@ -29,17 +29,60 @@ pub(crate) fn ckpt_err(path: &Path, message: impl Into<String>) -> ModelError {
 /// extension is added), replacing any file there atomically.
 pub fn save_checkpoint(model: &FConvNet, path: &Path) -> Result<(), ModelError> {
     let config = serde_json::to_string(model.config()).expect("the model configuration serialises");
+    write_tagged(model, DetectorKind::Frustum, config, path)
+}
+
+/// Writes `model` with its family and its configuration (JSON) in the metadata: every
+/// family's checkpoint is written here.
+pub(crate) fn write_tagged<M: ModuleSnapshot>(
+    model: &M,
+    kind: DetectorKind,
+    config_json: String,
+    path: &Path,
+) -> Result<(), ModelError> {
     let mut store = BurnpackStore::from_file(path)
         .auto_extension(false)
         .overwrite(true)
-        .metadata(KIND_KEY, DetectorKind::Frustum.checkpoint_tag())
-        .metadata(CONFIG_KEY, config);
+        .metadata(KIND_KEY, kind.checkpoint_tag())
+        .metadata(CONFIG_KEY, config_json);
     // `valid()` first folds the batch-norm running statistics that training threads hold
     // apart (burn keeps them per thread until synchronised) into the stored values.
     model
         .valid()
         .save_into(&mut store)
         .map_err(|e| ckpt_err(path, format!("cannot write: {e}")))
+}
+
+/// The configuration (JSON) stored in a checkpoint of family `kind`; refuses other families.
+pub(crate) fn read_tagged_config(path: &Path, kind: DetectorKind) -> Result<String, ModelError> {
+    let reader =
+        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
+    let meta = reader.metadata();
+    let found = kind_of(path, meta)?;
+    if found != kind {
+        return Err(ckpt_err(
+            path,
+            format!("a {found} checkpoint, not a {kind} one"),
+        ));
+    }
+    meta.get(CONFIG_KEY)
+        .cloned()
+        .ok_or_else(|| ckpt_err(path, "no model configuration in the metadata"))
+}
+
+/// Loads the weights of `path` into `model`, refusing a file with tensors it lacks.
+pub(crate) fn load_weights<M: ModuleSnapshot>(mut model: M, path: &Path) -> Result<M, ModelError> {
+    let mut store = BurnpackStore::from_file(path).auto_extension(false);
+    let result = model
+        .load_from(&mut store)
+        .map_err(|e| ckpt_err(path, format!("cannot load the weights: {e}")))?;
+    if !result.unused.is_empty() {
+        return Err(ckpt_err(
+            path,
+            format!("tensors the network does not have: {:?}", result.unused),
+        ));
+    }
+    Ok(model)
 }
 
 /// The family a checkpoint belongs to, from its metadata.
@@ -69,22 +112,8 @@ pub(crate) fn kind_of(
 
 /// The frustum model configuration stored in a checkpoint.
 pub fn read_checkpoint_config(path: &Path) -> Result<ModelConfig, ModelError> {
-    let reader =
-        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
-    let meta = reader.metadata();
-    match kind_of(path, meta)? {
-        DetectorKind::Frustum => {}
-        other => {
-            return Err(ckpt_err(
-                path,
-                format!("a {other} checkpoint, not a frustum-family one"),
-            ));
-        }
-    }
-    let json = meta
-        .get(CONFIG_KEY)
-        .ok_or_else(|| ckpt_err(path, "no model configuration in the metadata"))?;
-    serde_json::from_str(json)
+    let json = read_tagged_config(path, DetectorKind::Frustum)?;
+    serde_json::from_str(&json)
         .map_err(|e| ckpt_err(path, format!("unreadable model configuration: {e}")))
 }
 
@@ -150,18 +179,7 @@ pub fn load_checkpoint(
             differences: differences.join("; "),
         });
     }
-    let mut model = FConvNet::new(config, device)?;
-    let mut store = BurnpackStore::from_file(path).auto_extension(false);
-    let result = model
-        .load_from(&mut store)
-        .map_err(|e| ckpt_err(path, format!("cannot load the weights: {e}")))?;
-    if !result.unused.is_empty() {
-        return Err(ckpt_err(
-            path,
-            format!("tensors the network does not have: {:?}", result.unused),
-        ));
-    }
-    Ok(model)
+    load_weights(FConvNet::new(config, device)?, path)
 }
 
 #[cfg(test)]

@@ -3,12 +3,10 @@
 //! refused by a configuration of another shape or family instead of failing on a tensor.
 
 use super::{VoxelRcnn, VoxelRcnnNetConfig};
-use crate::checkpoint::{CONFIG_KEY, KIND_KEY, ckpt_err, kind_of};
+use crate::checkpoint::{ckpt_err, load_weights, read_tagged_config, write_tagged};
 use crate::error::ModelError;
 use crate::family::DetectorKind;
 use burn::prelude::*;
-use burn::store::burn_pack::Reader;
-use burn::store::{BurnpackStore, ModuleSnapshot};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -26,33 +24,14 @@ pub fn save_voxel_rcnn(
     path: &Path,
 ) -> Result<(), ModelError> {
     let config = serde_json::to_string(shape).expect("the network shape serialises");
-    let mut store = BurnpackStore::from_file(path)
-        .auto_extension(false)
-        .overwrite(true)
-        .metadata(KIND_KEY, DetectorKind::VoxelRcnn.checkpoint_tag())
-        .metadata(CONFIG_KEY, config);
-    model
-        .valid()
-        .save_into(&mut store)
-        .map_err(|e| ckpt_err(path, format!("cannot write: {e}")))
+    write_tagged(model, DetectorKind::VoxelRcnn, config, path)
 }
 
 /// The shape stored in a Voxel R-CNN checkpoint (refuses other families).
 pub fn read_voxel_rcnn_shape(path: &Path) -> Result<VoxelRcnnShape, ModelError> {
-    let reader =
-        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
-    let meta = reader.metadata();
-    let kind = kind_of(path, meta)?;
-    if kind != DetectorKind::VoxelRcnn {
-        return Err(ckpt_err(
-            path,
-            format!("a {kind} checkpoint, not a voxel_rcnn one"),
-        ));
-    }
-    let json = meta
-        .get(CONFIG_KEY)
-        .ok_or_else(|| ckpt_err(path, "no network shape in the metadata"))?;
-    serde_json::from_str(json).map_err(|e| ckpt_err(path, format!("unreadable network shape: {e}")))
+    let json = read_tagged_config(path, DetectorKind::VoxelRcnn)?;
+    serde_json::from_str(&json)
+        .map_err(|e| ckpt_err(path, format!("unreadable network shape: {e}")))
 }
 
 /// Loads a checkpoint whose stored shape must equal `shape`.
@@ -72,19 +51,9 @@ pub fn load_voxel_rcnn(
             ),
         });
     }
-    let mut model =
+    let model =
         VoxelRcnn::new(&shape.network, shape.grid_z, device).map_err(ModelError::InvalidConfig)?;
-    let mut store = BurnpackStore::from_file(path).auto_extension(false);
-    let result = model
-        .load_from(&mut store)
-        .map_err(|e| ckpt_err(path, format!("cannot load the weights: {e}")))?;
-    if !result.unused.is_empty() {
-        return Err(ckpt_err(
-            path,
-            format!("tensors the network does not have: {:?}", result.unused),
-        ));
-    }
-    Ok(model)
+    load_weights(model, path)
 }
 
 #[cfg(test)]
