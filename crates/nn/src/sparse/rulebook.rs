@@ -96,10 +96,13 @@ impl Rulebook {
     /// output reads only active inputs of its neighbourhood, so sparsity does not dilate.
     pub fn submanifold(sites: &Arc<SparseSites>, kernel: [usize; 3], device: &Device) -> Rulebook {
         let geometry = ConvGeometry::same(kernel);
-        let centre = geometry.volume() / 2;
-        let pairs: Vec<(usize, Vec<i64>, Vec<i64>)> = (0..geometry.volume())
+        let volume = geometry.volume();
+        let centre = volume / 2;
+        // Offset k and its mirror `volume − 1 − k` pair the same sites the other way round
+        // (o reads i at +d exactly when i reads o at −d), so only the offsets before the
+        // centre are looked up: half the hash lookups.
+        let half: Vec<(usize, Vec<i64>, Vec<i64>)> = (0..centre)
             .into_par_iter()
-            .filter(|&k| k != centre)
             .map(|k| {
                 let d = geometry.offset(k);
                 let p = geometry.padding.map(|p| p as i32);
@@ -119,6 +122,12 @@ impl Rulebook {
                 (k, input, output)
             })
             .collect();
+        let mut pairs = Vec::with_capacity(volume - 1);
+        for (k, input, output) in &half {
+            pairs.push((volume - 1 - k, output.clone(), input.clone()));
+        }
+        pairs.extend(half);
+        pairs.sort_by_key(|(k, _, _)| *k);
         Rulebook {
             geometry,
             submanifold: true,
