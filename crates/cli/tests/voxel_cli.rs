@@ -1,6 +1,6 @@
 //! The Voxel R-CNN family from the binary: `info` on the published configuration,
-//! `train` → `detect` → `eval` of the tiny configuration on simulated frames, a frame
-//! without points, and checkpoints given to the wrong family's configuration.
+//! `train` → `detect` → `eval` → `viz` and `ablation` of the tiny configuration on simulated
+//! frames, a frame without points, and checkpoints given to the wrong family's configuration.
 
 mod common;
 
@@ -42,6 +42,14 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
         .map(str::to_string)
         .collect();
     std::fs::write(data.join(format!("training/velodyne/{}.bin", val[0])), b"").unwrap();
+    // So is one training frame's: training skips it.
+    let train_ids = std::fs::read_to_string(data.join("ImageSets/train.txt")).unwrap();
+    let first_train = train_ids.lines().next().unwrap();
+    std::fs::write(
+        data.join(format!("training/velodyne/{first_train}.bin")),
+        b"",
+    )
+    .unwrap();
 
     let config = repo_root().join("configs/tiny-voxel-rcnn.toml");
     let run_dir = dir.path().join("run");
@@ -58,7 +66,12 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
     );
     let out = all_output(&o);
     assert!(o.status.success(), "{out}");
-    assert!(out.contains("trained on 3 frames: 4 epoch(s) run"), "{out}");
+    assert!(
+        out.contains(
+            "trained on 2 frames (1 without a LiDAR point in range skipped): 4 epoch(s) run"
+        ),
+        "{out}"
+    );
     assert!(run_dir.join("gt_database/index.json").is_file());
     let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap();
     for term in [
@@ -116,6 +129,46 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
         ],
     );
     assert!(o.status.success(), "{}", all_output(&o));
+
+    // The pictures draw this family's results like any other.
+    let picture = dir.path().join("frame.png");
+    let o = run(
+        "viz",
+        &[
+            "--data-dir",
+            s(&data.join("training")),
+            "--id",
+            &val[1],
+            "--result-dir",
+            s(&results),
+            "--score-threshold",
+            "0",
+            "--out",
+            s(&picture),
+        ],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+    assert!(std::fs::metadata(&picture).unwrap().len() > 10_000);
+
+    // The ablation trains (a child process), detects and tabulates a voxel configuration.
+    let ablation = dir.path().join("ablation");
+    let o = run(
+        "ablation",
+        &[
+            "--configs",
+            s(&config),
+            "--data",
+            s(&data),
+            "--out",
+            s(&ablation),
+            "--epochs",
+            "1",
+        ],
+    );
+    let out = all_output(&o);
+    assert!(o.status.success(), "{out}");
+    let table = std::fs::read_to_string(ablation.join("ablation.md")).unwrap();
+    assert!(table.contains("| tiny-voxel-rcnn |"), "{table}");
 
     // A checkpoint of one family with the other's configuration is refused by name.
     let frustum_model = repo_root().join("models/fconvnet-car.bpk");

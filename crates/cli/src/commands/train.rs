@@ -93,7 +93,16 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     println!(
         "trained on {}: {} epoch(s) run, {} done, final loss {}",
         if summary.sample_noun == "frames" {
-            format!("{} frames", summary.frames)
+            let skipped = summary.frames - summary.samples;
+            format!(
+                "{} frames{}",
+                summary.samples,
+                if skipped > 0 {
+                    format!(" ({skipped} without a LiDAR point in range skipped)")
+                } else {
+                    String::new()
+                }
+            )
         } else {
             format!(
                 "{} {} from {} frames",

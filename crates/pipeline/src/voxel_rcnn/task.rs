@@ -17,6 +17,7 @@ use fusiondet_models::voxel_rcnn::{
     save_voxel_rcnn,
 };
 use fusiondet_voxel::{GtDatabase, GtSampler, RoiTargets, sample_rois};
+use rayon::prelude::*;
 use std::path::Path;
 
 /// Where a run keeps the ground-truth database it built from its training split.
@@ -30,6 +31,9 @@ pub struct VoxelRcnnTask<'a> {
     /// The training device: batches (and their rulebooks) are built on it by the data
     /// thread, ahead of the step.
     device: Device,
+    /// Frames with at least one LiDAR point in range (the others have nothing to learn
+    /// from and would leave a batch without voxels).
+    usable: Vec<usize>,
 }
 
 /// A batch and the stream its RoI sampling draws from.
@@ -98,10 +102,17 @@ impl TrainingTask for VoxelRcnnTask<'_> {
         self.frames.len()
     }
     fn samples(&self) -> usize {
-        self.frames.len()
+        self.usable.len()
     }
     fn sample_noun(&self) -> &'static str {
         "frames"
+    }
+    fn sample_note(&self) -> String {
+        format!(
+            " ({} of {} frames have no LiDAR point in range)",
+            self.frames.len() - self.usable.len(),
+            self.frames.len()
+        )
     }
     fn new_model(&self, device: &Device) -> Result<VoxelRcnn> {
         seeded_network(self.config, &self.shape, device)
@@ -118,7 +129,7 @@ impl TrainingTask for VoxelRcnnTask<'_> {
     ) -> Box<dyn ExactSizeIterator<Item = Result<TrainBatch>> + Send + '_> {
         let cfg = self.config;
         let seed = cfg.train.seed;
-        let mut order: Vec<usize> = (0..self.frames.len()).collect();
+        let mut order: Vec<usize> = self.usable.clone();
         Sampler::from_path(seed, &[0x5A11, epoch as u64]).shuffle(&mut order);
         let batches: Vec<Vec<usize>> = order
             .chunks(cfg.train.batch_size)
@@ -225,12 +236,24 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
                 .map_err(|e| PipelineError::Invalid(e.to_string()))?,
         )
     };
+    let data = VoxelData::new(&section, sampler)?;
+    let usable = (0..frames.len())
+        .into_par_iter()
+        .map(|i| {
+            let frame = frames.frame(i)?;
+            Ok((i, !data.sample(&frame, None)?.voxels.is_empty()))
+        })
+        .collect::<Result<Vec<(usize, bool)>>>()?
+        .into_iter()
+        .filter_map(|(i, has_points)| has_points.then_some(i))
+        .collect();
     let task = VoxelRcnnTask {
         config: cfg,
-        data: VoxelData::new(&section, sampler)?,
+        data,
         shape: section.shape(),
         frames,
         device: options.device.device().autodiff(),
+        usable,
     };
     run_training(&task, options, opened)
 }
