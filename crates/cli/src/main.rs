@@ -20,7 +20,7 @@ struct Cli {
 enum Command {
     /// Run the whole pipeline on the bundled data: simulate, train, detect, evaluate, draw.
     Demo(commands::demo::DemoArgs),
-    /// Train a frustum detector (F-ConvNet) from a TOML experiment configuration.
+    /// Train a detector (the frustum family or Voxel R-CNN) from a TOML experiment configuration.
     Train(commands::train::TrainArgs),
     /// Detect 3D boxes with a trained checkpoint and write KITTI result files.
     Detect(commands::detect::DetectArgs),
@@ -38,6 +38,8 @@ enum Command {
     OmegaStudy(commands::omega_study::OmegaStudyArgs),
     /// Detection speed of a trained model: frames/s and time per stage (medians).
     Bench(commands::bench::BenchArgs),
+    /// Build the ground-truth database (objects and their points) Voxel R-CNN's augmentation pastes from.
+    GtDatabase(commands::gt_database::GtDatabaseArgs),
     /// Dense depth from sparse depth (IP-Basic), or from each frame's projected LiDAR scan.
     DepthComplete(commands::depth_complete::DepthCompleteArgs),
     /// Coloured pseudo point clouds from completed depth (DASANet's second input).
@@ -57,6 +59,7 @@ fn main() -> ExitCode {
         Command::Ablation(args) => commands::ablation::run(args),
         Command::OmegaStudy(args) => commands::omega_study::run(args),
         Command::Bench(args) => commands::bench::run(args),
+        Command::GtDatabase(args) => commands::gt_database::run(args),
         Command::DepthComplete(args) => commands::depth_complete::run(args),
         Command::PseudoPoints(args) => commands::pseudo_points::run(args),
     };

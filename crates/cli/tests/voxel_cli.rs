@@ -51,6 +51,17 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
     )
     .unwrap();
 
+    // The ground-truth database, built once beside the data; never silently rebuilt.
+    let o = run("gt-database", &["--data", s(&data)]);
+    let out = all_output(&o);
+    assert!(o.status.success(), "{out}");
+    assert!(
+        out.contains("frames of `train`") && out.contains("Car "),
+        "{out}"
+    );
+    assert!(data.join("gt_database/train/index.json").is_file());
+    assert_fails_with("gt-database", &["--data", s(&data)], "pass --force");
+
     let config = repo_root().join("configs/tiny-voxel-rcnn.toml");
     let run_dir = dir.path().join("run");
     let o = run(
@@ -72,7 +83,8 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
         ),
         "{out}"
     );
-    assert!(run_dir.join("gt_database/index.json").is_file());
+    // Training pastes from the data set's database instead of building its own.
+    assert!(!run_dir.join("gt_database").exists());
     let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap();
     for term in [
         "loss_cls",

@@ -6,6 +6,7 @@ pub mod demo;
 pub mod depth_complete;
 pub mod detect;
 pub mod eval;
+pub mod gt_database;
 pub mod info;
 pub mod omega_study;
 pub mod pseudo_points;

@@ -14,4 +14,7 @@ pub use detector::{
     STAGE_BACKBONE, STAGE_BEV, STAGE_HEAD, STAGE_NMS, STAGE_PROPOSALS, STAGE_ROI_POOL,
     STAGE_VOXELIZE, VoxelRcnnDetector,
 };
-pub use task::{GT_DATABASE_DIR, VoxelRcnnTask, seeded_network, train, trained_parameters};
+pub use task::{
+    GT_DATABASE_DIR, VoxelRcnnTask, build_gt_database, data_gt_database_dir, seeded_network, train,
+    trained_parameters,
+};

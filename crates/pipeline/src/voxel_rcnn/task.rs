@@ -199,17 +199,45 @@ impl TrainingTask for VoxelRcnnTask<'_> {
     }
 }
 
-/// The run's ground-truth database: read back on resume, else built from the training
-/// frames and written into the run directory.
-fn gt_database(run_root: &Path, frames: &InMemoryFrames<SensorFrame>) -> Result<GtDatabase> {
+/// Where `fusiondet gt-database` keeps a data set's database of `split`: beside the data,
+/// as OpenPCDet keeps its `kitti_dbinfos_<split>.pkl`.
+pub fn data_gt_database_dir(data_dir: &Path, split: &str) -> std::path::PathBuf {
+    data_dir.join("gt_database").join(split)
+}
+
+/// The labelled objects of `frames` with their points, built in parallel (in frame order).
+pub fn build_gt_database(frames: &InMemoryFrames<SensorFrame>) -> Result<GtDatabase> {
+    let parts = (0..frames.len())
+        .into_par_iter()
+        .map(|i| Ok(GtDatabase::of_frame(frames.frame(i)?.as_ref())))
+        .collect::<Result<Vec<GtDatabase>>>()?;
+    let mut db = GtDatabase::new();
+    for part in parts {
+        db.extend(part);
+    }
+    Ok(db)
+}
+
+/// The training database: the data set's own (`fusiondet gt-database`) when it has one for
+/// the split, else the run's, read back on resume or built from the training frames and
+/// written into the run directory.
+fn gt_database(
+    data_dir: &Path,
+    split: &str,
+    run_root: &Path,
+    frames: &InMemoryFrames<SensorFrame>,
+) -> Result<GtDatabase> {
+    let load =
+        |dir: &Path| GtDatabase::load(dir).map_err(|e| PipelineError::Invalid(e.to_string()));
+    let prepared = data_gt_database_dir(data_dir, split);
+    if prepared.join("index.json").is_file() {
+        return load(&prepared);
+    }
     let dir = run_root.join(GT_DATABASE_DIR);
     if dir.join("index.json").is_file() {
-        return GtDatabase::load(&dir).map_err(|e| PipelineError::Invalid(e.to_string()));
+        return load(&dir);
     }
-    let all: Vec<std::sync::Arc<SensorFrame>> = (0..frames.len())
-        .map(|i| frames.frame(i))
-        .collect::<std::result::Result<_, _>>()?;
-    let db = GtDatabase::from_frames(all.iter().map(|f| f.as_ref()));
+    let db = build_gt_database(frames)?;
     db.save(&dir)
         .map_err(|e| PipelineError::Invalid(e.to_string()))?;
     Ok(db)
@@ -230,7 +258,12 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     let sampler = if section.augment.sample_groups.is_empty() {
         None
     } else {
-        let db = gt_database(&opened.run.root, &frames)?;
+        let db = gt_database(
+            &options.data_dir,
+            &cfg.train.split,
+            &opened.run.root,
+            &frames,
+        )?;
         Some(
             GtSampler::new(db, &section.augment)
                 .map_err(|e| PipelineError::Invalid(e.to_string()))?,

@@ -1,0 +1,51 @@
+//! `fusiondet gt-database`: the ground-truth database Voxel R-CNN's augmentation pastes
+//! objects from, built once from a split's labelled frames and kept beside the data.
+
+use fusiondet_pipeline::voxel_rcnn::{build_gt_database, data_gt_database_dir};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct GtDatabaseArgs {
+    /// Dataset root with training/ and ImageSets/.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The split whose labelled objects go in (training uses the database of its own split).
+    #[arg(long, default_value = "train")]
+    pub split: String,
+    /// Replace an existing database of the split.
+    #[arg(long)]
+    pub force: bool,
+}
+
+pub fn run(args: GtDatabaseArgs) -> anyhow::Result<()> {
+    let out = data_gt_database_dir(&args.data, &args.split);
+    if out.join("index.json").exists() && !args.force {
+        anyhow::bail!(
+            "{} already holds a ground-truth database; pass --force to rebuild it",
+            out.display()
+        );
+    }
+    let frames = fusiondet_dataset::load_split(&args.data, &args.split, 0, true)?;
+    let db = build_gt_database(&frames)?;
+    db.save(&out)?;
+    let mut per_class: BTreeMap<String, (usize, usize)> = BTreeMap::new();
+    for o in db.objects() {
+        let e = per_class.entry(o.class.to_string()).or_default();
+        e.0 += 1;
+        e.1 += o.num_points;
+    }
+    let classes: Vec<String> = per_class
+        .iter()
+        .map(|(c, (n, p))| format!("{c} {n} ({p} points)"))
+        .collect();
+    println!(
+        "{} objects from {} frames of `{}` -> {}: {}",
+        db.objects().len(),
+        fusiondet_dataset::FrameSource::len(&frames),
+        args.split,
+        out.display(),
+        classes.join(", ")
+    );
+    Ok(())
+}
