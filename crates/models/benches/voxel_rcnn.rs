@@ -1,6 +1,7 @@
 //! Voxel R-CNN stage one on the flex CPU backend over a KITTI-like synthetic sweep
 //! (`voxel_rcnn::synthetic`, about 20,000–30,000 voxels): the rulebooks, the sparse 3D
-//! backbone, the BEV backbone + anchor head, for the published network.
+//! backbone, the BEV backbone + anchor head, for the published network; and one submanifold
+//! layer against burn's dense `conv3d` on a window of the sweep.
 //!
 //! `cargo bench -p fusiondet-models --bench voxel_rcnn`
 
@@ -80,5 +81,72 @@ fn stage_one(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, stage_one);
+/// One submanifold 16 → 16 layer, sparse against burn's dense `conv3d`, on the sweep's
+/// voxels in a 16 × 16 m window ahead of the car ([41, 320, 320] cells of the published
+/// grid: the sparsity of a KITTI scan near the sensor).
+fn sparse_vs_dense(c: &mut Criterion) {
+    use burn::tensor::module::conv3d;
+    use burn::tensor::ops::ConvOptions;
+    use fusiondet_nn::sparse::{Rulebook, SparseConv3d, SparseSites};
+    let device = Device::flex();
+    let sweep = synthetic_sweep(1, PUBLISHED_RANGE, PUBLISHED_VOXEL);
+    let window = [41usize, 320, 320];
+    let (y0, x0) = (640i32, 0i32);
+    let coords: Vec<[i32; 4]> = sweep
+        .sites
+        .coords()
+        .iter()
+        .filter(|c| (y0..y0 + 320).contains(&c[2]) && (x0..x0 + 320).contains(&c[3]))
+        .map(|c| [0, c[1], c[2] - y0, c[3] - x0])
+        .collect();
+    let n = coords.len();
+    let cells: usize = window.iter().product();
+    eprintln!(
+        "window {window:?}: {n} active sites of {cells} cells ({:.3}%)",
+        100.0 * n as f64 / cells as f64
+    );
+    let sites = Arc::new(SparseSites::new(coords, window, 1).unwrap());
+    let conv = SparseConv3d::submanifold([16, 16], [3; 3], &device);
+    let x = Tensor::<2>::random([n, 16], burn::tensor::Distribution::Default, &device);
+    let book = Rulebook::submanifold(&sites, [3; 3], &device);
+    eprintln!(
+        "{} pairs: {:.1} neighbours per site",
+        book.total_pairs(),
+        book.total_pairs() as f64 / n as f64
+    );
+    let dense_x = Tensor::<5>::random(
+        [1, 16, window[0], window[1], window[2]],
+        burn::tensor::Distribution::Default,
+        &device,
+    );
+    let weight = conv
+        .weight
+        .val()
+        .permute([2, 1, 0])
+        .reshape([16, 16, 3, 3, 3]);
+    let mut g = c.benchmark_group("subm_16_16_window");
+    g.sample_size(10).measurement_time(Duration::from_secs(8));
+    g.bench_function("sparse (rulebook + conv)", |b| {
+        b.iter(|| {
+            let book = Rulebook::submanifold(&sites, [3; 3], &device);
+            sync(&conv.forward(x.clone(), &book))
+        })
+    });
+    g.bench_function("sparse (conv, rulebook given)", |b| {
+        b.iter(|| sync(&conv.forward(x.clone(), &book)))
+    });
+    g.bench_function("dense conv3d", |b| {
+        b.iter(|| {
+            sync(&conv3d(
+                dense_x.clone(),
+                weight.clone(),
+                None,
+                ConvOptions::new([1; 3], [1; 3], [1; 3], 1),
+            ))
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, stage_one, sparse_vs_dense);
 criterion_main!(benches);
