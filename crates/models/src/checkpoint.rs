@@ -15,8 +15,8 @@ use burn::store::{BurnpackStore, ModuleSnapshot};
 use std::path::Path;
 
 /// Metadata key of the checkpoint's family ([`DetectorKind::checkpoint_tag`]).
-pub(crate) const KIND_KEY: &str = "fusiondet.model";
-pub(crate) const CONFIG_KEY: &str = "fusiondet.model_config";
+const KIND_KEY: &str = "fusiondet.model";
+const CONFIG_KEY: &str = "fusiondet.model_config";
 
 pub(crate) fn ckpt_err(path: &Path, message: impl Into<String>) -> ModelError {
     ModelError::Checkpoint {
@@ -92,7 +92,7 @@ pub fn read_checkpoint_kind(path: &Path) -> Result<DetectorKind, ModelError> {
     kind_of(path, reader.metadata())
 }
 
-pub(crate) fn kind_of(
+fn kind_of(
     path: &Path,
     meta: &std::collections::BTreeMap<String, String>,
 ) -> Result<DetectorKind, ModelError> {

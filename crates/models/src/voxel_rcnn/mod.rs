@@ -44,6 +44,17 @@ pub fn bev_heights(grid_z: usize) -> usize {
     conv(z, backbone3d::output_geometry())
 }
 
+/// The backbone maps the RoI grid pools from, one per pooling level.
+pub fn pooled_maps<'a>(
+    backbone: &'a BackboneOutput,
+    levels: &[PoolLevelConfig],
+) -> Vec<&'a SparseMap> {
+    levels
+        .iter()
+        .map(|l| &backbone.stages[l.stage - 1])
+        .collect()
+}
+
 #[derive(Module, Debug)]
 pub struct VoxelRcnn {
     pub backbone: VoxelBackbone,
@@ -106,20 +117,6 @@ impl VoxelRcnn {
             anchors: self.anchor_head.forward(bev),
             backbone,
         }
-    }
-
-    /// RoI refinement over the pooled grid features of `index`.
-    pub fn stage_two(
-        &self,
-        backbone: &BackboneOutput,
-        index: &RoiGridIndex,
-        levels: &[PoolLevelConfig],
-    ) -> RoiPredictions {
-        let maps: Vec<&SparseMap> = levels
-            .iter()
-            .map(|l| &backbone.stages[l.stage - 1])
-            .collect();
-        self.roi_head.forward(self.roi_pool.forward(&maps, index))
     }
 
     /// Trainable parameters per module, in data-flow order.

@@ -337,16 +337,9 @@ impl RoiGridPool {
 
 #[cfg(test)]
 mod tests {
+    use super::super::synthetic::unit;
     use super::*;
     use std::sync::Arc;
-
-    fn splitmix(state: &mut u64) -> f64 {
-        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = *state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
 
     fn matrix(t: Tensor<2>) -> Vec<Vec<f32>> {
         let [_, c] = t.dims();
@@ -395,10 +388,10 @@ mod tests {
         let mut coords = Vec::new();
         while coords.len() < 500 {
             let c = [
-                (splitmix(&mut state) * 2.0) as i32,
-                (splitmix(&mut state) * 6.0) as i32,
-                (splitmix(&mut state) * 20.0) as i32,
-                (splitmix(&mut state) * 20.0) as i32,
+                (unit(&mut state) * 2.0) as i32,
+                (unit(&mut state) * 6.0) as i32,
+                (unit(&mut state) * 20.0) as i32,
+                (unit(&mut state) * 20.0) as i32,
             ];
             if !coords.contains(&c) {
                 coords.push(c);
@@ -407,7 +400,7 @@ mod tests {
         let sites = Arc::new(SparseSites::new(coords, shape, 2).unwrap());
         let channels = 6;
         let feats: Vec<f32> = (0..sites.len() * channels)
-            .map(|_| splitmix(&mut state) as f32 - 0.5)
+            .map(|_| unit(&mut state) as f32 - 0.5)
             .collect();
         let map = SparseMap {
             features: Tensor::from_data(

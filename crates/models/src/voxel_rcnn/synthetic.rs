@@ -16,7 +16,8 @@ pub struct SyntheticSweep {
 pub const PUBLISHED_RANGE: [f64; 6] = [0.0, -40.0, -3.0, 70.4, 40.0, 1.0];
 pub const PUBLISHED_VOXEL: [f64; 3] = [0.05, 0.05, 0.1];
 
-fn unit(state: &mut u64) -> f64 {
+/// splitmix64 as a uniform draw in [0, 1): the sweep's generator, and the tests'.
+pub(crate) fn unit(state: &mut u64) -> f64 {
     *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
     let mut z = *state;
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);

@@ -56,28 +56,19 @@ impl VoxelData {
         augment_with: Option<&mut Sampler>,
     ) -> Result<VoxelSample> {
         let mut scene = Scene::from_frame(frame, self.section.voxels.fov_only);
-        let voxels = match augment_with {
-            Some(rng) => {
-                augment(
-                    &mut scene,
-                    &self.section.augment,
-                    self.gt_sampler.as_ref(),
-                    rng,
-                )
-                .map_err(voxel_err)?;
-                scene.keep_targets(&self.classes, &self.section.voxels);
-                self.voxelizer.voxelize(
-                    &scene.points,
-                    self.section.voxels.max_voxels(true),
-                    Some(rng),
-                )
-            }
-            None => {
-                scene.keep_targets(&self.classes, &self.section.voxels);
-                self.voxelizer
-                    .voxelize(&scene.points, self.section.voxels.max_voxels(false), None)
-            }
-        };
+        let mut rng = augment_with;
+        if let Some(rng) = rng.as_deref_mut() {
+            augment(
+                &mut scene,
+                &self.section.augment,
+                self.gt_sampler.as_ref(),
+                rng,
+            )
+            .map_err(voxel_err)?;
+        }
+        scene.keep_targets(&self.classes, &self.section.voxels);
+        let max_voxels = self.section.voxels.max_voxels(rng.is_some());
+        let voxels = self.voxelizer.voxelize(&scene.points, max_voxels, rng);
         Ok(VoxelSample {
             id: frame.id.clone(),
             voxels,

@@ -13,7 +13,8 @@ use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
 use fusiondet_geometry::{alpha_from_ry, normalize_angle, project_to_image};
 use fusiondet_kitti::Object;
 use fusiondet_models::voxel_rcnn::{
-    BackboneOutput, RoiBox, RoiGridIndex, RoiPredictions, VoxelGeometry, VoxelRcnn, load_voxel_rcnn,
+    BackboneOutput, RoiBox, RoiGridIndex, RoiPredictions, VoxelGeometry, VoxelRcnn,
+    load_voxel_rcnn, pooled_maps,
 };
 use fusiondet_voxel::{LidarBox, Proposal, decode_roi};
 use std::path::Path;
@@ -38,11 +39,7 @@ pub fn voxel_geometry(section: &VoxelRcnnSection) -> VoxelGeometry {
 
 /// A tensor's values (inference copy).
 pub fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
-    t.clone()
-        .into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .expect("f32 tensor data")
+    t.try_to_vec_as::<f32>().expect("f32 tensor data")
 }
 
 /// Stage one's proposals of every frame of a batch.
@@ -84,10 +81,9 @@ pub fn refine(
 ) -> RoiPredictions {
     let t = Instant::now();
     let levels = &section.network.roi.levels;
-    let sites: Vec<&fusiondet_nn::sparse::SparseSites> = levels
-        .iter()
-        .map(|l| backbone.stages[l.stage - 1].sites.as_ref())
-        .collect();
+    let maps = pooled_maps(backbone, levels);
+    let sites: Vec<&fusiondet_nn::sparse::SparseSites> =
+        maps.iter().map(|m| m.sites.as_ref()).collect();
     let index = RoiGridIndex::new(
         rois,
         &sites,
@@ -95,10 +91,6 @@ pub fn refine(
         section.network.roi.grid_size,
         &voxel_geometry(section),
     );
-    let maps: Vec<&fusiondet_models::voxel_rcnn::SparseMap> = levels
-        .iter()
-        .map(|l| &backbone.stages[l.stage - 1])
-        .collect();
     let pooled = model.roi_pool.forward(&maps, &index);
     let pooled_at = Instant::now();
     let out = model.roi_head.forward(pooled);

@@ -25,13 +25,11 @@ pub fn stage_costs(section: &VoxelRcnnSection, model: &VoxelRcnn) -> StageCosts 
     let range = v.point_range;
     let sweep = synthetic_sweep(1, range, v.voxel_size);
     let device = Device::flex();
-    // The sweep's sites on this grid (its own z extent), as the backbone gets them.
-    let shape = v.sparse_shape();
-    let coords: Vec<[i32; 4]> = sweep.sites.coords().to_vec();
-    let sites = fusiondet_nn::sparse::SparseSites::new(coords, shape, 1)
-        .expect("the sweep lies in the grid");
-    let voxels = sites.len();
-    let plan = BackbonePlan::new(Arc::new(sites), &device);
+    // The sweep comes voxelized on this grid, with the backbone's extra height.
+    let shape = sweep.sites.spatial_shape();
+    debug_assert_eq!(shape, v.sparse_shape());
+    let voxels = sweep.sites.len();
+    let plan = BackbonePlan::new(Arc::new(sweep.sites), &device);
     let net = &section.network;
     let [nx, ny, _] = v.grid_size();
     let bev_in = net.bev_input_channels(bev_heights(shape[0]));
