@@ -24,6 +24,7 @@ pub mod attention;
 pub mod boxes;
 pub mod checkpoint;
 pub mod config;
+pub mod dasanet;
 pub mod decode;
 pub mod error;
 pub mod family;

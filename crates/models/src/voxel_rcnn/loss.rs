@@ -182,30 +182,10 @@ pub fn box_corners(centres: Tensor<2>, sizes: Tensor<2>, headings: Tensor<2>) ->
     Tensor::cat(vec![x, y, lz], 2) + centres.reshape([n, 1, 3])
 }
 
-/// Stage two's three terms, weighted: (cls, reg, corner).
-pub fn roi_loss(
-    pred: &RoiPredictions,
-    targets: &RoiLossTargets,
-    config: &VoxelRcnnLossConfig,
-) -> [Tensor<1>; 3] {
-    let x = pred.cls.clone();
-    let t = targets.cls.clone();
-    let bce = relu(x.clone()) - x.clone() * t + x.abs().neg().exp().log1p();
-    let cls = bce.mean().mul_scalar(config.rcnn_cls_weight);
-    let device = pred.cls.device();
-    let Some(rows) = &targets.fg_rows else {
-        let zero = || Tensor::<1>::zeros([1], &device);
-        return [cls, zero(), zero()];
-    };
-    let [f] = rows.dims();
-    let code = pred.boxes.clone().select(0, rows.clone()); // [F, 7]
-    let reg = smooth_l1(code.clone() - targets.reg.clone(), 1.0 / 9.0)
-        .sum()
-        .div_scalar(f as f64)
-        .mul_scalar(config.rcnn_reg_weight);
-
-    // Decode in the RoI's frame: the reference box is the RoI's size at the origin.
-    let sizes = targets.roi_sizes.clone();
+/// Corners [F, 8, 3] of refined boxes decoded in their RoIs' frames: residual codes
+/// [F, 7] against reference boxes of the RoIs' sizes [F, 3] at the origin.
+pub fn canonical_corners(code: Tensor<2>, roi_sizes: Tensor<2>) -> Tensor<3> {
+    let sizes = roi_sizes;
     let diagonal = (sizes.clone().slice_dim(1, 0..1).powi_scalar(2)
         + sizes.clone().slice_dim(1, 1..2).powi_scalar(2))
     .sqrt();
@@ -218,7 +198,45 @@ pub fn roi_loss(
         1,
     );
     let box_sizes = code.clone().slice_dim(1, 3..6).exp() * sizes;
-    let corners = box_corners(centres, box_sizes, code.slice_dim(1, 6..7));
+    box_corners(centres, box_sizes, code.slice_dim(1, 6..7))
+}
+
+/// Binary cross-entropy of the IoU-guided confidence targets, mean over RoIs (unweighted).
+pub fn roi_confidence_loss(pred: &RoiPredictions, targets: &RoiLossTargets) -> Tensor<1> {
+    let x = pred.cls.clone();
+    let t = targets.cls.clone();
+    (relu(x.clone()) - x.clone() * t + x.abs().neg().exp().log1p()).mean()
+}
+
+/// Smooth-L1 (β 1/9) of the foreground RoIs' residuals, summed over the code and divided
+/// by the foreground count (unweighted), with those rows' predicted codes [F, 7]; `None`
+/// without foreground.
+pub fn roi_residual_loss(
+    pred: &RoiPredictions,
+    targets: &RoiLossTargets,
+) -> Option<(Tensor<1>, Tensor<2>)> {
+    let rows = targets.fg_rows.as_ref()?;
+    let [f] = rows.dims();
+    let code = pred.boxes.clone().select(0, rows.clone()); // [F, 7]
+    let reg = smooth_l1(code.clone() - targets.reg.clone(), 1.0 / 9.0)
+        .sum()
+        .div_scalar(f as f64);
+    Some((reg, code))
+}
+
+/// Stage two's three terms, weighted: (cls, reg, corner).
+pub fn roi_loss(
+    pred: &RoiPredictions,
+    targets: &RoiLossTargets,
+    config: &VoxelRcnnLossConfig,
+) -> [Tensor<1>; 3] {
+    let cls = roi_confidence_loss(pred, targets).mul_scalar(config.rcnn_cls_weight);
+    let Some((reg, code)) = roi_residual_loss(pred, targets) else {
+        let zero = Tensor::<1>::zeros([1], &pred.cls.device());
+        return [cls, zero.clone(), zero];
+    };
+    let reg = reg.mul_scalar(config.rcnn_reg_weight);
+    let corners = canonical_corners(code, targets.roi_sizes.clone());
     let distance = |gt: &Tensor<3>| {
         (corners.clone() - gt.clone())
             .powi_scalar(2)

@@ -1,0 +1,181 @@
+//! DASANet's shape: Voxel R-CNN's (for the LiDAR branch, the BEV network, the anchor
+//! head and the heads' widths), the pseudo branch's input, which of the two modules are
+//! on — the four rows of the paper's Table 4 — and the sizes the paper leaves open.
+//!
+//! The open sizes of the published configuration are chosen so that the parameter
+//! counts land within 10% of Table 5 (see `Dasanet::param_rows` and the README): RoI
+//! features from C3 and C4 (and P3, P4) at 88 channels each (C = 176, N = 216), and
+//! STCA's encoder 6 → 32 → 64 point MLP, 64-channel submanifold convolutions and a
+//! 240-channel strided one over a 12³ RoI grid (F^A: 6³ × 480).
+//!
+//! Table 5's counts are nearly additive (26.2 + 30.8 − 55.2 = 1.8 M shared, about one
+//! stage one), which fits a +STCA row whose head reads F^A alone, with no RoI grid
+//! pooling; that is how the rows are built here: the head reads F^T with TDIS, F^A with
+//! STCA, both concatenated with both.
+
+use super::stca::StcaConfig;
+use crate::voxel_rcnn::config::{PoolLevelConfig, VoxelRcnnNetConfig};
+use serde::{Deserialize, Serialize};
+
+/// Features of a pseudo voxel: the mean x, y, z and r, g, b (0–1) of its points.
+pub const PSEUDO_VOXEL_FEATURES: usize = 6;
+
+/// The four rows of the paper's ablation (Table 4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AblationRow {
+    /// Voxel R-CNN, LiDAR only.
+    Baseline,
+    Tdis,
+    Stca,
+    /// Both modules: DASANet.
+    Dasanet,
+}
+
+impl AblationRow {
+    pub const ALL: [AblationRow; 4] = [
+        AblationRow::Baseline,
+        AblationRow::Tdis,
+        AblationRow::Stca,
+        AblationRow::Dasanet,
+    ];
+
+    /// The paper's name of the row.
+    pub fn label(self) -> &'static str {
+        match self {
+            AblationRow::Baseline => "baseline",
+            AblationRow::Tdis => "+TDIS",
+            AblationRow::Stca => "+STCA",
+            AblationRow::Dasanet => "+TDIS +STCA",
+        }
+    }
+
+    /// (TDIS, STCA) on.
+    pub fn modules(self) -> (bool, bool) {
+        match self {
+            AblationRow::Baseline => (false, false),
+            AblationRow::Tdis => (true, false),
+            AblationRow::Stca => (false, true),
+            AblationRow::Dasanet => (true, true),
+        }
+    }
+
+    /// Table 5: parameters (millions), GFLOPs and frames/s on an RTX 3090.
+    pub fn published_cost(self) -> (f64, f64, f64) {
+        match self {
+            AblationRow::Baseline => (6.9, 22.7, 25.2),
+            AblationRow::Tdis => (26.2, 28.0, 14.5),
+            AblationRow::Stca => (30.8, 27.9, 12.7),
+            AblationRow::Dasanet => (55.2, 30.9, 10.5),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DasanetNetConfig {
+    /// LiDAR branch, BEV network, anchor head, head widths. Its `roi.levels` are the
+    /// levels F^S (and F^P) pool from.
+    pub voxel_rcnn: VoxelRcnnNetConfig,
+    pub tdis: bool,
+    pub stca: bool,
+    pub stca_shape: StcaConfig,
+    /// λ1, λ2 of Eq. 16: the auxiliary heads on F^T and on F^A (present only when both
+    /// modules are, whose optimisation they balance).
+    pub aux_weights: [f64; 2],
+}
+
+impl Default for DasanetNetConfig {
+    fn default() -> Self {
+        Self::published(AblationRow::Dasanet)
+    }
+}
+
+impl DasanetNetConfig {
+    /// The published-size network of a row with at least one module (the baseline row is
+    /// Voxel R-CNN itself, the `voxel_rcnn` family).
+    pub fn published(row: AblationRow) -> Self {
+        let mut voxel_rcnn = VoxelRcnnNetConfig::default();
+        let level = |stage, radius| PoolLevelConfig {
+            stage,
+            mid_channels: 88,
+            out_channels: 88,
+            query_range: [4, 4, 4],
+            radius,
+            samples: 16,
+        };
+        voxel_rcnn.roi.levels = vec![level(3, 0.8), level(4, 1.6)];
+        let (tdis, stca) = row.modules();
+        Self {
+            voxel_rcnn,
+            tdis,
+            stca,
+            stca_shape: StcaConfig::default(),
+            aux_weights: [1.0, 1.0],
+        }
+    }
+
+    /// Which ablation row this shape is.
+    pub fn row(&self) -> AblationRow {
+        match (self.tdis, self.stca) {
+            (false, false) => AblationRow::Baseline,
+            (true, false) => AblationRow::Tdis,
+            (false, true) => AblationRow::Stca,
+            (true, true) => AblationRow::Dasanet,
+        }
+    }
+
+    /// Whether the auxiliary heads exist (both modules on).
+    pub fn has_aux_heads(&self) -> bool {
+        self.tdis && self.stca
+    }
+
+    /// RoI grid locations N.
+    pub fn grid_locations(&self) -> usize {
+        self.voxel_rcnn.roi.grid_size.pow(3)
+    }
+
+    /// RoI feature channels C (the pooling levels' outputs together).
+    pub fn roi_channels(&self) -> usize {
+        self.voxel_rcnn
+            .roi
+            .levels
+            .iter()
+            .map(|l| l.out_channels)
+            .sum()
+    }
+
+    /// Width of the flattened F^T.
+    pub fn grid_width(&self) -> usize {
+        self.roi_channels() * self.grid_locations()
+    }
+
+    /// Width of the detection head's input: F^T with TDIS, F^A with STCA.
+    pub fn head_input(&self) -> usize {
+        let on = |b: bool, w: usize| if b { w } else { 0 };
+        on(self.tdis, self.grid_width()) + on(self.stca, self.stca_shape.flattened_width())
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.tdis || self.stca) {
+            return Err(
+                "[dasanet.network]: neither tdis nor stca is on; the baseline row is Voxel R-CNN \
+                 (kind = \"voxel_rcnn\")"
+                    .into(),
+            );
+        }
+        self.voxel_rcnn.validate()?;
+        self.stca_shape.validate()?;
+        if self
+            .aux_weights
+            .iter()
+            .any(|w| !(w.is_finite() && *w >= 0.0))
+        {
+            return Err(format!(
+                "[dasanet.network] aux_weights {:?} must be finite and ≥ 0",
+                self.aux_weights
+            ));
+        }
+        Ok(())
+    }
+}
