@@ -8,6 +8,7 @@
 //! the definitions matters more here than speed, and the tests check each on small
 //! hand-made arrays.
 
+use crate::scratch;
 use fusiondet_kitti::DepthMap;
 
 /// A structuring element: the offsets (dx, dy) it covers.
@@ -68,29 +69,174 @@ impl Kernel {
     }
 }
 
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug)]
 enum Extremum {
     Max,
     Min,
 }
 
 impl Extremum {
-    fn pick(self, a: f32, b: f32) -> f32 {
-        match self {
-            Extremum::Max => a.max(b),
-            Extremum::Min => a.min(b),
-        }
-    }
     fn identity(self) -> f32 {
         match self {
             Extremum::Max => f32::NEG_INFINITY,
             Extremum::Min => f32::INFINITY,
         }
     }
+    /// `dst[i] = pick(dst[i], src[i])` over two slices (to the shorter's length).
+    fn fold_into(self, dst: &mut [f32], src: &[f32]) {
+        let n = dst.len().min(src.len());
+        let mut dst = dst[..n].chunks_exact_mut(8);
+        let mut src = src[..n].chunks_exact(8);
+        for (d, s) in (&mut dst).zip(&mut src) {
+            let (a, b): ([f32; 8], [f32; 8]) = ((*d).try_into().unwrap(), s.try_into().unwrap());
+            d.copy_from_slice(&std::array::from_fn::<f32, 8, _>(|k| self.pick(a[k], b[k])));
+        }
+        for (d, s) in dst.into_remainder().iter_mut().zip(src.remainder()) {
+            *d = self.pick(*d, *s);
+        }
+    }
+
+    /// The larger (smaller) of two depths, written as a comparison so LLVM emits the
+    /// vector max (min) instruction: equal to `f32::max` (`min`) on NaN-free depths.
+    #[inline(always)]
+    fn pick(self, a: f32, b: f32) -> f32 {
+        match self {
+            Extremum::Max => {
+                if a > b {
+                    a
+                } else {
+                    b
+                }
+            }
+            Extremum::Min => {
+                if a < b {
+                    a
+                } else {
+                    b
+                }
+            }
+        }
+    }
+
+    /// `seq[i] = pick(seq[i], seq[i + offset])` for `i < count`, in place: each step of
+    /// 8 reads its inputs before writing, and writes only below what later steps read.
+    /// (Blocks of whole arrays: written as in-place selects, LLVM turns them into stores
+    /// of only the changed elements, one at a time, and nothing is vectorized.)
+    fn fold_ahead(self, seq: &mut [f32], offset: usize, count: usize) {
+        match self {
+            Extremum::Max => fold_ahead_with(seq, offset, count, |a, b| if a > b { a } else { b }),
+            Extremum::Min => fold_ahead_with(seq, offset, count, |a, b| if a < b { a } else { b }),
+        }
+    }
 }
 
-/// Max (or min) over a 1-D window of radius `r` along rows or columns.
-fn line_extremum(map: &DepthMap, r: usize, along_rows: bool, op: Extremum) -> DepthMap {
+#[inline(always)]
+fn fold_ahead_with(seq: &mut [f32], offset: usize, count: usize, pick: impl Fn(f32, f32) -> f32) {
+    const STEP: usize = 8;
+    let whole = count / STEP * STEP;
+    for i in (0..whole).step_by(STEP) {
+        let a: [f32; STEP] = seq[i..i + STEP].try_into().expect("a step");
+        let b: [f32; STEP] = seq[i + offset..i + offset + STEP]
+            .try_into()
+            .expect("a step");
+        seq[i..i + STEP]
+            .copy_from_slice(&std::array::from_fn::<f32, STEP, _>(|k| pick(a[k], b[k])));
+    }
+    for i in whole..count {
+        seq[i] = pick(seq[i], seq[i + offset]);
+    }
+}
+
+/// Reduces `seq` in place so that `seq[i]` becomes the extremum of the window
+/// `seq[i..i + len]` (for `i + len <= seq.len()`), by doubling: windows of 2, 4, 8, …
+/// (each the extremum of two overlapping halves, exact because max and min are
+/// idempotent), then two overlapping windows of the largest power of two ≤ `len`.
+/// O(log len) passes of whole slices, so the 31×31 costs 5 passes per axis instead of 31.
+/// `unit` is the length of one element (1 along a row, the width along columns).
+fn window_extremum(seq: &mut [f32], unit: usize, len: usize, op: Extremum) {
+    let n = seq.len() / unit;
+    let mut span = 1;
+    while span * 2 <= len && span < n {
+        // seq[i] = pick(seq[i], seq[i + span]): reading ahead of the write, so in place.
+        op.fold_ahead(seq, span * unit, (n - span) * unit);
+        span *= 2;
+    }
+    let rest = len - span;
+    if rest > 0 && rest < n {
+        op.fold_ahead(seq, rest * unit, (n - rest) * unit);
+    }
+}
+
+/// Max (or min) over a 1-D window of radius `r` along rows, into `out` (the outside of
+/// the image is the operation's identity: ignored). `pad` is scratch.
+fn row_extremum(map: &DepthMap, r: usize, op: Extremum, out: &mut [f32], pad: &mut Vec<f32>) {
+    let w = map.width;
+    pad.clear();
+    pad.resize(w + 2 * r, op.identity());
+    for (src, dst) in map.data.chunks_exact(w).zip(out.chunks_exact_mut(w)) {
+        pad[r..r + w].copy_from_slice(src);
+        pad[..r].fill(op.identity());
+        pad[r + w..].fill(op.identity());
+        window_extremum(pad, 1, 2 * r + 1, op);
+        dst.copy_from_slice(&pad[..w]);
+    }
+}
+
+/// Max (or min) over a 1-D window of radius `r` along the columns of the `w`-wide image
+/// `data`, whole rows at a time.
+fn column_extremum(
+    w: usize,
+    data: &[f32],
+    r: usize,
+    op: Extremum,
+    out: &mut [f32],
+    pad: &mut Vec<f32>,
+) {
+    let h = data.len() / w;
+    pad.clear();
+    pad.resize((h + 2 * r) * w, op.identity());
+    pad[r * w..(r + h) * w].copy_from_slice(data);
+    window_extremum(pad, w, 2 * r + 1, op);
+    out.copy_from_slice(&pad[..h * w]);
+}
+
+fn morph(map: &DepthMap, kernel: &Kernel, op: Extremum) -> DepthMap {
+    if map.data.is_empty() {
+        return map.clone();
+    }
+    let mut pad = scratch::take(0);
+    let mut out = scratch::map(map.width, map.height);
+    match kernel.shape {
+        Shape::Full(k) => {
+            let mut rows = scratch::take(map.data.len());
+            row_extremum(map, k / 2, op, &mut rows, &mut pad);
+            column_extremum(map.width, &rows, k / 2, op, &mut out.data, &mut pad);
+            scratch::give(rows);
+        }
+        Shape::Cross(k) => {
+            let mut columns = scratch::take(map.data.len());
+            row_extremum(map, k / 2, op, &mut out.data, &mut pad);
+            column_extremum(map.width, &map.data, k / 2, op, &mut columns, &mut pad);
+            op.fold_into(&mut out.data, &columns);
+            scratch::give(columns);
+        }
+        Shape::Diamond(r) => {
+            let cross = Kernel::cross(3);
+            out.data.copy_from_slice(&map.data);
+            for _ in 0..r {
+                let next = morph(&out, &cross, op);
+                scratch::recycle(std::mem::replace(&mut out, next));
+            }
+        }
+    }
+    scratch::give(pad);
+    out
+}
+
+/// The straightforward 1-D window (each pixel scans its window), kept as the definition
+/// the doubling in [`window_extremum`] is tested against.
+#[cfg(test)]
+fn line_extremum_by_scan(map: &DepthMap, r: usize, along_rows: bool, op: Extremum) -> DepthMap {
     let (w, h) = (map.width, map.height);
     let mut out = DepthMap::empty(w, h);
     for y in 0..h {
@@ -98,45 +244,23 @@ fn line_extremum(map: &DepthMap, r: usize, along_rows: bool, op: Extremum) -> De
             let mut v = op.identity();
             if along_rows {
                 for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
-                    v = op.pick(v, map.get(xx, y));
+                    v = match op {
+                        Extremum::Max => v.max(map.get(xx, y)),
+                        Extremum::Min => v.min(map.get(xx, y)),
+                    };
                 }
             } else {
                 for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
-                    v = op.pick(v, map.get(x, yy));
+                    v = match op {
+                        Extremum::Max => v.max(map.get(x, yy)),
+                        Extremum::Min => v.min(map.get(x, yy)),
+                    };
                 }
             }
             out.set(x, y, v);
         }
     }
     out
-}
-
-fn morph(map: &DepthMap, kernel: &Kernel, op: Extremum) -> DepthMap {
-    if map.data.is_empty() {
-        return map.clone();
-    }
-    match kernel.shape {
-        Shape::Full(k) => {
-            let rows = line_extremum(map, k / 2, true, op);
-            line_extremum(&rows, k / 2, false, op)
-        }
-        Shape::Cross(k) => {
-            let mut out = line_extremum(map, k / 2, true, op);
-            let columns = line_extremum(map, k / 2, false, op);
-            for (a, b) in out.data.iter_mut().zip(&columns.data) {
-                *a = op.pick(*a, *b);
-            }
-            out
-        }
-        Shape::Diamond(r) => {
-            let cross = Kernel::cross(3);
-            let mut out = map.clone();
-            for _ in 0..r {
-                out = morph(&out, &cross, op);
-            }
-            out
-        }
-    }
 }
 
 /// The definition: the extremum over every offset of the kernel inside the image (what
@@ -151,7 +275,11 @@ fn morph_by_offsets(map: &DepthMap, kernel: &Kernel, op: Extremum) -> DepthMap {
             for &(dx, dy) in &kernel.offsets {
                 let (xx, yy) = (x + dx, y + dy);
                 if (0..w).contains(&xx) && (0..h).contains(&yy) {
-                    v = op.pick(v, map.get(xx as usize, yy as usize));
+                    let d = map.get(xx as usize, yy as usize);
+                    v = match op {
+                        Extremum::Max => v.max(d),
+                        Extremum::Min => v.min(d),
+                    };
                 }
             }
             out.set(x as usize, y as usize, v);
@@ -172,33 +300,53 @@ pub fn erode(map: &DepthMap, kernel: &Kernel) -> DepthMap {
 
 /// Closing: dilation, then erosion with the same kernel.
 pub fn close(map: &DepthMap, kernel: &Kernel) -> DepthMap {
-    erode(&dilate(map, kernel), kernel)
+    let dilated = dilate(map, kernel);
+    let closed = erode(&dilated, kernel);
+    scratch::recycle(dilated);
+    closed
 }
 
 /// Replaces `map`'s pixels where `keep(pixel index, old value)` holds by `source`'s.
+/// Runs in blocks of 8 that are read, chosen and stored whole (as an in-place select
+/// per pixel it would not vectorize; see `fold_ahead`).
 pub fn replace_where(map: &mut DepthMap, source: &DepthMap, keep: impl Fn(usize, f32) -> bool) {
-    for (i, (d, s)) in map.data.iter_mut().zip(&source.data).enumerate() {
-        if keep(i, *d) {
+    let n = map.data.len().min(source.data.len());
+    let mut dst = map.data[..n].chunks_exact_mut(8);
+    let mut src = source.data[..n].chunks_exact(8);
+    for (c, (d, s)) in (&mut dst).zip(&mut src).enumerate() {
+        let (a, b): ([f32; 8], [f32; 8]) = ((*d).try_into().unwrap(), s.try_into().unwrap());
+        let chosen: [f32; 8] =
+            std::array::from_fn(|k| if keep(c * 8 + k, a[k]) { b[k] } else { a[k] });
+        d.copy_from_slice(&chosen);
+    }
+    let base = n / 8 * 8;
+    for (k, (d, s)) in dst
+        .into_remainder()
+        .iter_mut()
+        .zip(src.remainder())
+        .enumerate()
+    {
+        if keep(base + k, *d) {
             *d = *s;
         }
     }
 }
 
-/// The 5×5 median, the border replicated. Rows whose whole 5-row window is empty (the
-/// image above a scan) are left empty without looking: the median of zeros.
+/// The 5×5 median, the border replicated (OpenCV's `medianBlur(src, 5)`), by a
+/// selection network run over whole rows ([`crate::median`]). Rows whose whole 5-row
+/// window is empty (the image above a scan) are left empty without looking: the median
+/// of zeros.
 pub fn median5(map: &DepthMap) -> DepthMap {
+    crate::median::median5(map)
+}
+
+/// The definition: each pixel's 25 values (border replicated) sorted, the 13th taken.
+#[cfg(test)]
+pub(crate) fn median5_by_sorting(map: &DepthMap) -> DepthMap {
     let (w, h) = (map.width as i64, map.height as i64);
     let mut out = DepthMap::empty(map.width, map.height);
-    let row_has_data: Vec<bool> = map
-        .data
-        .chunks(map.width.max(1))
-        .map(|row| row.iter().any(|&d| d != 0.0))
-        .collect();
     let mut window = [0f32; 25];
     for y in 0..h {
-        if !(y - 2..=y + 2).any(|yy| row_has_data[yy.clamp(0, h - 1) as usize]) {
-            continue;
-        }
         for x in 0..w {
             let mut n = 0;
             for dy in -2..=2i64 {
@@ -209,8 +357,8 @@ pub fn median5(map: &DepthMap) -> DepthMap {
                     n += 1;
                 }
             }
-            let (_, median, _) = window.select_nth_unstable_by(12, f32::total_cmp);
-            out.set(x as usize, y as usize, *median);
+            window.sort_by(f32::total_cmp);
+            out.set(x as usize, y as usize, window[12]);
         }
     }
     out
@@ -226,72 +374,149 @@ fn reflect101(i: i64, n: i64) -> usize {
     (if m < n { m } else { period - m }) as usize
 }
 
-/// The 5×5 Gaussian with OpenCV's default sigma for that size (0.3·((5−1)/2 − 1) + 0.8
-/// = 1.1), separable, the border reflected.
-pub fn gaussian5(map: &DepthMap) -> DepthMap {
-    let sigma = 1.1f64;
-    let raw: Vec<f64> = (-2..=2i32)
-        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
-        .collect();
-    let sum: f64 = raw.iter().sum();
-    let weights: Vec<f32> = raw.iter().map(|v| (v / sum) as f32).collect();
-    let (w, h) = (map.width as i64, map.height as i64);
-    let pass = |src: &DepthMap, along_rows: bool| {
-        let mut out = DepthMap::empty(src.width, src.height);
-        for y in 0..h {
-            for x in 0..w {
-                let mut acc = 0f32;
-                let (i, n) = if along_rows { (x, w) } else { (y, h) };
-                let interior = i >= 2 && i + 2 < n;
-                for (k, weight) in weights.iter().enumerate() {
-                    let o = k as i64 - 2;
-                    // Away from the border the reflection is the identity.
-                    let j = if interior {
-                        (i + o) as usize
-                    } else {
-                        reflect101(i + o, n)
-                    };
-                    let v = if along_rows {
-                        src.get(j, y as usize)
-                    } else {
-                        src.get(x as usize, j)
-                    };
-                    acc += weight * v;
-                }
-                out.set(x as usize, y as usize, acc);
-            }
-        }
-        out
-    };
-    pass(&pass(map, true), false)
+/// The 5×5 Gaussian of `GaussianBlur(src, (5, 5), 0)`: with sigma 0 and a size up to 7,
+/// OpenCV takes its fixed binomial kernel [1, 4, 6, 4, 1] / 16, not the sigma formula
+/// (`getGaussianKernel`). Separable, the border reflected (`BORDER_REFLECT_101`).
+const GAUSS5: [f32; 3] = [0.375, 0.25, 0.0625];
+
+/// One 5-tap pass: centre, then the symmetric pairs (OpenCV's order for symmetric kernels).
+#[inline(always)]
+fn gauss_tap(m2: f32, m1: f32, c: f32, p1: f32, p2: f32) -> f32 {
+    GAUSS5[0] * c + GAUSS5[1] * (m1 + p1) + GAUSS5[2] * (m2 + p2)
 }
 
-/// OpenCV's bilateral filter with diameter `d`: weights exp(−r²/2σ_space²) over the
-/// disc of radius d/2 times exp(−Δ²/2σ_color²) on the depth difference, the border
-/// reflected.
-pub fn bilateral(map: &DepthMap, d: usize, sigma_color: f32, sigma_space: f32) -> DepthMap {
-    let r = (d / 2) as i64;
+/// The 5×5 Gaussian (see [`GAUSS5`]): rows through a reflected-padded row, then columns
+/// as whole rows at a time.
+pub fn gaussian5(map: &DepthMap) -> DepthMap {
+    let (w, h) = (map.width, map.height);
+    if map.data.is_empty() {
+        return map.clone();
+    }
+    let mut rows = scratch::take(w * h);
+    let mut pad = vec![0f32; w + 4];
+    for (src, dst) in map.data.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+        for (i, p) in pad.iter_mut().enumerate() {
+            *p = src[reflect101(i as i64 - 2, w as i64)];
+        }
+        for (x, d) in dst.iter_mut().enumerate() {
+            *d = gauss_tap(pad[x], pad[x + 1], pad[x + 2], pad[x + 3], pad[x + 4]);
+        }
+    }
+    let mut out = scratch::map(w, h);
+    let row = |y: i64| {
+        let y = reflect101(y, h as i64);
+        &rows[y * w..(y + 1) * w]
+    };
+    for (y, dst) in out.data.chunks_exact_mut(w).enumerate() {
+        let y = y as i64;
+        let (m2, m1, c, p1, p2) = (row(y - 2), row(y - 1), row(y), row(y + 1), row(y + 2));
+        for x in 0..w {
+            dst[x] = gauss_tap(m2[x], m1[x], c[x], p1[x], p2[x]);
+        }
+    }
+    scratch::give(rows);
+    out
+}
+
+/// The definition: the 2-D kernel (outer product of [1, 4, 6, 4, 1] / 16) summed over
+/// reflected offsets, in f64.
+#[cfg(test)]
+fn gaussian5_by_definition(map: &DepthMap) -> DepthMap {
+    let k = [1.0, 4.0, 6.0, 4.0, 1.0f64].map(|v| v / 16.0);
     let (w, h) = (map.width as i64, map.height as i64);
-    let color = -0.5 / (sigma_color * sigma_color);
-    let space = -0.5 / (sigma_space * sigma_space);
-    let taps: Vec<(i64, i64, f32)> = (-r..=r)
-        .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
-        .filter(|(dx, dy)| dx * dx + dy * dy <= r * r)
-        .map(|(dx, dy)| (dx, dy, ((dx * dx + dy * dy) as f32 * space).exp()))
-        .collect();
     let mut out = DepthMap::empty(map.width, map.height);
     for y in 0..h {
         for x in 0..w {
-            let centre = map.get(x as usize, y as usize);
-            let (mut acc, mut norm) = (0f32, 0f32);
-            for &(dx, dy, ws) in &taps {
-                let v = map.get(reflect101(x + dx, w), reflect101(y + dy, h));
-                let diff = v - centre;
-                let weight = ws * (diff * diff * color).exp();
-                acc += weight * v;
-                norm += weight;
+            let mut acc = 0f64;
+            for dy in -2..=2i64 {
+                for dx in -2..=2i64 {
+                    let v = map.get(reflect101(x + dx, w), reflect101(y + dy, h)) as f64;
+                    acc += k[(dx + 2) as usize] * k[(dy + 2) as usize] * v;
+                }
             }
-            out.set(x as usize, y as usize, acc / norm);
+            out.set(x as usize, y as usize, acc as f32);
+        }
+    }
+    out
+}
+
+/// Bins of OpenCV's colour-weight table for one channel (`kExpNumBinsPerChannel`).
+const EXP_BINS: usize = 1 << 12;
+
+/// OpenCV's bilateral filter on a float image (`bilateralFilter(src, d, σ_color,
+/// σ_space)`), as OpenCV computes it: space weights exp(−r²/2σ_space²) over the disc
+/// of radius d/2 (centre excluded, added with weight 1 at the end), the colour weight
+/// exp(−Δ²/2σ_color²) read from a 4096-bin table over the image's value range with
+/// linear interpolation (not evaluated per tap), the border reflected
+/// (`BORDER_REFLECT_101`). A constant image is returned as is.
+pub fn bilateral(map: &DepthMap, d: usize, sigma_color: f32, sigma_space: f32) -> DepthMap {
+    let (w, h) = (map.width, map.height);
+    if map.data.is_empty() {
+        return map.clone();
+    }
+    let (lo, hi) = map
+        .data
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+            (lo.min(v), hi.max(v))
+        });
+    if ((lo - hi) as f64).abs() < f32::EPSILON as f64 {
+        return map.clone();
+    }
+    let r = (d / 2).max(1);
+    let color = -0.5 / (sigma_color as f64 * sigma_color as f64);
+    let space = -0.5 / (sigma_space as f64 * sigma_space as f64);
+    let scale_index = EXP_BINS as f32 / (hi - lo);
+    let mut lut = vec![0f32; EXP_BINS + 2];
+    let mut last = 1f32;
+    for (i, e) in lut.iter_mut().enumerate() {
+        if last > 0.0 {
+            let v = (i as f32 / scale_index) as f64;
+            *e = (v * v * color).exp() as f32;
+            last = *e;
+        }
+    }
+    let ri = r as i64;
+    let taps: Vec<(usize, usize, f32)> = (-ri..=ri)
+        .flat_map(|dy| (-ri..=ri).map(move |dx| (dx, dy)))
+        .filter_map(|(dx, dy)| {
+            let dist = ((dx * dx + dy * dy) as f64).sqrt();
+            (dist <= r as f64 && (dx, dy) != (0, 0)).then(|| {
+                let ws = (dist * dist * space).exp() as f32;
+                ((dx + ri) as usize, (dy + ri) as usize, ws)
+            })
+        })
+        .collect();
+    // The image with a reflected border of r, so the taps need no index checks.
+    let pw = w + 2 * r;
+    let mut pad = vec![0f32; pw * (h + 2 * r)];
+    for (py, prow) in pad.chunks_exact_mut(pw).enumerate() {
+        let y = reflect101(py as i64 - ri, h as i64);
+        for (px, p) in prow.iter_mut().enumerate() {
+            *p = map.data[y * w + reflect101(px as i64 - ri, w as i64)];
+        }
+    }
+    let mut out = DepthMap::empty(w, h);
+    let (mut sum, mut wsum) = (vec![0f32; w], vec![0f32; w]);
+    for y in 0..h {
+        sum.fill(0.0);
+        wsum.fill(0.0);
+        let centre = &pad[(y + r) * pw + r..(y + r) * pw + r + w];
+        for &(tx, ty, ws) in &taps {
+            let src = &pad[(y + ty) * pw + tx..(y + ty) * pw + tx + w];
+            for x in 0..w {
+                let v = src[x];
+                let alpha = (v - centre[x]).abs() * scale_index;
+                let idx = alpha as usize; // alpha ≥ 0: truncation is the floor
+                let frac = alpha - idx as f32;
+                let weight = ws * (lut[idx] + frac * (lut[idx + 1] - lut[idx]));
+                sum[x] += v * weight;
+                wsum[x] += weight;
+            }
+        }
+        let dst = &mut out.data[y * w..(y + 1) * w];
+        for x in 0..w {
+            dst[x] = (sum[x] + centre[x]) / (wsum[x] + 1.0);
         }
     }
     out
@@ -349,7 +574,9 @@ mod tests {
         for kernel in [
             Kernel::full(3),
             Kernel::full(5),
+            Kernel::full(7),
             Kernel::full(9),
+            Kernel::full(31),
             Kernel::cross(3),
             Kernel::cross(5),
             Kernel::cross(7),
@@ -363,6 +590,120 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Random depths (about half empty, some repeated) on a `w`×`h` image.
+    fn random_map(w: usize, h: usize, seed: u64) -> DepthMap {
+        let mut rng = fusiondet_dataset::rng::Sampler::new(seed);
+        let data: Vec<f32> = (0..w * h)
+            .map(|_| {
+                if rng.chance(0.5) {
+                    0.0
+                } else if rng.chance(0.2) {
+                    42.0
+                } else {
+                    rng.range(0.1, 99.9) as f32
+                }
+            })
+            .collect();
+        map(w, h, &data)
+    }
+
+    #[test]
+    fn doubling_windows_equal_scanning_them_at_every_size() {
+        // Images narrower and shorter than the window (the outside ignored on both
+        // sides at once), every radius the pipelines use and a few more, both axes.
+        for (w, h) in [(1, 1), (1, 9), (9, 1), (4, 3), (23, 17), (40, 33)] {
+            let m = random_map(w, h, (w * 100 + h) as u64);
+            for r in [1, 2, 3, 4, 5, 7, 15, 16] {
+                for op in [Extremum::Max, Extremum::Min] {
+                    let mut pad = Vec::new();
+                    let mut rows = DepthMap::empty(w, h);
+                    row_extremum(&m, r, op, &mut rows.data, &mut pad);
+                    assert_eq!(
+                        rows,
+                        line_extremum_by_scan(&m, r, true, op),
+                        "{w}×{h} r {r}"
+                    );
+                    let mut cols = DepthMap::empty(w, h);
+                    column_extremum(w, &m.data, r, op, &mut cols.data, &mut pad);
+                    assert_eq!(
+                        cols,
+                        line_extremum_by_scan(&m, r, false, op),
+                        "{w}×{h} r {r}"
+                    );
+                }
+            }
+            for kernel in [Kernel::full(31), Kernel::diamond(5), Kernel::cross(7)] {
+                assert_eq!(
+                    dilate(&m, &kernel),
+                    morph_by_offsets(&m, &kernel, Extremum::Max)
+                );
+                assert_eq!(
+                    erode(&m, &kernel),
+                    morph_by_offsets(&m, &kernel, Extremum::Min)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn gaussian_equals_the_2d_definition_on_random_maps() {
+        // OpenCV's kernel for (5, 5) with sigma 0 is [1, 4, 6, 4, 1] / 16.
+        for (w, h) in [(1, 1), (2, 2), (3, 7), (23, 17)] {
+            let m = random_map(w, h, 3 + w as u64);
+            let (fast, slow) = (gaussian5(&m), gaussian5_by_definition(&m));
+            for (a, b) in fast.data.iter().zip(&slow.data) {
+                assert!((a - b).abs() <= 1e-5 * b.abs().max(1.0), "{w}×{h}: {a} {b}");
+            }
+        }
+    }
+
+    /// The bilateral filter evaluated per pixel with the exponential itself (what
+    /// OpenCV's table approximates), in f64.
+    fn bilateral_by_definition(m: &DepthMap, d: usize, sc: f64, ss: f64) -> DepthMap {
+        let r = (d / 2) as i64;
+        let (w, h) = (m.width as i64, m.height as i64);
+        let mut out = DepthMap::empty(m.width, m.height);
+        for y in 0..h {
+            for x in 0..w {
+                let c = m.get(x as usize, y as usize) as f64;
+                let (mut acc, mut norm) = (0f64, 0f64);
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        if dx * dx + dy * dy > r * r {
+                            continue;
+                        }
+                        let v = m.get(reflect101(x + dx, w), reflect101(y + dy, h)) as f64;
+                        let wt = (-((dx * dx + dy * dy) as f64) / (2.0 * ss * ss)).exp()
+                            * (-(v - c) * (v - c) / (2.0 * sc * sc)).exp();
+                        acc += wt * v;
+                        norm += wt;
+                    }
+                }
+                out.set(x as usize, y as usize, (acc / norm) as f32);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn bilateral_follows_the_definition_within_the_table_error() {
+        // The colour table has 4096 bins over the value range (here about 100 m): linear
+        // interpolation between bins 0.024 m apart moves a weight by well under 1e-3.
+        for (w, h) in [(2, 2), (5, 3), (23, 17)] {
+            let m = random_map(w, h, 9 + h as u64);
+            for (sc, ss) in [(1.5, 2.0), (0.5, 2.0)] {
+                let fast = bilateral(&m, 5, sc, ss);
+                let slow = bilateral_by_definition(&m, 5, sc as f64, ss as f64);
+                for (a, b) in fast.data.iter().zip(&slow.data) {
+                    assert!((a - b).abs() < 2e-3, "{w}×{h} σ {sc}: {a} {b}");
+                }
+            }
+        }
+        // A constant image comes back as it is (OpenCV's shortcut).
+        let flat = map(4, 4, &[7.0; 16]);
+        assert_eq!(bilateral(&flat, 5, 1.5, 2.0), flat);
     }
 
     #[test]

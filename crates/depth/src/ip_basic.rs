@@ -19,14 +19,22 @@
 //! 1. invert; dilate the returns ≤ 15 m with a 7×7 cross, 15–30 m with a 5×5 cross and
 //!    > 30 m with a 3×3 cross, each range on its own, and merge far to near;
 //! 2. close with the full 5×5; 5×5 median on valid pixels;
-//! 3. the top mask: per column, the pixels above its topmost value are outside;
+//! 3. the top mask: per column, the pixels above its topmost value are outside (a column
+//!    without a value is inside, as `np.argmax` makes it in IP-Basic's code);
 //! 4. fill empty pixels inside the mask from a full 9×9 dilation;
-//! 5. optionally extrapolate upward and fill from a full 31×31 dilation;
+//! 5. optionally extrapolate: extend each column's top value upward, and the mask is
+//!    dropped (everything is inside);
 //! 6. six rounds of filling empty pixels inside the mask from a full 5×5 dilation;
-//! 7. 5×5 median, then the Gaussian or the bilateral filter (5, σ_color 0.5, σ_space 2.0),
-//!    each kept on valid pixels inside the mask; re-invert.
+//! 7. 5×5 median on the valid pixels inside the mask, then the Gaussian (kept on the
+//!    pixels valid after the median) or the bilateral filter (5, σ_color 0.5, σ_space
+//!    2.0; kept on those valid before it); re-invert.
+//!
+//! Both follow IP-Basic's published code (`depth_map_utils.py`) step for step, with
+//! OpenCV's definitions of each filter (`image_ops`); `scripts/ip_basic_reference.py`
+//! runs their code on our inputs for the comparison in the README.
 
 use crate::image_ops::{Kernel, bilateral, close, dilate, gaussian5, median5, replace_where};
+use crate::scratch;
 use fusiondet_kitti::DepthMap;
 
 /// Depths at or below this are "no measurement" (IP-Basic's threshold).
@@ -107,16 +115,50 @@ fn invert_valid(map: &mut DepthMap, max_depth: f32) {
     }
 }
 
-/// Each column's topmost valid value copied to every pixel above it.
-fn extend_columns_upward(map: &mut DepthMap) {
-    for x in 0..map.width {
-        if let Some(top) = (0..map.height).find(|&y| map.get(x, y) > VALID) {
-            let v = map.get(x, top);
-            for y in 0..top {
-                map.set(x, y, v);
+/// Each column's topmost valid row (> 0.1), `None` for a column without one; found row
+/// by row so the image is read in memory order.
+fn column_tops(map: &DepthMap) -> Vec<Option<usize>> {
+    let mut tops = vec![None; map.width];
+    let mut open = map.width;
+    for (y, row) in map.data.chunks_exact(map.width.max(1)).enumerate() {
+        if open == 0 {
+            break;
+        }
+        for (top, &d) in tops.iter_mut().zip(row) {
+            if top.is_none() && d > VALID {
+                *top = Some(y);
+                open -= 1;
             }
         }
     }
+    tops
+}
+
+/// Each column's topmost valid value copied to every pixel above it.
+fn extend_columns_upward(map: &mut DepthMap) {
+    let w = map.width;
+    for (x, top) in column_tops(map).into_iter().enumerate() {
+        if let Some(top) = top {
+            let v = map.data[top * w + x];
+            for y in 0..top {
+                map.data[y * w + x] = v;
+            }
+        }
+    }
+}
+
+/// IP-Basic's top mask: false above each column's topmost valid pixel. A column without
+/// one is inside from the top (their `np.argmax` of an all-false column is row 0).
+fn top_mask(map: &DepthMap) -> Vec<bool> {
+    let w = map.width;
+    let tops = column_tops(map);
+    let mut inside = vec![true; map.data.len()];
+    for (i, v) in inside.iter_mut().enumerate() {
+        if let Some(top) = tops[i % w] {
+            *v = i / w >= top;
+        }
+    }
+    inside
 }
 
 /// IP-Basic's completion with `settings` (see the module documentation).
@@ -155,65 +197,87 @@ fn range_dilation(sparse: &DepthMap, max_depth: f32) -> DepthMap {
         }
         let dilated = dilate(&band, &kernel);
         replace_where(&mut map, &dilated, |i, _| dilated.data[i] > VALID);
+        scratch::recycle(dilated);
     }
     map
 }
 
 fn multiscale(sparse: &DepthMap, settings: &IpBasic) -> DepthMap {
-    let (w, h) = (sparse.width, sparse.height);
     let mut map = range_dilation(sparse, settings.max_depth);
-    map = close(&map, &Kernel::full(5));
-    let blurred = median5(&map);
-    replace_where(&mut map, &blurred, |_, d| d > VALID);
-    // The top mask: above each column's topmost value is outside.
-    let mut inside = vec![true; w * h];
-    for x in 0..w {
-        let top = (0..h).find(|&y| map.get(x, y) > VALID).unwrap_or(h);
-        for y in 0..top {
-            inside[y * w + x] = false;
-        }
-    }
-    let filled = dilate(&map, &Kernel::full(9));
-    replace_where(&mut map, &filled, |i, d| d <= VALID && inside[i]);
-    if settings.extrapolate {
+    advance(&mut map, |m| close(m, &Kernel::full(5)));
+    merge_from(&mut map, median5, |_, d| d > VALID);
+    let inside = top_mask(&map);
+    merge_from(
+        &mut map,
+        |m| dilate(m, &Kernel::full(9)),
+        |i, d| d <= VALID && inside[i],
+    );
+    // Extrapolating extends the columns and drops the mask; otherwise the mask is taken
+    // again after the fill (the fill never reaches above it, so it is the same one). No
+    // 31×31 fill here: only the fast pipeline has it.
+    let inside = if settings.extrapolate {
         extend_columns_upward(&mut map);
-        let filled = dilate(&map, &Kernel::full(31));
-        replace_where(&mut map, &filled, |_, d| d < VALID);
-    }
-    for _ in 0..6 {
-        let filled = dilate(&map, &Kernel::full(5));
-        replace_where(&mut map, &filled, |i, d| d < VALID && inside[i]);
-    }
-    let blurred = median5(&map);
-    replace_where(&mut map, &blurred, |i, d| d > VALID && inside[i]);
-    let blurred = match settings.blur {
-        Blur::Gaussian => gaussian5(&map),
-        Blur::Bilateral => bilateral(&map, 5, 0.5, 2.0),
+        vec![true; map.data.len()]
+    } else {
+        top_mask(&map)
     };
-    replace_where(&mut map, &blurred, |i, d| d > VALID && inside[i]);
+    for _ in 0..6 {
+        merge_from(
+            &mut map,
+            |m| dilate(m, &Kernel::full(5)),
+            |i, d| d < VALID && inside[i],
+        );
+    }
+    // Which pixels the median (and the bilateral filter after it) may replace: valid
+    // ones inside, taken before the median as IP-Basic does.
+    let valid: Vec<bool> = map
+        .data
+        .iter()
+        .zip(&inside)
+        .map(|(&d, &inside)| d > VALID && inside)
+        .collect();
+    merge_from(&mut map, median5, |i, _| valid[i]);
+    match settings.blur {
+        // The Gaussian goes to the pixels valid after the median…
+        Blur::Gaussian => merge_from(&mut map, gaussian5, |i, d| d > VALID && inside[i]),
+        // …the bilateral filter to those valid before it (IP-Basic reuses that mask).
+        Blur::Bilateral => merge_from(&mut map, |m| bilateral(m, 5, 0.5, 2.0), |i, _| valid[i]),
+    }
     invert_valid(&mut map, settings.max_depth);
     map
+}
+
+/// `map` becomes `step(map)`; the old buffer goes back for reuse.
+fn advance(map: &mut DepthMap, step: impl FnOnce(&DepthMap) -> DepthMap) {
+    let next = step(map);
+    scratch::recycle(std::mem::replace(map, next));
+}
+
+/// [`replace_where`] from `step(map)`, whose buffer then goes back for reuse.
+fn merge_from(
+    map: &mut DepthMap,
+    step: impl FnOnce(&DepthMap) -> DepthMap,
+    keep: impl Fn(usize, f32) -> bool,
+) {
+    let source = step(map);
+    replace_where(map, &source, keep);
+    scratch::recycle(source);
 }
 
 fn fast(sparse: &DepthMap, settings: &IpBasic) -> DepthMap {
     let mut map = sparse.clone();
     invert_valid(&mut map, settings.max_depth);
-    map = dilate(&map, &Kernel::diamond(5));
-    map = close(&map, &Kernel::full(5));
-    let filled = dilate(&map, &Kernel::full(7));
-    replace_where(&mut map, &filled, |_, d| d < VALID);
+    advance(&mut map, |m| dilate(m, &Kernel::diamond(5)));
+    advance(&mut map, |m| close(m, &Kernel::full(5)));
+    merge_from(&mut map, |m| dilate(m, &Kernel::full(7)), |_, d| d < VALID);
     if settings.extrapolate {
         extend_columns_upward(&mut map);
-        let filled = dilate(&map, &Kernel::full(31));
-        replace_where(&mut map, &filled, |_, d| d < VALID);
+        merge_from(&mut map, |m| dilate(m, &Kernel::full(31)), |_, d| d < VALID);
     }
-    map = median5(&map);
+    advance(&mut map, median5);
     match settings.blur {
-        Blur::Bilateral => map = bilateral(&map, 5, 1.5, 2.0),
-        Blur::Gaussian => {
-            let blurred = gaussian5(&map);
-            replace_where(&mut map, &blurred, |_, d| d > VALID);
-        }
+        Blur::Bilateral => advance(&mut map, |m| bilateral(m, 5, 1.5, 2.0)),
+        Blur::Gaussian => merge_from(&mut map, gaussian5, |_, d| d > VALID),
     }
     invert_valid(&mut map, settings.max_depth);
     map

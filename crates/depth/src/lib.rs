@@ -11,9 +11,11 @@ pub mod batch;
 pub mod holdout;
 pub mod image_ops;
 pub mod ip_basic;
+mod median;
 pub mod metrics;
 pub mod project;
 pub mod pseudo;
+mod scratch;
 
 pub use batch::{
     BatchSummary, PseudoSummary, complete_dir, complete_frames, frame_ids, pseudo_frames,

@@ -1,0 +1,428 @@
+//! The 5×5 median as a comparator network run across whole rows, so every comparison
+//! is a vector min/max over many pixels at once (no per-pixel sort, no branches).
+//!
+//! The network shares work between neighbouring pixels, in three stages per output row:
+//!
+//! 1. each column of 5 (the rows y−2..y+2, replicated at the border) is sorted once, and
+//!    serves the 5 windows that contain it;
+//! 2. each pair of adjacent sorted columns (x, x+1) is merged into a sorted 10 once, and
+//!    serves the windows starting at x and at x−2;
+//! 3. the window at x merges the pairs at x and x+2 and the sorted column x+4, keeping
+//!    only the comparisons the 13th smallest depends on.
+//!
+//! Merges are Batcher's odd-even merge (Knuth, TAOCP 5.3.4, any lengths); comparisons
+//! whose results no later step reads are dropped, and those of which one side is read
+//! become a single min or max. A network of min/max gates commutes with every monotone
+//! map, so one that selects the 13th of 25 for every 0/1 input does for every input (the
+//! 0–1 principle): the tests check all 2^25 0/1 windows, which proves it.
+
+use crate::scratch;
+use fusiondet_kitti::DepthMap;
+use std::sync::OnceLock;
+
+/// What a gate writes: both sides, or only the one later steps read.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Gate {
+    Both,
+    /// Only `lo` (the minimum) is read later.
+    Min,
+    /// Only `hi` (the maximum) is read later.
+    Max,
+}
+
+/// A comparator: afterwards wire `lo` holds the smaller value, wire `hi` the larger.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Op {
+    lo: usize,
+    hi: usize,
+    gate: Gate,
+}
+
+/// Odd-even merge of two sorted wire lists; returns the wires in sorted order.
+fn merge(a: &[usize], b: &[usize], net: &mut Vec<(usize, usize)>) -> Vec<usize> {
+    if a.is_empty() {
+        return b.to_vec();
+    }
+    if b.is_empty() {
+        return a.to_vec();
+    }
+    if a.len() == 1 && b.len() == 1 {
+        net.push((a[0], b[0]));
+        return vec![a[0], b[0]];
+    }
+    let evens = |s: &[usize]| s.iter().step_by(2).copied().collect::<Vec<_>>();
+    let odds = |s: &[usize]| s.iter().skip(1).step_by(2).copied().collect::<Vec<_>>();
+    let v = merge(&evens(a), &evens(b), net);
+    let w = merge(&odds(a), &odds(b), net);
+    let mut out = vec![v[0]];
+    let mut i = 0;
+    while i < w.len() && i + 1 < v.len() {
+        net.push((w[i], v[i + 1]));
+        out.push(w[i]);
+        out.push(v[i + 1]);
+        i += 1;
+    }
+    out.extend(&w[i..]);
+    out.extend(&v[(i + 1).min(v.len())..]);
+    out
+}
+
+/// Sorting network for the wires `s` (merge sort of halves).
+fn sort(s: &[usize], net: &mut Vec<(usize, usize)>) -> Vec<usize> {
+    if s.len() <= 1 {
+        return s.to_vec();
+    }
+    let (a, b) = s.split_at(s.len() / 2);
+    let a = sort(a, net);
+    let b = sort(b, net);
+    merge(&a, &b, net)
+}
+
+/// Drops the comparators no wire of `needed` (read after the network) depends on and
+/// narrows those read on one side; returns the gates and the input wires read.
+fn prune(net: &[(usize, usize)], needed: &[usize], wires: usize) -> (Vec<Op>, Vec<bool>) {
+    let mut live = vec![false; wires];
+    for &n in needed {
+        live[n] = true;
+    }
+    let mut ops = Vec::new();
+    for &(lo, hi) in net.iter().rev() {
+        let gate = match (live[lo], live[hi]) {
+            (false, false) => continue,
+            (true, true) => Gate::Both,
+            (true, false) => Gate::Min,
+            (false, true) => Gate::Max,
+        };
+        ops.push(Op { lo, hi, gate });
+        live[lo] = true;
+        live[hi] = true;
+    }
+    ops.reverse();
+    (ops, live)
+}
+
+/// The three stages' gates and which of their outputs are read.
+struct Network {
+    /// Stage 1 on wires 0..5 (a column, top to bottom); sorted output k on `col_out[k]`.
+    column: Vec<Op>,
+    col_out: [usize; 5],
+    /// Stage 2 on wires 0..10 (column x's sorted 5 on 0..5, column x+1's on 5..10);
+    /// sorted output k on `pair_out[k]`.
+    pair: Vec<Op>,
+    pair_out: [usize; 10],
+    /// Stage 3 on wires 0..25: pair x's sorted 10 on 0..10, pair x+2's on 10..20, column
+    /// x+4's sorted 5 on 20..25; the median ends on `median_out`.
+    window: Vec<Op>,
+    median_out: usize,
+    /// Which sorted ranks of stages 1 and 2 are read at all (the others are not kept).
+    col_ranks: [bool; 5],
+    pair_ranks: [bool; 10],
+}
+
+fn network() -> &'static Network {
+    static NET: OnceLock<Network> = OnceLock::new();
+    NET.get_or_init(|| {
+        let mut net = Vec::new();
+        let a: Vec<usize> = (0..10).collect();
+        let b: Vec<usize> = (10..20).collect();
+        let c: Vec<usize> = (20..25).collect();
+        let ab = merge(&a, &b, &mut net);
+        let all = merge(&ab, &c, &mut net);
+        let median_out = all[12];
+        let (window, live) = prune(&net, &[median_out], 25);
+        let mut pair_ranks = [false; 10];
+        let mut col_ranks = [false; 5];
+        for k in 0..10 {
+            pair_ranks[k] = live[k] || live[10 + k];
+        }
+        col_ranks.copy_from_slice(&live[20..25]);
+
+        let mut net = Vec::new();
+        let sorted = merge(&[0, 1, 2, 3, 4], &[5, 6, 7, 8, 9], &mut net);
+        let needed: Vec<usize> = (0..10)
+            .filter(|&k| pair_ranks[k])
+            .map(|k| sorted[k])
+            .collect();
+        let (pair, live) = prune(&net, &needed, 10);
+        let pair_out: [usize; 10] = sorted.try_into().expect("10 wires");
+        for k in 0..5 {
+            col_ranks[k] |= live[k] || live[5 + k];
+        }
+
+        let mut net = Vec::new();
+        let sorted = sort(&[0, 1, 2, 3, 4], &mut net);
+        let needed: Vec<usize> = (0..5)
+            .filter(|&k| col_ranks[k])
+            .map(|k| sorted[k])
+            .collect();
+        let (column, _) = prune(&net, &needed, 5);
+        Network {
+            column,
+            col_out: sorted.try_into().expect("5 wires"),
+            pair,
+            pair_out,
+            window,
+            median_out,
+            col_ranks,
+            pair_ranks,
+        }
+    })
+}
+
+/// Pixels per block: the wires of one block (25 × 64 floats) stay in L1.
+const LANES: usize = 64;
+type Lane = [f32; LANES];
+
+/// The smaller of two NaN-free values, as a comparison (the vector min instruction).
+#[inline(always)]
+fn min(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
+}
+
+#[inline(always)]
+fn max(a: f32, b: f32) -> f32 {
+    if a < b { b } else { a }
+}
+
+/// Runs `ops` on a block of wires, each gate a vector min/max over the block's pixels.
+/// Each gate computes whole new lanes before storing them: written as in-place selects,
+/// LLVM turns them into stores of only the changed pixels, one at a time.
+fn run(ops: &[Op], wires: &mut [Lane]) {
+    /// Pixels per step: two vectors' worth, held in registers between load and store.
+    const STEP: usize = 8;
+    for op in ops {
+        for c in (0..LANES).step_by(STEP) {
+            let a: [f32; STEP] = wires[op.lo][c..c + STEP].try_into().expect("a step");
+            let b: [f32; STEP] = wires[op.hi][c..c + STEP].try_into().expect("a step");
+            if op.gate != Gate::Max {
+                let lo: [f32; STEP] = std::array::from_fn(|k| min(a[k], b[k]));
+                wires[op.lo][c..c + STEP].copy_from_slice(&lo);
+            }
+            if op.gate != Gate::Min {
+                let hi: [f32; STEP] = std::array::from_fn(|k| max(a[k], b[k]));
+                wires[op.hi][c..c + STEP].copy_from_slice(&hi);
+            }
+        }
+    }
+}
+
+/// Copies `src[from..]` into a lane (what is beyond `src` stays as it was). A whole
+/// lane is copied as a fixed-size array: inlined moves rather than a `memmove` call.
+#[inline(always)]
+fn load(lane: &mut Lane, src: &[f32], from: usize) {
+    if let Some(whole) = src.get(from..from + LANES) {
+        *lane = whole.try_into().expect("a lane");
+    } else {
+        let n = src.len().saturating_sub(from);
+        lane[..n].copy_from_slice(&src[from..]);
+    }
+}
+
+/// Copies a lane into `dst[at..]`, as much as fits.
+#[inline(always)]
+fn store(dst: &mut [f32], at: usize, lane: &Lane) {
+    if let Some(whole) = dst.get_mut(at..at + LANES) {
+        whole.copy_from_slice(lane);
+    } else {
+        let n = dst.len() - at;
+        dst[at..].copy_from_slice(&lane[..n]);
+    }
+}
+
+/// The 5×5 median, the border replicated (see the module documentation).
+pub fn median5(map: &DepthMap) -> DepthMap {
+    let (w, h) = (map.width, map.height);
+    if map.data.is_empty() {
+        return map.clone();
+    }
+    let mut out = scratch::map(w, h);
+    let net = network();
+    let row_has_data: Vec<bool> = map
+        .data
+        .chunks_exact(w)
+        .map(|row| row.iter().any(|&d| d != 0.0))
+        .collect();
+    let clamp_row = |y: i64| y.clamp(0, h as i64 - 1) as usize;
+    // Each source row with the border replicated by 2 on each side: padded x = x + 2.
+    let pw = w + 4;
+    let mut padded = scratch::take(h * pw);
+    for (p, row) in padded.chunks_exact_mut(pw).zip(map.data.chunks_exact(w)) {
+        p[2..w + 2].copy_from_slice(row);
+        p[..2].fill(row[0]);
+        p[w + 2..].fill(row[w - 1]);
+    }
+    // Sorted columns (rank k at padded x) and merged pairs (rank k at x: columns x, x+1).
+    let mut cols = vec![vec![0f32; w + 4]; 5];
+    let mut pairs = vec![vec![0f32; w + 3]; 10];
+    let mut wires = vec![[0f32; LANES]; 25];
+    for y in 0..h {
+        let rows: Vec<usize> = (-2..=2).map(|d| clamp_row(y as i64 + d)).collect();
+        if !rows.iter().any(|&r| row_has_data[r]) {
+            out.data[y * w..(y + 1) * w].fill(0.0);
+            continue;
+        }
+        for x0 in (0..w + 4).step_by(LANES) {
+            for (k, &r) in rows.iter().enumerate() {
+                load(&mut wires[k], &padded[r * pw..(r + 1) * pw], x0);
+            }
+            run(&net.column, &mut wires[..5]);
+            for k in (0..5).filter(|&k| net.col_ranks[k]) {
+                store(&mut cols[k], x0, &wires[net.col_out[k]]);
+            }
+        }
+        for x0 in (0..w + 3).step_by(LANES) {
+            for k in (0..5).filter(|&k| net.col_ranks[k]) {
+                load(&mut wires[k], &cols[k], x0);
+                load(&mut wires[5 + k], &cols[k], x0 + 1);
+            }
+            run(&net.pair, &mut wires[..10]);
+            for k in (0..10).filter(|&k| net.pair_ranks[k]) {
+                store(&mut pairs[k], x0, &wires[net.pair_out[k]]);
+            }
+        }
+        let dst = &mut out.data[y * w..(y + 1) * w];
+        for x0 in (0..w).step_by(LANES) {
+            for k in (0..10).filter(|&k| net.pair_ranks[k]) {
+                load(&mut wires[k], &pairs[k], x0);
+                load(&mut wires[10 + k], &pairs[k], x0 + 2);
+            }
+            for k in (0..5).filter(|&k| net.col_ranks[k]) {
+                load(&mut wires[20 + k], &cols[k], x0 + 4);
+            }
+            run(&net.window, &mut wires);
+            store(dst, x0, &wires[net.median_out]);
+        }
+    }
+    scratch::give(padded);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image_ops::median5_by_sorting;
+
+    /// Runs the three stages for one window of 25 values (row-major, 5 × 5) on any type
+    /// with a min and a max: f32 here, or 64 0/1 windows packed as bits.
+    fn window_median<T: Copy + Default>(
+        window: &[T; 25],
+        min: impl Fn(T, T) -> T + Copy,
+        max: impl Fn(T, T) -> T + Copy,
+    ) -> T {
+        let net = network();
+        let apply = |ops: &[Op], w: &mut [T]| {
+            for op in ops {
+                let (p, q) = (w[op.lo], w[op.hi]);
+                match op.gate {
+                    Gate::Both => {
+                        w[op.lo] = min(p, q);
+                        w[op.hi] = max(p, q);
+                    }
+                    Gate::Min => w[op.lo] = min(p, q),
+                    Gate::Max => w[op.hi] = max(p, q),
+                }
+            }
+        };
+        let mut cols = [[T::default(); 5]; 5];
+        for (x, col) in cols.iter_mut().enumerate() {
+            let mut w: [T; 5] = std::array::from_fn(|y| window[y * 5 + x]);
+            apply(&net.column, &mut w);
+            *col = std::array::from_fn(|k| w[net.col_out[k]]);
+        }
+        let pair = |x: usize| {
+            let mut w: [T; 10] = std::array::from_fn(|i| {
+                if i < 5 {
+                    cols[x][i]
+                } else {
+                    cols[x + 1][i - 5]
+                }
+            });
+            apply(&net.pair, &mut w);
+            std::array::from_fn::<T, 10, _>(|k| w[net.pair_out[k]])
+        };
+        let (a, b) = (pair(0), pair(2));
+        let mut w: [T; 25] = std::array::from_fn(|i| match i {
+            0..10 => a[i],
+            10..20 => b[i - 10],
+            _ => cols[4][i - 20],
+        });
+        apply(&net.window, &mut w);
+        w[net.median_out]
+    }
+
+    #[test]
+    fn the_network_selects_the_median_of_every_0_1_window() {
+        // Bit j of word m is window number 64·m + j; cell i of that window is bit i of
+        // its number. 2^25 windows in 2^19 words: the 0–1 principle's whole premise.
+        let low: [u64; 6] = std::array::from_fn(|i| {
+            (0..64u64)
+                .filter(|j| j >> i & 1 == 1)
+                .fold(0, |a, j| a | 1 << j)
+        });
+        for m in 0u64..1 << 19 {
+            // Cells 0..6 vary within the word (bit i of j), cells 6..25 are bit i − 6 of m.
+            let window: [u64; 25] = std::array::from_fn(|i| {
+                if i < 6 {
+                    low[i]
+                } else if m >> (i - 6) & 1 == 1 {
+                    u64::MAX
+                } else {
+                    0
+                }
+            });
+            let got = window_median(&window, |a, b| a & b, |a, b| a | b);
+            // The median of 0/1 values is 1 exactly when at least 13 of them are 1.
+            let want = (0..64u64).fold(0, |acc, j| {
+                let ones = m.count_ones() + j.count_ones();
+                acc | ((ones >= 13) as u64) << j
+            });
+            assert_eq!(got, want, "word {m}");
+        }
+    }
+
+    #[test]
+    fn the_network_is_smaller_than_a_sort() {
+        // Per pixel: one column sort, one pair merge and one window's gates (a full sort
+        // of 25 takes well over 100 comparators).
+        let net = network();
+        let per_pixel = net.column.len() + net.pair.len() + net.window.len();
+        assert!(per_pixel < 80, "{per_pixel}");
+    }
+
+    #[test]
+    fn rows_equal_sorting_on_random_maps_with_borders_and_empty_pixels() {
+        let mut rng = fusiondet_dataset::rng::Sampler::new(11);
+        // Widths around the block size, tiny images (the border replicated more than
+        // once), many repeated values and empty rows.
+        for (w, h) in [
+            (1, 1),
+            (2, 3),
+            (5, 5),
+            (7, 2),
+            (63, 9),
+            (64, 6),
+            (65, 7),
+            (131, 12),
+        ] {
+            let data: Vec<f32> = (0..w * h)
+                .map(|i| {
+                    if (i / w) % 5 == 4 || rng.chance(0.4) {
+                        0.0
+                    } else if rng.chance(0.3) {
+                        7.5
+                    } else {
+                        rng.range(0.1, 95.0) as f32
+                    }
+                })
+                .collect();
+            let m = DepthMap {
+                width: w,
+                height: h,
+                data,
+            };
+            assert_eq!(median5(&m), median5_by_sorting(&m), "{w}×{h}");
+        }
+        let empty = DepthMap::empty(70, 8);
+        assert_eq!(median5(&empty), empty);
+    }
+}
