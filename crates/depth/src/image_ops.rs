@@ -19,17 +19,38 @@ pub struct Kernel {
     shape: Shape,
 }
 
-/// Shapes with a fast exact decomposition into 1-D windows.
+/// Shapes with a fast exact decomposition.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Shape {
     /// A k×k square: a row window, then a column window.
     Full(usize),
-    /// A k×k cross: the larger of a row window and a column window of the same pixel.
+    /// A k×k cross: the centre row and column.
     Cross(usize),
-    /// A diamond of radius r: r rounds of the 3×3 cross (the L1 ball of radius r is r
-    /// L1 balls of radius 1 added up; inside a rectangle every step between two pixels
-    /// stays inside, so ignoring the outside keeps it exact).
+    /// A diamond of radius r: |dx| + |dy| ≤ r.
     Diamond(usize),
+}
+
+impl Shape {
+    /// The kernel as runs: for each row offset dy, the half width a of the offsets
+    /// (−a..=a, dy) it covers. Every kernel here is a union of such centred runs.
+    fn runs(self) -> Vec<(i64, usize)> {
+        match self {
+            Shape::Full(k) => {
+                let r = (k / 2) as i64;
+                (-r..=r).map(|dy| (dy, k / 2)).collect()
+            }
+            Shape::Cross(k) => {
+                let r = (k / 2) as i64;
+                (-r..=r)
+                    .map(|dy| (dy, if dy == 0 { k / 2 } else { 0 }))
+                    .collect()
+            }
+            Shape::Diamond(r) => {
+                let r = r as i64;
+                (-r..=r).map(|dy| (dy, (r - dy.abs()) as usize)).collect()
+            }
+        }
+    }
 }
 
 impl Kernel {
@@ -200,36 +221,63 @@ fn column_extremum(
     out.copy_from_slice(&pad[..h * w]);
 }
 
+/// The extremum over `runs` (see [`Shape::runs`]) of the `w`-wide image `src`, into
+/// `out`, one output row at a time: the centre row copied, then each offset's source row
+/// folded in, shifted and cut at the image's edges (the outside ignored). This is the
+/// definition itself, arranged so that each fold is a vector pass over a row held in L1;
+/// it costs one fold per offset, so large squares go through [`window_extremum`].
+fn morph_by_runs(w: usize, src: &[f32], runs: &[(i64, usize)], op: Extremum, out: &mut [f32]) {
+    let h = src.len() / w;
+    for (y, dst) in out.chunks_exact_mut(w).enumerate() {
+        dst.copy_from_slice(&src[y * w..(y + 1) * w]);
+        for &(dy, a) in runs {
+            let yy = y as i64 + dy;
+            if !(0..h as i64).contains(&yy) {
+                continue;
+            }
+            let row = &src[yy as usize * w..(yy as usize + 1) * w];
+            for dx in 0..=a.min(w - 1) {
+                if dx == 0 {
+                    if dy != 0 {
+                        op.fold_into(dst, row);
+                    }
+                    continue;
+                }
+                // Offset +dx: dst[x] takes row[x + dx]; offset −dx: dst[x + dx] takes row[x].
+                op.fold_into(&mut dst[..w - dx], &row[dx..]);
+                op.fold_into(&mut dst[dx..], &row[..w - dx]);
+            }
+        }
+    }
+}
+
+/// Radii up to this fold offset by offset; larger squares use the doubling windows.
+const DIRECT_RADIUS: usize = 4;
+
 fn morph(map: &DepthMap, kernel: &Kernel, op: Extremum) -> DepthMap {
     if map.data.is_empty() {
         return map.clone();
     }
-    let mut pad = scratch::take(0);
-    let mut out = scratch::map(map.width, map.height);
+    let w = map.width;
+    let mut out = scratch::map(w, map.height);
+    let mut rows = scratch::take(map.data.len());
     match kernel.shape {
-        Shape::Full(k) => {
-            let mut rows = scratch::take(map.data.len());
+        Shape::Full(k) if k / 2 > DIRECT_RADIUS => {
+            let mut pad = scratch::take(0);
             row_extremum(map, k / 2, op, &mut rows, &mut pad);
-            column_extremum(map.width, &rows, k / 2, op, &mut out.data, &mut pad);
-            scratch::give(rows);
+            column_extremum(w, &rows, k / 2, op, &mut out.data, &mut pad);
+            scratch::give(pad);
         }
-        Shape::Cross(k) => {
-            let mut columns = scratch::take(map.data.len());
-            row_extremum(map, k / 2, op, &mut out.data, &mut pad);
-            column_extremum(map.width, &map.data, k / 2, op, &mut columns, &mut pad);
-            op.fold_into(&mut out.data, &columns);
-            scratch::give(columns);
+        // Separable: the row run, then the column of rows.
+        Shape::Full(k) => {
+            let r = k / 2;
+            morph_by_runs(w, &map.data, &[(0, r)], op, &mut rows);
+            let column: Vec<(i64, usize)> = (-(r as i64)..=r as i64).map(|dy| (dy, 0)).collect();
+            morph_by_runs(w, &rows, &column, op, &mut out.data);
         }
-        Shape::Diamond(r) => {
-            let cross = Kernel::cross(3);
-            out.data.copy_from_slice(&map.data);
-            for _ in 0..r {
-                let next = morph(&out, &cross, op);
-                scratch::recycle(std::mem::replace(&mut out, next));
-            }
-        }
+        shape => morph_by_runs(w, &map.data, &shape.runs(), op, &mut out.data),
     }
-    scratch::give(pad);
+    scratch::give(rows);
     out
 }
 
@@ -610,7 +658,7 @@ mod tests {
     }
 
     #[test]
-    fn doubling_windows_equal_scanning_them_at_every_size() {
+    fn fast_morphology_equals_the_definition_at_every_size() {
         // Images narrower and shorter than the window (the outside ignored on both
         // sides at once), every radius the pipelines use and a few more, both axes.
         for (w, h) in [(1, 1), (1, 9), (9, 1), (4, 3), (23, 17), (40, 33)] {
@@ -634,7 +682,17 @@ mod tests {
                     );
                 }
             }
-            for kernel in [Kernel::full(31), Kernel::diamond(5), Kernel::cross(7)] {
+            // Both paths of the squares (offset by offset up to radius 4, doubling above).
+            for kernel in [
+                Kernel::full(3),
+                Kernel::full(9),
+                Kernel::full(11),
+                Kernel::full(31),
+                Kernel::diamond(5),
+                Kernel::diamond(7),
+                Kernel::cross(3),
+                Kernel::cross(7),
+            ] {
                 assert_eq!(
                     dilate(&m, &kernel),
                     morph_by_offsets(&m, &kernel, Extremum::Max)
