@@ -524,6 +524,11 @@ pub fn bilateral(map: &DepthMap, d: usize, sigma_color: f32, sigma_space: f32) -
             last = *e;
         }
     }
+    // Each bin with its step to the next: one read per tap (the same f32 difference
+    // OpenCV takes at run time, so the interpolation is unchanged).
+    let steps: Vec<[f32; 2]> = (0..=EXP_BINS)
+        .map(|i| [lut[i], lut[i + 1] - lut[i]])
+        .collect();
     let ri = r as i64;
     let taps: Vec<(usize, usize, f32)> = (-ri..=ri)
         .flat_map(|dy| (-ri..=ri).map(move |dx| (dx, dy)))
@@ -555,9 +560,12 @@ pub fn bilateral(map: &DepthMap, d: usize, sigma_color: f32, sigma_space: f32) -
             for x in 0..w {
                 let v = src[x];
                 let alpha = (v - centre[x]).abs() * scale_index;
-                let idx = alpha as usize; // alpha ≥ 0: truncation is the floor
+                // alpha ≥ 0: truncation is the floor; it is at most EXP_BINS but for
+                // rounding, and the clamp lets the compiler drop the bounds check.
+                let idx = (alpha as u32 as usize).min(EXP_BINS);
                 let frac = alpha - idx as f32;
-                let weight = ws * (lut[idx] + frac * (lut[idx + 1] - lut[idx]));
+                let [base, step] = steps[idx];
+                let weight = ws * (base + frac * step);
                 sum[x] += v * weight;
                 wsum[x] += weight;
             }
