@@ -1,10 +1,11 @@
-//! Depth completion per 1242×375 frame: projecting a bundled KITTI scan, and IP-Basic's
-//! fast pipeline with each blur.
+//! Depth completion per 1242×375 frame: projecting a bundled KITTI scan, IP-Basic's
+//! pipelines, and the steps that cost most on the default setting's dense map.
 //!
 //! `cargo bench -p fusiondet-depth`
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use fusiondet_dataset::SensorFrame;
+use fusiondet_depth::image_ops::{Kernel, bilateral, dilate, median5};
 use fusiondet_depth::{Blur, IpBasic, Method, complete, project_scan};
 use fusiondet_kitti::FrameDir;
 use std::hint::black_box;
@@ -47,6 +48,16 @@ fn bench(c: &mut Criterion) {
             b.iter(|| complete(black_box(&sparse), &settings))
         });
     }
+    let dense = complete(&sparse, &IpBasic::measured_best());
+    c.bench_function("median 5x5 (dense)", |b| {
+        b.iter(|| median5(black_box(&dense)))
+    });
+    c.bench_function("dilate 31x31 (dense)", |b| {
+        b.iter(|| dilate(black_box(&dense), &Kernel::full(31)))
+    });
+    c.bench_function("bilateral 5 (dense)", |b| {
+        b.iter(|| bilateral(black_box(&dense), 5, 1.5, 2.0))
+    });
 }
 
 criterion_group! {

@@ -380,6 +380,45 @@ pub fn replace_where(map: &mut DepthMap, source: &DepthMap, keep: impl Fn(usize,
     }
 }
 
+/// `replace_where(map, &dilate(map, kernel), keep)`: the pixels where `keep(index, old
+/// value)` holds take the maximum over the kernel around them (of the map as it was).
+/// IP-Basic's hole fills replace only the empty pixels, often a few; when those are few
+/// enough that visiting each one's kernel costs less than dilating the whole image, only
+/// they are computed (the definition, offset by offset), else the whole dilation is.
+pub fn fill_where(map: &mut DepthMap, kernel: &Kernel, keep: impl Fn(usize, f32) -> bool) {
+    let targets: Vec<usize> = (0..map.data.len())
+        .filter(|&i| keep(i, map.data[i]))
+        .collect();
+    // A whole dilation costs a few passes per offset row; a visit, one read per offset.
+    let whole = map.data.len() * 4;
+    if targets.len() * kernel.offsets.len() > whole {
+        let dilated = dilate(map, kernel);
+        for &i in &targets {
+            map.data[i] = dilated.data[i];
+        }
+        scratch::recycle(dilated);
+        return;
+    }
+    let (w, h) = (map.width as i64, map.height as i64);
+    let values: Vec<f32> = targets
+        .iter()
+        .map(|&i| {
+            let (x, y) = ((i as i64) % w, (i as i64) / w);
+            let mut v = f32::NEG_INFINITY;
+            for &(dx, dy) in &kernel.offsets {
+                let (xx, yy) = (x + dx as i64, y + dy as i64);
+                if (0..w).contains(&xx) && (0..h).contains(&yy) {
+                    v = v.max(map.data[(yy * w + xx) as usize]);
+                }
+            }
+            v
+        })
+        .collect();
+    for (&i, v) in targets.iter().zip(values) {
+        map.data[i] = v;
+    }
+}
+
 /// The 5×5 median, the border replicated (OpenCV's `medianBlur(src, 5)`), by a
 /// selection network run over whole rows ([`crate::median`]). Rows whose whole 5-row
 /// window is empty (the image above a scan) are left empty without looking: the median
@@ -770,6 +809,24 @@ mod tests {
         // A constant image comes back as it is (OpenCV's shortcut).
         let flat = map(4, 4, &[7.0; 16]);
         assert_eq!(bilateral(&flat, 5, 1.5, 2.0), flat);
+    }
+
+    #[test]
+    fn filling_where_asked_equals_dilating_everywhere() {
+        // Few targets (visited one by one) and many (the whole dilation), borders too.
+        for (w, h, seed) in [(1, 1, 1), (5, 4, 2), (23, 17, 3), (61, 40, 4)] {
+            let m = random_map(w, h, seed);
+            for kernel in [Kernel::full(5), Kernel::full(9), Kernel::full(31)] {
+                for every in [1, 7, 101] {
+                    let keep = |i: usize, d: f32| d < 0.1 && i.is_multiple_of(every);
+                    let mut want = m.clone();
+                    replace_where(&mut want, &dilate(&m, &kernel), keep);
+                    let mut got = m.clone();
+                    fill_where(&mut got, &kernel, keep);
+                    assert_eq!(got, want, "{w}×{h} {kernel:?} every {every}");
+                }
+            }
+        }
     }
 
     #[test]

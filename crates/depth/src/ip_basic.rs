@@ -33,7 +33,9 @@
 //! OpenCV's definitions of each filter (`image_ops`); `scripts/ip_basic_reference.py`
 //! runs their code on our inputs for the comparison in the README.
 
-use crate::image_ops::{Kernel, bilateral, close, dilate, gaussian5, median5, replace_where};
+use crate::image_ops::{
+    Kernel, bilateral, close, dilate, fill_where, gaussian5, median5, replace_where,
+};
 use crate::scratch;
 use fusiondet_kitti::DepthMap;
 
@@ -150,12 +152,11 @@ fn extend_columns_upward(map: &mut DepthMap) {
 /// IP-Basic's top mask: false above each column's topmost valid pixel. A column without
 /// one is inside from the top (their `np.argmax` of an all-false column is row 0).
 fn top_mask(map: &DepthMap) -> Vec<bool> {
-    let w = map.width;
     let tops = column_tops(map);
     let mut inside = vec![true; map.data.len()];
-    for (i, v) in inside.iter_mut().enumerate() {
-        if let Some(top) = tops[i % w] {
-            *v = i / w >= top;
+    for (y, row) in inside.chunks_exact_mut(map.width.max(1)).enumerate() {
+        for (v, top) in row.iter_mut().zip(&tops) {
+            *v = top.is_none_or(|top| y >= top);
         }
     }
     inside
@@ -207,11 +208,7 @@ fn multiscale(sparse: &DepthMap, settings: &IpBasic) -> DepthMap {
     advance(&mut map, |m| close(m, &Kernel::full(5)));
     merge_from(&mut map, median5, |_, d| d > VALID);
     let inside = top_mask(&map);
-    merge_from(
-        &mut map,
-        |m| dilate(m, &Kernel::full(9)),
-        |i, d| d <= VALID && inside[i],
-    );
+    fill_where(&mut map, &Kernel::full(9), |i, d| d <= VALID && inside[i]);
     // Extrapolating extends the columns and drops the mask; otherwise the mask is taken
     // again after the fill (the fill never reaches above it, so it is the same one). No
     // 31×31 fill here: only the fast pipeline has it.
@@ -222,11 +219,7 @@ fn multiscale(sparse: &DepthMap, settings: &IpBasic) -> DepthMap {
         top_mask(&map)
     };
     for _ in 0..6 {
-        merge_from(
-            &mut map,
-            |m| dilate(m, &Kernel::full(5)),
-            |i, d| d < VALID && inside[i],
-        );
+        fill_where(&mut map, &Kernel::full(5), |i, d| d < VALID && inside[i]);
     }
     // Which pixels the median (and the bilateral filter after it) may replace: valid
     // ones inside, taken before the median as IP-Basic does.
@@ -269,10 +262,10 @@ fn fast(sparse: &DepthMap, settings: &IpBasic) -> DepthMap {
     invert_valid(&mut map, settings.max_depth);
     advance(&mut map, |m| dilate(m, &Kernel::diamond(5)));
     advance(&mut map, |m| close(m, &Kernel::full(5)));
-    merge_from(&mut map, |m| dilate(m, &Kernel::full(7)), |_, d| d < VALID);
+    fill_where(&mut map, &Kernel::full(7), |_, d| d < VALID);
     if settings.extrapolate {
         extend_columns_upward(&mut map);
-        merge_from(&mut map, |m| dilate(m, &Kernel::full(31)), |_, d| d < VALID);
+        fill_where(&mut map, &Kernel::full(31), |_, d| d < VALID);
     }
     advance(&mut map, median5);
     match settings.blur {
