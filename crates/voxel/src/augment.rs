@@ -1,6 +1,6 @@
 //! Training-time augmentation of a [`Scene`], as the published configuration runs it:
 //! ground-truth sampling, then a random flip across the x axis, a rotation about z
-//! and a scaling of the whole scene. Every draw comes from the caller's [`Sampler`]
+//! and a scaling of the whole scene — LiDAR and pseudo points alike. Every draw comes from the caller's [`Sampler`]
 //! (one forked stream per step, so switching one step off leaves the others' draws
 //! unchanged).
 //!
@@ -8,22 +8,46 @@
 //! distinct database objects of the class are drawn; a candidate is pasted only if its
 //! bird's-eye footprint overlaps no box of the scene (of any class), no box pasted for
 //! an earlier group and no other candidate of its own group (two overlapping candidates
-//! are both rejected). The scene's points inside pasted boxes are removed and the
-//! objects' points added.
+//! are both rejected). The scene's points (and pseudo points) inside pasted boxes are
+//! removed and the objects' added.
 
 use crate::boxes::{GtBox, LidarBox, bev_intersection, in_any_box, rotate_z};
 use crate::config::{AugmentConfig, SampleGroup};
 use crate::error::{Result, VoxelError};
 use crate::gt_database::GtDatabase;
-use crate::scene::Scene;
+use crate::scene::{PseudoPoint, Scene};
 use fusiondet_dataset::rng::Sampler;
 use fusiondet_kitti::LidarPoint;
 
-/// Mirrors the scene across the x axis: y → −y, heading → −heading.
-pub fn flip_x(scene: &mut Scene) {
-    for p in &mut scene.points {
+/// Mirrors points across the x axis (y → −y), whatever else they carry.
+fn flip_points<const N: usize>(points: &mut [[f32; N]]) {
+    for p in points {
         p[1] = -p[1];
     }
+}
+
+/// Rotates points about z by `angle`.
+fn rotate_points<const N: usize>(points: &mut [[f32; N]], angle: f64) {
+    for p in points {
+        let [x, y] = rotate_z([p[0] as f64, p[1] as f64], angle);
+        p[0] = x as f32;
+        p[1] = y as f32;
+    }
+}
+
+/// Scales point positions about the origin.
+fn scale_points<const N: usize>(points: &mut [[f32; N]], factor: f64) {
+    for p in points {
+        for v in &mut p[..3] {
+            *v = (*v as f64 * factor) as f32;
+        }
+    }
+}
+
+/// Mirrors the scene across the x axis: y → −y, heading → −heading.
+pub fn flip_x(scene: &mut Scene) {
+    flip_points(&mut scene.points);
+    flip_points(&mut scene.pseudo);
     for g in &mut scene.gts {
         g.bbox.y = -g.bbox.y;
         g.bbox.heading = -g.bbox.heading;
@@ -32,11 +56,8 @@ pub fn flip_x(scene: &mut Scene) {
 
 /// Rotates the scene about the LiDAR z axis by `angle` (counter-clockwise from above).
 pub fn rotate(scene: &mut Scene, angle: f64) {
-    for p in &mut scene.points {
-        let [x, y] = rotate_z([p[0] as f64, p[1] as f64], angle);
-        p[0] = x as f32;
-        p[1] = y as f32;
-    }
+    rotate_points(&mut scene.points, angle);
+    rotate_points(&mut scene.pseudo, angle);
     for g in &mut scene.gts {
         let [x, y] = rotate_z([g.bbox.x, g.bbox.y], angle);
         g.bbox.x = x;
@@ -47,11 +68,8 @@ pub fn rotate(scene: &mut Scene, angle: f64) {
 
 /// Scales the scene about the LiDAR origin: positions and box sizes times `factor`.
 pub fn scale(scene: &mut Scene, factor: f64) {
-    for p in &mut scene.points {
-        for v in &mut p[..3] {
-            *v = (*v as f64 * factor) as f32;
-        }
-    }
+    scale_points(&mut scene.points, factor);
+    scale_points(&mut scene.pseudo, factor);
     for g in &mut scene.gts {
         let b = &mut g.bbox;
         for v in [
@@ -105,6 +123,11 @@ impl GtSampler {
             pools,
             limit_whole_scene: config.limit_whole_scene,
         })
+    }
+
+    /// Whether pasted objects bring pseudo points (the database was built with them).
+    pub fn has_pseudo(&self) -> bool {
+        self.database.has_pseudo()
     }
 
     /// Objects eligible for pasting, per group.
@@ -161,27 +184,32 @@ impl GtSampler {
             .iter()
             .map(|&i| self.database.objects()[i].bbox)
             .collect();
+        let shifted = |p: &[f32], b: &LidarBox| -> [f32; 3] {
+            [
+                (p[0] as f64 + b.x) as f32,
+                (p[1] as f64 + b.y) as f32,
+                (p[2] as f64 + b.z) as f32,
+            ]
+        };
+        let outside = |p: &[f32]| !in_any_box(&new_boxes, [p[0] as f64, p[1] as f64, p[2] as f64]);
         let mut points: Vec<LidarPoint> = Vec::new();
+        let mut pseudo: Vec<PseudoPoint> = Vec::new();
         for &i in &pasted {
             let b = &self.database.objects()[i].bbox;
             points.extend(self.database.points_of(i).iter().map(|p| {
-                [
-                    (p[0] as f64 + b.x) as f32,
-                    (p[1] as f64 + b.y) as f32,
-                    (p[2] as f64 + b.z) as f32,
-                    p[3],
-                ]
+                let [x, y, z] = shifted(p, b);
+                [x, y, z, p[3]]
+            }));
+            pseudo.extend(self.database.pseudo_of(i).iter().map(|p| {
+                let [x, y, z] = shifted(p, b);
+                [x, y, z, p[3], p[4], p[5]]
             }));
         }
         // Pasted objects' points first, then the scene's outside the pasted boxes.
-        points.extend(
-            scene
-                .points
-                .iter()
-                .copied()
-                .filter(|p| !in_any_box(&new_boxes, [p[0] as f64, p[1] as f64, p[2] as f64])),
-        );
+        points.extend(scene.points.iter().copied().filter(|p| outside(p)));
+        pseudo.extend(scene.pseudo.iter().copied().filter(|p| outside(p)));
         scene.points = points;
+        scene.pseudo = pseudo;
         scene.gts.extend(pasted.iter().map(|&i| {
             let o = &self.database.objects()[i];
             GtBox {
@@ -274,6 +302,10 @@ mod tests {
     fn scene() -> Scene {
         Scene {
             points: vec![[10.0, 2.0, -1.0, 0.5], [30.0, -5.0, 0.0, 0.25]],
+            pseudo: vec![
+                [10.0, 2.0, -1.0, 0.1, 0.2, 0.3],
+                [30.0, -5.0, 0.0, 0.4, 0.5, 0.6],
+            ],
             gts: vec![GtBox {
                 bbox: car(10.0, 2.0, 0.3),
                 class: ObjectClass::Car,
@@ -290,12 +322,17 @@ mod tests {
         let mut s = scene();
         flip_x(&mut s);
         assert_eq!(s.points[0], [10.0, -2.0, -1.0, 0.5]);
+        assert_eq!(s.pseudo[0], [10.0, -2.0, -1.0, 0.1, 0.2, 0.3]);
         assert_eq!((s.gts[0].bbox.y, s.gts[0].bbox.heading), (-2.0, -0.3));
 
         let mut s = scene();
         rotate(&mut s, FRAC_PI_2);
         // (10, 2) → (−2, 10); the heading turns with it.
         assert!(close(s.points[0][0] as f64, -2.0) && close(s.points[0][1] as f64, 10.0));
+        let q = s.pseudo[0];
+        assert!(
+            close(q[0] as f64, -2.0) && close(q[1] as f64, 10.0) && q[2..] == [-1.0, 0.1, 0.2, 0.3]
+        );
         let b = s.gts[0].bbox;
         assert!(close(b.x, -2.0) && close(b.y, 10.0) && close(b.heading, 0.3 + FRAC_PI_2));
         // A point inside the box stays inside after the rotation.
@@ -304,6 +341,7 @@ mod tests {
         let mut s = scene();
         scale(&mut s, 2.0);
         assert_eq!(s.points[1], [60.0, -10.0, 0.0, 0.25]);
+        assert_eq!(s.pseudo[1], [60.0, -10.0, 0.0, 0.4, 0.5, 0.6]);
         let b = s.gts[0].bbox;
         assert_eq!(
             [b.x, b.y, b.z, b.dx, b.dy, b.dz, b.heading],
@@ -356,6 +394,8 @@ mod tests {
             bbox_2d: [0.0; 4],
             offset: 0,
             num_points: 0,
+            pseudo_offset: 0,
+            num_pseudo: 0,
         }
     }
 
@@ -444,5 +484,51 @@ mod tests {
         )
         .unwrap_err();
         assert!(err.to_string().contains("Cyclist"), "{err}");
+    }
+
+    /// With a database built with pseudo points, pasted objects bring theirs (shifted to
+    /// the box) and the scene's pseudo points inside pasted boxes go; without, the
+    /// scene's inside pasted boxes still go.
+    #[test]
+    fn pasting_carries_pseudo_points() {
+        let config = AugmentConfig {
+            sample_groups: vec![SampleGroup {
+                class: ObjectClass::Car,
+                count: 15,
+                min_points: 5,
+            }],
+            removed_difficulties: vec![-1],
+            ..AugmentConfig::none()
+        };
+        let plain = database();
+        let mut with_pseudo = GtDatabase::new();
+        with_pseudo.mark_pseudo();
+        for (i, o) in plain.objects().iter().enumerate() {
+            let pseudo: Vec<PseudoPoint> = (0..3)
+                .map(|k| [0.0, 0.1 * k as f32, 0.0, 0.5, 0.5, i as f32])
+                .collect();
+            with_pseudo.push_with_pseudo(
+                db_object(o.bbox, o.difficulty),
+                plain.points_of(i),
+                &pseudo,
+            );
+        }
+        let gs = GtSampler::new(with_pseudo, &config).unwrap();
+        assert!(gs.has_pseudo());
+        let mut s = scene();
+        s.pseudo.push([20.5, 10.0, -1.0, 0.0, 0.0, 0.0]);
+        assert_eq!(gs.paste(&mut s, &mut Sampler::new(0)), 2);
+        // Objects 1 and 2 with 3 pseudo points each, then the scene's two outside.
+        assert_eq!(s.pseudo.len(), 6 + 2);
+        assert!(s.pseudo.contains(&[20.0, 10.2, -1.0, 0.5, 0.5, 1.0]));
+        assert!(s.pseudo.contains(&[40.0, -9.9, -1.0, 0.5, 0.5, 2.0]));
+        assert!(!s.pseudo.contains(&[20.5, 10.0, -1.0, 0.0, 0.0, 0.0]));
+
+        let gs = GtSampler::new(database(), &config).unwrap();
+        assert!(!gs.has_pseudo());
+        let mut s = scene();
+        s.pseudo.push([20.5, 10.0, -1.0, 0.0, 0.0, 0.0]);
+        gs.paste(&mut s, &mut Sampler::new(0));
+        assert_eq!(s.pseudo, scene().pseudo);
     }
 }

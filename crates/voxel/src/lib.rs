@@ -44,6 +44,6 @@ pub use gt_database::{DbObject, GtDatabase, kitti_difficulty};
 pub use roi_targets::{
     Proposal, RoiTargets, canonical_gt, decode_roi, roi_reg_target, sample_rois,
 };
-pub use scene::Scene;
+pub use scene::{PseudoPoint, Scene};
 pub use targets::{AnchorAssigner, AnchorTargets};
 pub use voxelize::{Voxelizer, Voxels, fov_mask, points_in_fov};

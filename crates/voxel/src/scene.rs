@@ -1,6 +1,6 @@
-//! A frame as the voxel family trains on it: the points (x, y, z, intensity) and the
-//! labelled boxes, both in the LiDAR frame. Augmentation changes a scene; the targets
-//! and the voxels are made from it.
+//! A frame as the voxel family trains on it: the points (x, y, z, intensity), for
+//! DASANet also the pseudo points of its camera, and the labelled boxes, all in the
+//! LiDAR frame. Augmentation changes a scene; the targets and the voxels are made from it.
 
 use crate::boxes::{GtBox, LidarBox};
 use crate::config::VoxelConfig;
@@ -8,9 +8,14 @@ use crate::voxelize::points_in_fov;
 use fusiondet_dataset::SensorFrame;
 use fusiondet_kitti::{LidarPoint, ObjectClass};
 
+/// A pseudo point: x, y, z (LiDAR frame, metres) and r, g, b (0–1) of its pixel.
+pub type PseudoPoint = [f32; 6];
+
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Scene {
     pub points: Vec<LidarPoint>,
+    /// The camera's pseudo points (empty for LiDAR-only detectors).
+    pub pseudo: Vec<PseudoPoint>,
     /// Every labelled object but DontCare: boxes of other classes still matter to
     /// augmentation (pasted objects must not collide with them).
     pub gts: Vec<GtBox>,
@@ -35,7 +40,11 @@ impl Scene {
                 class: o.class,
             })
             .collect();
-        Scene { points, gts }
+        Scene {
+            points,
+            pseudo: Vec::new(),
+            gts,
+        }
     }
 
     /// What the targets are made from (after augmentation, as OpenPCDet's
@@ -108,6 +117,7 @@ pub(crate) mod tests {
         };
         let mut s = Scene {
             points: Vec::new(),
+            pseudo: Vec::new(),
             gts: vec![
                 b(10.0, 4.0, ObjectClass::Car),
                 b(80.0, 0.0, ObjectClass::Car), // beyond x 70.4

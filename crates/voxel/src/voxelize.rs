@@ -14,6 +14,7 @@
 
 use crate::config::VoxelConfig;
 use crate::error::Result;
+use crate::scene::PseudoPoint;
 use fusiondet_dataset::rng::Sampler;
 use fusiondet_geometry::CameraModel;
 use fusiondet_kitti::LidarPoint;
@@ -63,8 +64,10 @@ pub struct Voxels {
     pub coords: Vec<[i32; 3]>,
     /// Points each voxel kept (1 ..= max_points_per_voxel).
     pub num_points: Vec<u32>,
-    /// Mean (x, y, z, intensity) of the kept points: the network's input features.
-    pub mean_features: Vec<[f32; 4]>,
+    /// Mean of the kept points' values, `channels` per voxel, row-major: the network's
+    /// input features ((x, y, z, intensity) for LiDAR, (x, y, z, r, g, b) for pseudo).
+    pub features: Vec<f32>,
+    pub channels: usize,
     /// Voxels along [x, y, z].
     pub grid_size: [usize; 3],
     /// Input points inside the grid.
@@ -93,9 +96,14 @@ impl Voxels {
             .collect()
     }
 
-    /// The mean features as one row-major `len × 4` array.
-    pub fn flat_features(&self) -> Vec<f32> {
-        self.mean_features.iter().flatten().copied().collect()
+    /// The mean features as one row-major `len × channels` array.
+    pub fn flat_features(&self) -> &[f32] {
+        &self.features
+    }
+
+    /// The mean features of voxel `row`.
+    pub fn features_of(&self, row: usize) -> &[f32] {
+        &self.features[row * self.channels..(row + 1) * self.channels]
     }
 }
 
@@ -154,7 +162,21 @@ impl Voxelizer {
         max_voxels: usize,
         shuffle: Option<&mut Sampler>,
     ) -> Voxels {
-        self.run(points, max_voxels, shuffle, false).0
+        let max_points = self.config.max_points_per_voxel;
+        self.run(points, max_points, max_voxels, shuffle, false).0
+    }
+
+    /// Voxelizes pseudo points on the same grid, averaging at most
+    /// `max_points_per_voxel` per voxel (DASANet: 15) over all six values.
+    pub fn voxelize_pseudo(
+        &self,
+        points: &[PseudoPoint],
+        max_points_per_voxel: usize,
+        max_voxels: usize,
+        shuffle: Option<&mut Sampler>,
+    ) -> Voxels {
+        self.run(points, max_points_per_voxel, max_voxels, shuffle, false)
+            .0
     }
 
     /// As [`Voxelizer::voxelize`], also giving each input point's voxel row (`None` for
@@ -166,13 +188,16 @@ impl Voxelizer {
         max_voxels: usize,
         shuffle: Option<&mut Sampler>,
     ) -> (Voxels, Vec<Option<u32>>) {
-        let (voxels, map) = self.run(points, max_voxels, shuffle, true);
+        let max_points = self.config.max_points_per_voxel;
+        let (voxels, map) = self.run(points, max_points, max_voxels, shuffle, true);
         (voxels, map.unwrap_or_default())
     }
 
-    fn run(
+    /// One voxelizer for points of any width N (x, y, z first).
+    fn run<const N: usize>(
         &self,
-        points: &[LidarPoint],
+        points: &[[f32; N]],
+        max_points: usize,
         max_voxels: usize,
         shuffle: Option<&mut Sampler>,
         with_map: bool,
@@ -182,15 +207,16 @@ impl Voxelizer {
             s.shuffle(&mut idx);
             idx
         });
-        let max_points = self.config.max_points_per_voxel as u32;
+        let max_points = max_points as u32;
         let [nx, ny, _] = self.grid.map(|n| n as u64);
         let mut rows: FxHashMap<u64, u32> = FxHashMap::default();
         rows.reserve(points.len().min(max_voxels.saturating_mul(2)));
         let mut out = Voxels {
             grid_size: self.grid,
+            channels: N,
             ..Voxels::default()
         };
-        let mut sums: Vec<[f64; 4]> = Vec::new();
+        let mut sums: Vec<[f64; N]> = Vec::new();
         let mut map = with_map.then(|| vec![None; points.len()]);
         for k in 0..points.len() {
             let i = order.as_ref().map_or(k, |o| o[k] as usize);
@@ -213,7 +239,7 @@ impl Voxelizer {
                     rows.insert(key, row);
                     out.coords.push(c);
                     out.num_points.push(0);
-                    sums.push([0.0; 4]);
+                    sums.push([0.0; N]);
                     row
                 }
             };
@@ -229,10 +255,10 @@ impl Voxelizer {
                 }
             }
         }
-        out.mean_features = sums
+        out.features = sums
             .iter()
             .zip(&out.num_points)
-            .map(|(s, &n)| s.map(|v| (v / n as f64) as f32))
+            .flat_map(|(s, &n)| s.map(|v| (v / n as f64) as f32))
             .collect();
         (out, map)
     }
@@ -256,6 +282,25 @@ mod tests {
         .unwrap()
     }
 
+    /// Pseudo points: six-channel means, their own per-voxel cap, a seeded shuffle.
+    #[test]
+    fn pseudo_points_average_six_values_up_to_their_cap() {
+        let v = cube();
+        let mut pts: Vec<PseudoPoint> = (0..20)
+            .map(|k| [0.5, 0.5, 0.5, k as f32, 1.0, 0.5])
+            .collect();
+        pts.push([2.5, 0.5, 0.5, 0.2, 0.4, 0.6]);
+        let out = v.voxelize_pseudo(&pts, 15, 10, None);
+        assert_eq!(out.channels, 6);
+        assert_eq!(out.num_points, vec![15, 1]);
+        // The first 15 in scan order: colours 0..14, mean 7.
+        assert_eq!(out.features_of(0), [0.5, 0.5, 0.5, 7.0, 1.0, 0.5]);
+        assert_eq!(out.features_of(1), [2.5, 0.5, 0.5, 0.2, 0.4, 0.6]);
+        let shuffled = |seed| v.voxelize_pseudo(&pts, 15, 10, Some(&mut Sampler::new(seed)));
+        assert_eq!(shuffled(4), shuffled(4));
+        assert_ne!(shuffled(4).features_of(0)[3], 7.0);
+    }
+
     #[test]
     fn points_fall_into_floor_voxels_and_features_are_means() {
         let v = cube();
@@ -271,8 +316,8 @@ mod tests {
         let out = v.voxelize(&pts, 10, None);
         assert_eq!(out.coords, vec![[0, 0, 0], [2, 1, 3]]);
         assert_eq!(out.num_points, vec![2, 1]);
-        assert_eq!(out.mean_features[0], [0.625, 0.375, 0.375, 0.5]);
-        assert_eq!(out.mean_features[1], [3.5, 1.5, 2.5, 0.25]);
+        assert_eq!(out.features_of(0), [0.625, 0.375, 0.375, 0.5]);
+        assert_eq!(out.features_of(1), [3.5, 1.5, 2.5, 0.25]);
         assert_eq!(
             (out.points_in_range, out.points_kept, out.points_dropped),
             (4, 3, 0)
@@ -313,7 +358,7 @@ mod tests {
         assert_eq!(out.points_kept, 6);
         assert_eq!(out.points_in_range, 8);
         // Intensities of points 0 and 4 in voxel 0.
-        assert_eq!(out.mean_features[0][3], 2.0);
+        assert_eq!(out.features_of(0)[3], 2.0);
     }
 
     #[test]
@@ -375,7 +420,7 @@ mod tests {
             out.points_kept
         );
         let mut seen = std::collections::HashSet::new();
-        for (c, f) in out.coords.iter().zip(&out.mean_features) {
+        for (c, f) in out.coords.iter().zip(out.features.chunks_exact(4)) {
             assert!(seen.insert(*c), "voxel {c:?} listed twice");
             // The mean of points in a box-shaped cell lies in the cell.
             let centre = v.voxel_centre(*c);

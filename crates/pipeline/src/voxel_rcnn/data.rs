@@ -11,7 +11,9 @@ use fusiondet_dataset::rng::Sampler;
 use fusiondet_kitti::ObjectClass;
 use fusiondet_models::voxel_rcnn::{AnchorLossTargets, BackbonePlan};
 use fusiondet_nn::sparse::SparseSites;
-use fusiondet_voxel::{AnchorAssigner, GtBox, GtSampler, Scene, Voxelizer, Voxels, augment};
+use fusiondet_voxel::{
+    AnchorAssigner, GtBox, GtSampler, PseudoPoint, Scene, Voxelizer, Voxels, augment,
+};
 use std::sync::Arc;
 
 /// One frame ready for the network.
@@ -55,9 +57,22 @@ impl VoxelData {
         frame: &SensorFrame,
         augment_with: Option<&mut Sampler>,
     ) -> Result<VoxelSample> {
-        let mut scene = Scene::from_frame(frame, self.section.voxels.fov_only);
         let mut rng = augment_with;
-        if let Some(rng) = rng.as_deref_mut() {
+        let scene = self.scene(frame, Vec::new(), rng.as_deref_mut())?;
+        Ok(self.voxelize(&frame.id, &scene, rng))
+    }
+
+    /// The frame's scene with `pseudo` points beside its scan (none for Voxel R-CNN),
+    /// augmented when `augment_with` is given, its targets kept.
+    pub fn scene(
+        &self,
+        frame: &SensorFrame,
+        pseudo: Vec<PseudoPoint>,
+        augment_with: Option<&mut Sampler>,
+    ) -> Result<Scene> {
+        let mut scene = Scene::from_frame(frame, self.section.voxels.fov_only);
+        scene.pseudo = pseudo;
+        if let Some(rng) = augment_with {
             augment(
                 &mut scene,
                 &self.section.augment,
@@ -67,13 +82,17 @@ impl VoxelData {
             .map_err(voxel_err)?;
         }
         scene.keep_targets(&self.classes, &self.section.voxels);
-        let max_voxels = self.section.voxels.max_voxels(rng.is_some());
-        let voxels = self.voxelizer.voxelize(&scene.points, max_voxels, rng);
-        Ok(VoxelSample {
-            id: frame.id.clone(),
-            voxels,
-            gts: scene.gts,
-        })
+        Ok(scene)
+    }
+
+    /// The scene's LiDAR voxels (a sampler: training's cap sampling).
+    pub fn voxelize(&self, id: &str, scene: &Scene, shuffle: Option<&mut Sampler>) -> VoxelSample {
+        let max_voxels = self.section.voxels.max_voxels(shuffle.is_some());
+        VoxelSample {
+            id: id.to_string(),
+            voxels: self.voxelizer.voxelize(&scene.points, max_voxels, shuffle),
+            gts: scene.gts.clone(),
+        }
     }
 }
 
@@ -108,7 +127,7 @@ pub fn batch_inputs(
     }
     let features: Vec<f32> = samples
         .iter()
-        .flat_map(|s| s.voxels.flat_features())
+        .flat_map(|s| s.voxels.flat_features().iter().copied())
         .collect();
     let n = coords.len();
     let sites = SparseSites::new(coords, sparse_shape, samples.len())
@@ -120,14 +139,10 @@ pub fn batch_inputs(
     ))
 }
 
-/// The anchor targets of a batch as the loss takes them: per frame, each cared anchor
-/// weighted by 1 / (the frame's positives, at least 1).
-pub fn anchor_targets(
-    data: &VoxelData,
-    samples: &[VoxelSample],
-    device: &Device,
-) -> AnchorLossTargets {
-    let b = samples.len();
+/// The anchor targets of a batch as the loss takes them: per frame (its ground truth),
+/// each cared anchor weighted by 1 / (the frame's positives, at least 1).
+pub fn anchor_targets(data: &VoxelData, frames: &[&[GtBox]], device: &Device) -> AnchorLossTargets {
+    let b = frames.len();
     let a = data.assigner.anchors().len();
     let k = data.classes.len();
     let bins = data.section.anchors.num_dir_bins;
@@ -136,8 +151,8 @@ pub fn anchor_targets(
     let mut reg_weights = vec![0f32; b * a];
     let mut box_targets = vec![0f32; b * a * 7];
     let mut dir_onehot = vec![0f32; b * a * bins];
-    for (f, sample) in samples.iter().enumerate() {
-        let t = data.assigner.assign(&sample.gts);
+    for (f, gts) in frames.iter().enumerate() {
+        let t = data.assigner.assign(gts);
         let positives = t.labels.iter().filter(|&&l| l > 0).count().max(1) as f32;
         for i in 0..a {
             let row = f * a + i;
@@ -172,7 +187,8 @@ pub fn collate(
     device: &Device,
 ) -> Result<VoxelBatch> {
     let (features, plan) = batch_inputs(&samples, data.section.voxels.sparse_shape(), device)?;
-    let anchor_targets = with_targets.then(|| anchor_targets(data, &samples, device));
+    let gts: Vec<&[GtBox]> = samples.iter().map(|s| s.gts.as_slice()).collect();
+    let anchor_targets = with_targets.then(|| anchor_targets(data, &gts, device));
     Ok(VoxelBatch {
         ids: samples.iter().map(|s| s.id.clone()).collect(),
         features,
