@@ -13,16 +13,24 @@ pub enum DetectorKind {
     /// Voxel R-CNN (LiDAR only): voxels → sparse 3D backbone → BEV anchor head →
     /// voxel RoI pooling → RoI head.
     VoxelRcnn,
+    /// DASANet: Voxel R-CNN with a pseudo-point branch from depth completion, TDIS and
+    /// STCA (the rows of its ablation are configurations of this family).
+    Dasanet,
 }
 
 impl DetectorKind {
-    pub const ALL: [DetectorKind; 2] = [DetectorKind::Frustum, DetectorKind::VoxelRcnn];
+    pub const ALL: [DetectorKind; 3] = [
+        DetectorKind::Frustum,
+        DetectorKind::VoxelRcnn,
+        DetectorKind::Dasanet,
+    ];
 
     /// The name in configurations (`[detector] kind`).
     pub fn name(self) -> &'static str {
         match self {
             DetectorKind::Frustum => "frustum",
             DetectorKind::VoxelRcnn => "voxel_rcnn",
+            DetectorKind::Dasanet => "dasanet",
         }
     }
 
@@ -32,6 +40,7 @@ impl DetectorKind {
         match self {
             DetectorKind::Frustum => "fconvnet",
             DetectorKind::VoxelRcnn => "voxel_rcnn",
+            DetectorKind::Dasanet => "dasanet",
         }
     }
 

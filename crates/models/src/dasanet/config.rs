@@ -71,12 +71,11 @@ impl AblationRow {
     }
 }
 
+/// What DASANet adds to Voxel R-CNN: which modules are on and the sizes the paper leaves
+/// open (the `[dasanet.modules]` table of a configuration file).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct DasanetNetConfig {
-    /// LiDAR branch, BEV network, anchor head, head widths. Its `roi.levels` are the
-    /// levels F^S (and F^P) pool from.
-    pub voxel_rcnn: VoxelRcnnNetConfig,
+pub struct DasanetModules {
     pub tdis: bool,
     pub stca: bool,
     pub stca_shape: StcaConfig,
@@ -85,39 +84,66 @@ pub struct DasanetNetConfig {
     pub aux_weights: [f64; 2],
 }
 
+impl Default for DasanetModules {
+    fn default() -> Self {
+        Self {
+            tdis: true,
+            stca: true,
+            stca_shape: StcaConfig::default(),
+            aux_weights: [1.0, 1.0],
+        }
+    }
+}
+
+/// The whole network's shape: Voxel R-CNN's (LiDAR branch, BEV network, anchor head, head
+/// widths; its `roi.levels` are the levels F^S and F^P pool from) and the modules.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DasanetNetConfig {
+    pub voxel_rcnn: VoxelRcnnNetConfig,
+    pub modules: DasanetModules,
+}
+
 impl Default for DasanetNetConfig {
     fn default() -> Self {
         Self::published(AblationRow::Dasanet)
     }
 }
 
+/// Voxel R-CNN's published shape with the RoI grid pooled from C3 and C4 at 88 channels
+/// each, as DASANet's published rows use it.
+pub fn published_voxel_rcnn() -> VoxelRcnnNetConfig {
+    let mut voxel_rcnn = VoxelRcnnNetConfig::default();
+    let level = |stage, radius| PoolLevelConfig {
+        stage,
+        mid_channels: 88,
+        out_channels: 88,
+        query_range: [4, 4, 4],
+        radius,
+        samples: 16,
+    };
+    voxel_rcnn.roi.levels = vec![level(3, 0.8), level(4, 1.6)];
+    voxel_rcnn
+}
+
 impl DasanetNetConfig {
     /// The published-size network of a row with at least one module (the baseline row is
     /// Voxel R-CNN itself, the `voxel_rcnn` family).
     pub fn published(row: AblationRow) -> Self {
-        let mut voxel_rcnn = VoxelRcnnNetConfig::default();
-        let level = |stage, radius| PoolLevelConfig {
-            stage,
-            mid_channels: 88,
-            out_channels: 88,
-            query_range: [4, 4, 4],
-            radius,
-            samples: 16,
-        };
-        voxel_rcnn.roi.levels = vec![level(3, 0.8), level(4, 1.6)];
         let (tdis, stca) = row.modules();
         Self {
-            voxel_rcnn,
-            tdis,
-            stca,
-            stca_shape: StcaConfig::default(),
-            aux_weights: [1.0, 1.0],
+            voxel_rcnn: published_voxel_rcnn(),
+            modules: DasanetModules {
+                tdis,
+                stca,
+                ..DasanetModules::default()
+            },
         }
     }
 
     /// Which ablation row this shape is.
     pub fn row(&self) -> AblationRow {
-        match (self.tdis, self.stca) {
+        match (self.modules.tdis, self.modules.stca) {
             (false, false) => AblationRow::Baseline,
             (true, false) => AblationRow::Tdis,
             (false, true) => AblationRow::Stca,
@@ -127,7 +153,7 @@ impl DasanetNetConfig {
 
     /// Whether the auxiliary heads exist (both modules on).
     pub fn has_aux_heads(&self) -> bool {
-        self.tdis && self.stca
+        self.modules.tdis && self.modules.stca
     }
 
     /// RoI grid locations N.
@@ -153,18 +179,25 @@ impl DasanetNetConfig {
     /// Width of the detection head's input: F^T with TDIS, F^A with STCA.
     pub fn head_input(&self) -> usize {
         let on = |b: bool, w: usize| if b { w } else { 0 };
-        on(self.tdis, self.grid_width()) + on(self.stca, self.stca_shape.flattened_width())
+        let m = &self.modules;
+        on(m.tdis, self.grid_width()) + on(m.stca, m.stca_shape.flattened_width())
     }
 
     pub fn validate(&self) -> Result<(), String> {
+        self.modules.validate()?;
+        self.voxel_rcnn.validate()
+    }
+}
+
+impl DasanetModules {
+    pub fn validate(&self) -> Result<(), String> {
         if !(self.tdis || self.stca) {
             return Err(
-                "[dasanet.network]: neither tdis nor stca is on; the baseline row is Voxel R-CNN \
+                "[dasanet.modules]: neither tdis nor stca is on; the baseline row is Voxel R-CNN \
                  (kind = \"voxel_rcnn\")"
                     .into(),
             );
         }
-        self.voxel_rcnn.validate()?;
         self.stca_shape.validate()?;
         if self
             .aux_weights
@@ -172,7 +205,7 @@ impl DasanetNetConfig {
             .any(|w| !(w.is_finite() && *w >= 0.0))
         {
             return Err(format!(
-                "[dasanet.network] aux_weights {:?} must be finite and ≥ 0",
+                "[dasanet.modules] aux_weights {:?} must be finite and ≥ 0",
                 self.aux_weights
             ));
         }

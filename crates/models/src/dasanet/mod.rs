@@ -13,6 +13,7 @@
 //! +STCA row's F^A alone (no RoI grid pooling; see [`config`] for why). The baseline row
 //! is Voxel R-CNN itself.
 
+pub mod checkpoint;
 pub mod config;
 pub mod giou;
 pub mod loss;
@@ -20,7 +21,8 @@ pub mod stca;
 pub mod tca;
 pub mod tdis;
 
-pub use config::{AblationRow, DasanetNetConfig, PSEUDO_VOXEL_FEATURES};
+pub use checkpoint::{DasanetShape, load_dasanet, read_dasanet_shape, save_dasanet};
+pub use config::{AblationRow, DasanetModules, DasanetNetConfig, PSEUDO_VOXEL_FEATURES};
 pub use giou::{giou_3d_loss, iou_giou_3d};
 pub use loss::rcnn_loss;
 pub use stca::{RoiPoints, Stca, StcaConfig};
@@ -95,7 +97,7 @@ impl Dasanet {
         let pool = || RoiGridPool::new(&base.roi, &level_channels, device);
         let (c, n) = (config.roi_channels(), config.grid_locations());
         let grid_width = config.grid_width();
-        let stca_width = config.stca_shape.flattened_width();
+        let stca_width = config.modules.stca_shape.flattened_width();
         let head = |width| RoiHead::new(&base.roi, width, device);
         Ok(Self {
             lidar_backbone: VoxelBackbone::new(base, device),
@@ -108,12 +110,13 @@ impl Dasanet {
                 base.num_direction_bins,
                 device,
             ),
-            lidar_pool: config.tdis.then(pool),
-            pseudo_pool: config.tdis.then(pool),
-            tdis: config.tdis.then(|| Tdis::new(c, n, device)),
+            lidar_pool: config.modules.tdis.then(pool),
+            pseudo_pool: config.modules.tdis.then(pool),
+            tdis: config.modules.tdis.then(|| Tdis::new(c, n, device)),
             stca: config
+                .modules
                 .stca
-                .then(|| Stca::new(&config.stca_shape, &base.backbone_norm(), device)),
+                .then(|| Stca::new(&config.modules.stca_shape, &base.backbone_norm(), device)),
             head: head(config.head_input()),
             aux_tdis: config.has_aux_heads().then(|| head(grid_width)),
             aux_stca: config.has_aux_heads().then(|| head(stca_width)),
@@ -131,6 +134,19 @@ impl Dasanet {
     ) -> DasanetStageOne {
         let lidar = self.lidar_backbone.forward(lidar_features, lidar_plan);
         let pseudo = self.pseudo_backbone.forward(pseudo_features, pseudo_plan);
+        DasanetStageOne {
+            anchors: self.bev_and_anchors(&lidar, &pseudo),
+            lidar,
+            pseudo,
+        }
+    }
+
+    /// C4 and P4 height-compressed and concatenated → BEV backbone → anchor head.
+    pub fn bev_and_anchors(
+        &self,
+        lidar: &BackboneOutput,
+        pseudo: &BackboneOutput,
+    ) -> AnchorPredictions {
         let bev = Tensor::cat(
             vec![
                 height_compression(&lidar.output),
@@ -138,11 +154,48 @@ impl Dasanet {
             ],
             1,
         );
-        DasanetStageOne {
-            anchors: self.anchor_head.forward(self.bev.forward(bev)),
-            lidar,
-            pseudo,
-        }
+        self.anchor_head.forward(self.bev.forward(bev))
+    }
+
+    /// F^T [RoIs, N·C] (with TDIS): both branches' RoI grid features through TDIS.
+    pub fn supplemented(
+        &self,
+        config: &DasanetNetConfig,
+        stage_one: &DasanetStageOne,
+        inputs: &DasanetRoiInputs,
+    ) -> Option<Tensor<2>> {
+        let (tdis, lidar_pool, pseudo_pool) = (
+            self.tdis.as_ref()?,
+            self.lidar_pool.as_ref()?,
+            self.pseudo_pool.as_ref()?,
+        );
+        let (lidar_grid, pseudo_grid) = inputs
+            .grids
+            .as_ref()
+            .expect("TDIS needs both branches' RoI grid queries");
+        let levels = &config.voxel_rcnn.roi.levels;
+        let lidar = lidar_pool.forward(&pooled_maps(&stage_one.lidar, levels), lidar_grid);
+        let pseudo = pseudo_pool.forward(&pooled_maps(&stage_one.pseudo, levels), pseudo_grid);
+        Some(tdis.forward(lidar, pseudo))
+    }
+
+    /// F^A flattened [RoIs, g³·2C] (with STCA).
+    pub fn attention(&self, inputs: &DasanetRoiInputs, device: &Device) -> Option<Tensor<2>> {
+        let stca = self.stca.as_ref()?;
+        let (lidar, pseudo) = inputs
+            .points
+            .as_ref()
+            .expect("STCA needs the points cropped in the RoIs");
+        Some(stca.forward(lidar, pseudo, device))
+    }
+
+    /// The detection head's input: F^T and F^A, those present, concatenated.
+    pub fn head_input(
+        supplemented: &Option<Tensor<2>>,
+        attention: &Option<Tensor<2>>,
+    ) -> Tensor<2> {
+        let parts: Vec<Tensor<2>> = supplemented.iter().chain(attention).cloned().collect();
+        Tensor::cat(parts, 1)
     }
 
     /// Stage two over the RoIs of `inputs`; the auxiliary heads run when `auxiliary`.
@@ -153,37 +206,19 @@ impl Dasanet {
         inputs: &DasanetRoiInputs,
         auxiliary: bool,
     ) -> DasanetRoiOutput {
-        let levels = &config.voxel_rcnn.roi.levels;
         let device = stage_one.anchors.cls.device();
-        let supplemented = match (&self.tdis, &self.lidar_pool, &self.pseudo_pool) {
-            (Some(tdis), Some(lidar_pool), Some(pseudo_pool)) => {
-                let (lidar_grid, pseudo_grid) = inputs
-                    .grids
-                    .as_ref()
-                    .expect("TDIS needs both branches' RoI grid queries");
-                let lidar = lidar_pool.forward(&pooled_maps(&stage_one.lidar, levels), lidar_grid);
-                let pseudo =
-                    pseudo_pool.forward(&pooled_maps(&stage_one.pseudo, levels), pseudo_grid);
-                Some(tdis.forward(lidar, pseudo))
-            }
-            _ => None,
-        };
-        let attention = self.stca.as_ref().map(|stca| {
-            let (l, p) = inputs
-                .points
-                .as_ref()
-                .expect("STCA needs the points cropped in the RoIs");
-            stca.forward(l, p, &device)
-        });
-        let parts: Vec<Tensor<2>> = supplemented.iter().chain(&attention).cloned().collect();
-        let aux = |head: &Option<RoiHead>, x: Option<Tensor<2>>| match (head, x) {
-            (Some(h), Some(x)) if auxiliary => Some(h.forward(x)),
+        let supplemented = self.supplemented(config, stage_one, inputs);
+        let attention = self.attention(inputs, &device);
+        let aux = |head: &Option<RoiHead>, x: &Option<Tensor<2>>| match (head, x) {
+            (Some(h), Some(x)) if auxiliary => Some(h.forward(x.clone())),
             _ => None,
         };
         DasanetRoiOutput {
-            detection: self.head.forward(Tensor::cat(parts, 1)),
-            aux_tdis: aux(&self.aux_tdis, supplemented),
-            aux_stca: aux(&self.aux_stca, attention),
+            detection: self
+                .head
+                .forward(Self::head_input(&supplemented, &attention)),
+            aux_tdis: aux(&self.aux_tdis, &supplemented),
+            aux_stca: aux(&self.aux_stca, &attention),
         }
     }
 
@@ -230,7 +265,7 @@ impl Dasanet {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::voxel_rcnn::loss::{RoiLossTargets, VoxelRcnnLossConfig, box_corners};
     use crate::voxel_rcnn::roi_pool::VoxelGeometry;
@@ -257,7 +292,7 @@ mod tests {
         base.roi.cls_fc = vec![8];
         base.roi.reg_fc = vec![8];
         base.roi.dropout = 0.0;
-        config.stca_shape = StcaConfig {
+        config.modules.stca_shape = StcaConfig {
             grid: 4,
             margin: 0.1,
             max_points: 32,
@@ -354,11 +389,24 @@ mod tests {
                 .flat_map(|i| [1.0 + 0.015 * i as f32, -0.1, -0.9])
                 .collect();
             let inputs = DasanetRoiInputs {
-                grids: config.tdis.then(|| (grid(&one.lidar), grid(&one.pseudo))),
-                points: config.stca.then(|| {
+                grids: config
+                    .modules
+                    .tdis
+                    .then(|| (grid(&one.lidar), grid(&one.pseudo))),
+                points: config.modules.stca.then(|| {
                     (
-                        RoiPoints::new(&[(&lidar_points, 4)], &rois, &[0, 0], &config.stca_shape),
-                        RoiPoints::new(&[(&pseudo_points, 3)], &rois, &[0, 0], &config.stca_shape),
+                        RoiPoints::new(
+                            &[(&lidar_points, 4)],
+                            &rois,
+                            &[0, 0],
+                            &config.modules.stca_shape,
+                        ),
+                        RoiPoints::new(
+                            &[(&pseudo_points, 3)],
+                            &rois,
+                            &[0, 0],
+                            &config.modules.stca_shape,
+                        ),
                     )
                 }),
             };
@@ -392,7 +440,7 @@ mod tests {
                 &targets,
                 &VoxelRcnnLossConfig::default(),
                 1.0,
-                config.aux_weights,
+                config.modules.aux_weights,
             );
             let total = terms.into_iter().map(|t| t.1).reduce(|a, b| a + b).unwrap()
                 + one.anchors.cls.sum().mul_scalar(1e-3);
@@ -403,10 +451,10 @@ mod tests {
                 reached("lidar_backbone") && reached("pseudo_backbone") && reached("head"),
                 "{row:?}"
             );
-            assert_eq!(reached("tdis"), config.tdis, "{row:?}");
-            assert_eq!(reached("pseudo_pool"), config.tdis, "{row:?}");
-            assert_eq!(reached("stca.encoder"), config.stca, "{row:?}");
-            assert_eq!(reached("stca.attention"), config.stca, "{row:?}");
+            assert_eq!(reached("tdis"), config.modules.tdis, "{row:?}");
+            assert_eq!(reached("pseudo_pool"), config.modules.tdis, "{row:?}");
+            assert_eq!(reached("stca.encoder"), config.modules.stca, "{row:?}");
+            assert_eq!(reached("stca.attention"), config.modules.stca, "{row:?}");
             assert_eq!(reached("aux_stca"), row == AblationRow::Dasanet, "{row:?}");
 
             // Inference: the auxiliary heads do not run.

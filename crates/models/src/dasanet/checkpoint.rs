@@ -1,0 +1,122 @@
+//! DASANet checkpoints: burnpack weights tagged with the family and the network's shape
+//! (configuration, input grid height), refused by a configuration of another shape or
+//! family. The auxiliary heads are stored with the rest (training resumes with them).
+
+use super::{Dasanet, DasanetNetConfig};
+use crate::checkpoint::{ckpt_err, load_weights, read_tagged_config, write_tagged};
+use crate::error::ModelError;
+use crate::family::DetectorKind;
+use burn::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// What fixes the tensors of a DASANet.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DasanetShape {
+    pub network: DasanetNetConfig,
+    /// Heights of the input grid (41 for the published one).
+    pub grid_z: usize,
+}
+
+pub fn save_dasanet(model: &Dasanet, shape: &DasanetShape, path: &Path) -> Result<(), ModelError> {
+    let config = serde_json::to_string(shape).expect("the network shape serialises");
+    write_tagged(model, DetectorKind::Dasanet, config, path)
+}
+
+/// The shape stored in a DASANet checkpoint (refuses other families).
+pub fn read_dasanet_shape(path: &Path) -> Result<DasanetShape, ModelError> {
+    let json = read_tagged_config(path, DetectorKind::Dasanet)?;
+    serde_json::from_str(&json)
+        .map_err(|e| ckpt_err(path, format!("unreadable network shape: {e}")))
+}
+
+/// Loads a checkpoint whose stored shape must equal `shape`.
+pub fn load_dasanet(
+    shape: &DasanetShape,
+    path: &Path,
+    device: &Device,
+) -> Result<Dasanet, ModelError> {
+    let stored = read_dasanet_shape(path)?;
+    if stored != *shape {
+        return Err(ModelError::ConfigMismatch {
+            path: path.to_path_buf(),
+            differences: format!(
+                "the configuration builds {} but the checkpoint holds {}",
+                serde_json::to_string(shape).unwrap_or_default(),
+                serde_json::to_string(&stored).unwrap_or_default()
+            ),
+        });
+    }
+    let model =
+        Dasanet::new(&shape.network, shape.grid_z, device).map_err(ModelError::InvalidConfig)?;
+    load_weights(model, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::AblationRow;
+    use super::super::tests::tiny;
+    use super::*;
+    use crate::info::trainable_params;
+    use crate::voxel_rcnn::{VoxelRcnn, VoxelRcnnShape, read_voxel_rcnn_shape, save_voxel_rcnn};
+
+    #[test]
+    fn round_trips_and_refuses_other_shapes_and_families() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d.bpk");
+        let device = Device::flex();
+        let shape = DasanetShape {
+            network: tiny(AblationRow::Dasanet),
+            grid_z: 41,
+        };
+        let model = Dasanet::new(&shape.network, 41, &device).unwrap();
+        save_dasanet(&model, &shape, &path).unwrap();
+        assert_eq!(
+            crate::read_checkpoint_kind(&path).unwrap(),
+            DetectorKind::Dasanet
+        );
+        let back = load_dasanet(&shape, &path, &device).unwrap();
+        assert_eq!(trainable_params(&back), trainable_params(&model));
+        let w = |m: &Dasanet| {
+            m.tdis
+                .as_ref()
+                .unwrap()
+                .global
+                .val()
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap()
+        };
+        assert_eq!(w(&back), w(&model));
+
+        // Another row of the ablation is another shape.
+        let other = DasanetShape {
+            network: tiny(AblationRow::Tdis),
+            grid_z: 41,
+        };
+        let err = load_dasanet(&other, &path, &device)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("d.bpk") && err.contains("stca"), "{err}");
+        // Voxel R-CNN's reader refuses it, and DASANet's refuses a Voxel R-CNN checkpoint.
+        assert!(
+            read_voxel_rcnn_shape(&path)
+                .unwrap_err()
+                .to_string()
+                .contains("dasanet")
+        );
+        let vpath = dir.path().join("v.bpk");
+        let vshape = VoxelRcnnShape {
+            network: shape.network.voxel_rcnn.clone(),
+            grid_z: 41,
+        };
+        let v = VoxelRcnn::new(&vshape.network, 41, &device).unwrap();
+        save_voxel_rcnn(&v, &vshape, &vpath).unwrap();
+        assert!(
+            read_dasanet_shape(&vpath)
+                .unwrap_err()
+                .to_string()
+                .contains("voxel_rcnn")
+        );
+    }
+}
