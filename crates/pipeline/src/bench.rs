@@ -3,7 +3,7 @@
 //! `fusiondet bench` prints it; the ablation reports its frames/s the same way.
 
 use crate::config::ExperimentConfig;
-use crate::detect::{DetectInputs, StageTimes, load_detect_inputs};
+use crate::detect::{DetectInputs, SideInputs, StageTimes, load_detect_inputs};
 use crate::error::Result;
 use std::fmt;
 use std::path::PathBuf;
@@ -17,6 +17,8 @@ pub struct BenchOptions {
     pub data_dir: PathBuf,
     pub split: String,
     pub detections: Option<PathBuf>,
+    /// DASANet: completed depth maps to read instead of completing.
+    pub depth_dir: Option<PathBuf>,
     /// Timed runs (after one untimed warm-up run).
     pub repeats: usize,
     /// Use at most this many frames of the split (0 = all).
@@ -110,7 +112,10 @@ pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
         &options.checkpoint,
         &options.data_dir,
         &options.split,
-        options.detections.as_deref(),
+        SideInputs {
+            detections: options.detections.as_deref(),
+            depth_dir: options.depth_dir.as_deref(),
+        },
         options.max_frames,
         options.device,
     )?;

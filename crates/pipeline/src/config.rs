@@ -6,6 +6,7 @@
 //! value as default; unknown keys are errors, so a typo never goes unnoticed. This is
 //! the one parser every command uses.
 
+use crate::dasanet::DasanetSection;
 use crate::error::{PipelineError, Result};
 use crate::schedule::{OneCycle, StepDecay};
 use crate::voxel_rcnn::VoxelRcnnSection;
@@ -41,6 +42,10 @@ pub struct ExperimentConfig {
     /// published values when the file has none).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub voxel_rcnn: Option<VoxelRcnnSection>,
+    /// What DASANet adds to Voxel R-CNN (`kind = "dasanet"` only, whose LiDAR branch,
+    /// BEV network, anchors, heads and data `[voxel_rcnn]` configures).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dasanet: Option<DasanetSection>,
 }
 
 /// `[detector]`.
@@ -192,6 +197,7 @@ impl Default for ExperimentConfig {
             detect: DetectConfig::default(),
             refine: None,
             voxel_rcnn: None,
+            dasanet: None,
         }
     }
 }
@@ -240,15 +246,24 @@ impl ExperimentConfig {
         let mut config: ExperimentConfig =
             toml::from_str(text).map_err(|e| config_err(e.to_string()))?;
         let raw: toml::Table = toml::from_str(text).map_err(|e| config_err(e.to_string()))?;
-        match config.kind() {
-            DetectorKind::VoxelRcnn => {
+        let kind = config.kind();
+        if kind != DetectorKind::Dasanet && raw.contains_key("dasanet") {
+            return Err(config_err(format!(
+                "[dasanet] configures a dasanet detector, but [detector] kind is \"{kind}\""
+            )));
+        }
+        match kind {
+            DetectorKind::VoxelRcnn | DetectorKind::Dasanet => {
                 for section in ["frustum", "model", "loss", "refine"] {
                     if raw.contains_key(section) {
                         return Err(config_err(format!(
-                            "[{section}] configures the frustum family; a voxel_rcnn \
+                            "[{section}] configures the frustum family; a {kind} \
                              detector is configured in [voxel_rcnn] (remove [{section}])"
                         )));
                     }
+                }
+                if kind == DetectorKind::Dasanet {
+                    config.dasanet.get_or_insert_with(DasanetSection::default);
                 }
                 // The family's own training defaults, overlaid with the file's keys.
                 let mut train = toml::Table::try_from(TrainConfig::voxel_rcnn())
@@ -432,6 +447,12 @@ impl ExperimentConfig {
             .is_some_and(|n| n.is_nan() || n <= 0.0)
         {
             return bad("train.grad_clip_norm must be positive".into());
+        }
+        if let Some(d) = &self.dasanet {
+            d.validate().map_err(|m| PipelineError::Config {
+                path: path.to_path_buf(),
+                message: m,
+            })?;
         }
         if let Some(v) = &self.voxel_rcnn {
             v.validate().map_err(|m| PipelineError::Config {

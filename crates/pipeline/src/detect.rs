@@ -3,6 +3,7 @@
 //! write one KITTI result file per frame; and the per-stage timing `bench` reports.
 
 use crate::config::ExperimentConfig;
+use crate::dasanet::DasanetDetector;
 use crate::device::ComputeDevice;
 use crate::error::{PipelineError, Result};
 use crate::frustum::FrustumDetector;
@@ -26,6 +27,9 @@ pub struct DetectOptions {
     pub out_dir: PathBuf,
     /// 2D detections; `None` reads `DATA/rgb_detections/rgb_detection_<split>.txt`.
     pub detections: Option<PathBuf>,
+    /// Completed depth maps (`<id>.png`) for DASANet's pseudo points; `None` completes
+    /// each frame's scan.
+    pub depth_dir: Option<PathBuf>,
     /// Where the network runs.
     pub device: ComputeDevice,
 }
@@ -89,10 +93,19 @@ pub struct FrameResults {
     pub samples: usize,
 }
 
+/// What a family reads beside the frames: 2D detections (the frustum family; `None`
+/// reads the data set's own file) and completed depth maps (DASANet; `None` completes).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SideInputs<'a> {
+    pub detections: Option<&'a Path>,
+    pub depth_dir: Option<&'a Path>,
+}
+
 /// A trained detector of any family, chosen by the family its checkpoint records.
 pub enum Detector {
     Frustum(Box<FrustumDetector>),
     VoxelRcnn(Box<VoxelRcnnDetector>),
+    Dasanet(Box<DasanetDetector>),
 }
 
 /// A split prepared for one family's detector (the frames in the family's form, and
@@ -107,13 +120,18 @@ pub enum SplitInputs {
     Lidar {
         frames: fusiondet_dataset::InMemoryFrames<SensorFrame>,
     },
+    /// Whole frames with their images, and completed depth maps when given.
+    Camera {
+        frames: fusiondet_dataset::InMemoryFrames<SensorFrame>,
+        depth_dir: Option<PathBuf>,
+    },
 }
 
 impl SplitInputs {
     pub fn frames(&self) -> usize {
         match self {
             SplitInputs::Frustum { frames, .. } => frames.len(),
-            SplitInputs::Lidar { frames } => frames.len(),
+            SplitInputs::Lidar { frames } | SplitInputs::Camera { frames, .. } => frames.len(),
         }
     }
 
@@ -121,7 +139,7 @@ impl SplitInputs {
     pub fn detections_2d(&self) -> usize {
         match self {
             SplitInputs::Frustum { detections, .. } => detections.len(),
-            SplitInputs::Lidar { .. } => 0,
+            SplitInputs::Lidar { .. } | SplitInputs::Camera { .. } => 0,
         }
     }
 }
@@ -149,6 +167,9 @@ impl Detector {
             DetectorKind::VoxelRcnn => Detector::VoxelRcnn(Box::new(VoxelRcnnDetector::load(
                 config, checkpoint, device,
             )?)),
+            DetectorKind::Dasanet => {
+                Detector::Dasanet(Box::new(DasanetDetector::load(config, checkpoint, device)?))
+            }
         })
     }
 
@@ -156,19 +177,33 @@ impl Detector {
         match self {
             Detector::Frustum(d) => &d.config,
             Detector::VoxelRcnn(d) => &d.config,
+            Detector::Dasanet(d) => &d.config,
         }
     }
 
     /// Reads the first `max_frames` frames of a split (0 = all) in this family's form,
     /// with what else it needs (the frustum family: the 2D detections, `detections` or
-    /// the data set's own file for the split).
+    /// the data set's own file for the split; DASANet: completed depth maps in
+    /// `depth_dir`, if given). Refuses what the family does not read.
     pub fn load_split(
         &self,
         data_dir: &Path,
         split: &str,
         max_frames: usize,
-        detections: Option<&Path>,
+        side: SideInputs,
     ) -> Result<SplitInputs> {
+        let SideInputs {
+            detections,
+            depth_dir,
+        } = side;
+        if let (Some(dir), false) = (depth_dir, matches!(self, Detector::Dasanet(_))) {
+            return Err(PipelineError::Invalid(format!(
+                "--depth-dir {}: only a dasanet detector reads completed depth maps; this is \
+                 a {} one",
+                dir.display(),
+                self.config().kind()
+            )));
+        }
         match self {
             Detector::Frustum(_) => {
                 let frames = fusiondet_dataset::load_split(data_dir, split, max_frames, false)?;
@@ -182,6 +217,10 @@ impl Detector {
             }
             Detector::VoxelRcnn(_) => Ok(SplitInputs::Lidar {
                 frames: fusiondet_dataset::load_split(data_dir, split, max_frames, false)?,
+            }),
+            Detector::Dasanet(_) => Ok(SplitInputs::Camera {
+                frames: fusiondet_dataset::load_split(data_dir, split, max_frames, false)?,
+                depth_dir: depth_dir.map(Path::to_path_buf),
             }),
         }
     }
@@ -200,6 +239,9 @@ impl Detector {
             (Detector::VoxelRcnn(d), SplitInputs::Lidar { frames }) => {
                 d.detect_frames(device, frames, timing)
             }
+            (Detector::Dasanet(d), SplitInputs::Camera { frames, depth_dir }) => {
+                d.detect_frames(device, frames, depth_dir.as_deref(), timing)
+            }
             _ => Err(PipelineError::Invalid(
                 "the split was read for another detector family".into(),
             )),
@@ -213,6 +255,7 @@ pub fn trained_parameters(config: &ExperimentConfig) -> Result<usize> {
     match config.kind() {
         DetectorKind::Frustum => crate::frustum::trained_parameters(config),
         DetectorKind::VoxelRcnn => crate::voxel_rcnn::trained_parameters(config),
+        DetectorKind::Dasanet => crate::dasanet::trained_parameters(config),
     }
 }
 
@@ -230,13 +273,13 @@ pub(crate) fn load_detect_inputs(
     checkpoint: &Path,
     data_dir: &Path,
     split: &str,
-    detections: Option<&Path>,
+    side: SideInputs,
     max_frames: usize,
     device: ComputeDevice,
 ) -> Result<DetectInputs> {
     let device = device.device();
     let detector = Detector::load(config.clone(), checkpoint, &device)?;
-    let inputs = detector.load_split(data_dir, split, max_frames, detections)?;
+    let inputs = detector.load_split(data_dir, split, max_frames, side)?;
     Ok(DetectInputs {
         detector,
         device,
@@ -259,7 +302,10 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
         &options.checkpoint,
         &options.data_dir,
         &options.split,
-        options.detections.as_deref(),
+        SideInputs {
+            detections: options.detections.as_deref(),
+            depth_dir: options.depth_dir.as_deref(),
+        },
         0,
         options.device,
     )?;

@@ -5,6 +5,7 @@
 
 pub mod bench;
 pub mod config;
+pub mod dasanet;
 pub mod detect;
 pub mod device;
 pub mod error;

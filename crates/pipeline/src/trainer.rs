@@ -88,6 +88,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     match options.config.kind() {
         DetectorKind::Frustum => crate::frustum::train(options),
         DetectorKind::VoxelRcnn => crate::voxel_rcnn::train(options),
+        DetectorKind::Dasanet => crate::dasanet::train(options),
     }
 }
 

@@ -172,6 +172,7 @@ fn detect_writes_a_result_file_per_frame_that_the_evaluation_reads() {
         split: "val".into(),
         out_dir: out.clone(),
         detections: None,
+        depth_dir: None,
     })
     .unwrap();
     let ids = read_split(&DatasetDir::new(dataset()).split("val")).unwrap();
@@ -206,6 +207,7 @@ fn a_checkpoint_from_another_config_is_refused() {
         split: "val".into(),
         out_dir: run.path().join("r"),
         detections: None,
+        depth_dir: None,
     })
     .unwrap_err()
     .to_string();
@@ -277,6 +279,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
         split: "val".into(),
         out_dir: out.clone(),
         detections: None,
+        depth_dir: None,
     })
     .unwrap();
     assert!(refined.samples > 0, "{refined:?}");
@@ -289,6 +292,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
         split: "val".into(),
         out_dir: second.path().join("first"),
         detections: None,
+        depth_dir: None,
     })
     .unwrap();
     // Every first-stage box became a refinement frustum or was skipped (the summary's
@@ -342,6 +346,7 @@ fn another_heading_bin_count_trains_and_detects() {
         split: "val".into(),
         out_dir: out,
         detections: None,
+        depth_dir: None,
     })
     .unwrap();
     assert!(detected.boxes_written > 0, "{detected:?}");

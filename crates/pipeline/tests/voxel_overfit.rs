@@ -48,6 +48,7 @@ fn the_tiny_configuration_overfits_four_frames() {
         split: "train".into(),
         out_dir: results.clone(),
         detections: None,
+        depth_dir: None,
         device: Default::default(),
     })
     .unwrap();

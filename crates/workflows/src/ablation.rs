@@ -202,6 +202,7 @@ fn run_one(
         split: "val".into(),
         out_dir: results.clone(),
         detections: None,
+        depth_dir: None,
     })?;
     let frames_per_second = frames_per_second(summary.frames, &summary.timing);
     let eval_config = EvalConfig {

@@ -131,6 +131,7 @@ fn detect_and_evaluate(
         split: "val".into(),
         out_dir: results.to_path_buf(),
         detections: None,
+        depth_dir: None,
     })?;
     println!(
         "\n== {title}: {} frames, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",

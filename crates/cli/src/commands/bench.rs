@@ -29,6 +29,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         data_dir: input.data,
         split: input.split,
         detections: input.detections,
+        depth_dir: input.depth_dir,
         repeats: args.repeats,
         max_frames: args.max_frames,
         device: input.device,

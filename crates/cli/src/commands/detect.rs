@@ -1,4 +1,5 @@
-//! `fusiondet detect`: runs a trained frustum detector on a split and writes KITTI results.
+//! `fusiondet detect`: runs a trained detector of any family on a split and writes KITTI
+//! results.
 
 use fusiondet_models::DetectorKind;
 use fusiondet_pipeline::{ComputeDevice, DetectOptions, ExperimentConfig, detect};
@@ -30,6 +31,11 @@ pub struct ModelOnSplit {
     /// Where the network runs (this build: cpu).
     #[arg(long, default_value = "cpu")]
     pub device: ComputeDevice,
+    /// DASANet: completed depth maps (`<id>.png`, KITTI depth format, e.g. from
+    /// `fusiondet depth-complete`) to make the pseudo points from, instead of completing
+    /// each frame's scan.
+    #[arg(long)]
+    pub depth_dir: Option<PathBuf>,
 }
 
 impl ModelOnSplit {
@@ -63,6 +69,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         split: input.split,
         out_dir: args.out.clone(),
         detections: input.detections,
+        depth_dir: input.depth_dir,
         device: input.device,
     })?;
     let skipped = s.skipped;
@@ -83,6 +90,13 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         }
         DetectorKind::VoxelRcnn => println!(
             "{} frames ({} with LiDAR points in range) -> {} boxes written to {}",
+            s.frames,
+            s.samples,
+            s.boxes_written,
+            args.out.display()
+        ),
+        DetectorKind::Dasanet => println!(
+            "{} frames ({} with LiDAR and pseudo points in range) -> {} boxes written to {}",
             s.frames,
             s.samples,
             s.boxes_written,

@@ -1,6 +1,12 @@
 //! `fusiondet gt-database`: the ground-truth database Voxel R-CNN's augmentation pastes
-//! objects from, built once from a split's labelled frames and kept beside the data.
+//! objects from, built once from a split's labelled frames and kept beside the data; with
+//! `--pseudo`, DASANet's, whose objects carry their pseudo points too.
 
+use fusiondet_pipeline::ExperimentConfig;
+use fusiondet_pipeline::dasanet::pseudo::PseudoCloudMaker;
+use fusiondet_pipeline::dasanet::{
+    PseudoCloudConfig, build_pseudo_gt_database, data_pseudo_gt_database_dir,
+};
 use fusiondet_pipeline::voxel_rcnn::{build_gt_database, data_gt_database_dir};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -16,10 +22,22 @@ pub struct GtDatabaseArgs {
     /// Replace an existing database of the split.
     #[arg(long)]
     pub force: bool,
+    /// DASANet's database: each object with its pseudo points (the frame's scan completed
+    /// and back-projected as the configuration's `[dasanet.pseudo]` says).
+    #[arg(long)]
+    pub pseudo: bool,
+    /// The DASANet configuration whose pseudo-cloud settings and point range to use with
+    /// `--pseudo` (default: the published ones).
+    #[arg(long, requires = "pseudo")]
+    pub config: Option<PathBuf>,
 }
 
 pub fn run(args: GtDatabaseArgs) -> anyhow::Result<()> {
-    let out = data_gt_database_dir(&args.data, &args.split);
+    let out = if args.pseudo {
+        data_pseudo_gt_database_dir(&args.data, &args.split)
+    } else {
+        data_gt_database_dir(&args.data, &args.split)
+    };
     if out.join("index.json").exists() && !args.force {
         anyhow::bail!(
             "{} already holds a ground-truth database; pass --force to rebuild it",
@@ -27,7 +45,26 @@ pub fn run(args: GtDatabaseArgs) -> anyhow::Result<()> {
         );
     }
     let frames = fusiondet_dataset::load_split(&args.data, &args.split, 0, true)?;
-    let db = build_gt_database(&frames)?;
+    let db = if args.pseudo {
+        let (settings, range) = match &args.config {
+            Some(path) => {
+                let c = ExperimentConfig::from_file(path)?;
+                match (&c.voxel_rcnn, &c.dasanet) {
+                    (Some(v), Some(d)) => (d.pseudo.clone(), v.voxels.point_range),
+                    _ => anyhow::bail!("{}: not a dasanet configuration", path.display()),
+                }
+            }
+            None => (
+                PseudoCloudConfig::default(),
+                fusiondet_pipeline::voxel_rcnn::VoxelRcnnSection::default()
+                    .voxels
+                    .point_range,
+            ),
+        };
+        build_pseudo_gt_database(&frames, &PseudoCloudMaker::new(&settings, range))?
+    } else {
+        build_gt_database(&frames)?
+    };
     db.save(&out)?;
     let mut per_class: BTreeMap<String, (usize, usize)> = BTreeMap::new();
     for o in db.objects() {
@@ -37,7 +74,7 @@ pub fn run(args: GtDatabaseArgs) -> anyhow::Result<()> {
     }
     let classes: Vec<String> = per_class
         .iter()
-        .map(|(c, (n, p))| format!("{c} {n} ({p} points)"))
+        .map(|(c, (n, p))| format!("{c} {n} ({p} LiDAR points)"))
         .collect();
     println!(
         "{} objects from {} frames of `{}` -> {}: {}",

@@ -16,6 +16,13 @@ pub struct InfoArgs {
 
 pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     let experiment = ExperimentConfig::from_file(&args.config)?;
+    if let (Some(voxel), Some(dasanet)) = (&experiment.voxel_rcnn, &experiment.dasanet) {
+        print!(
+            "{}",
+            fusiondet_pipeline::dasanet::info::render_info(&experiment.name, voxel, dasanet)?
+        );
+        return Ok(());
+    }
     if let Some(section) = &experiment.voxel_rcnn {
         print!(
             "{}",

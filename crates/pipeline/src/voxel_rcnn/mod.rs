@@ -4,10 +4,10 @@
 
 pub mod config;
 pub mod data;
-mod detector;
+pub(crate) mod detector;
 pub mod info;
 pub mod proposals;
-mod task;
+pub(crate) mod task;
 
 pub use config::{NmsConfig, PostConfig, ProposalConfig, VoxelRcnnSection};
 pub use detector::{

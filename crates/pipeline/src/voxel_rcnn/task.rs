@@ -54,7 +54,7 @@ pub fn seeded_network(
 }
 
 /// Stage two's loss targets from the sampled RoIs of every frame (in batch order).
-fn roi_loss_targets(targets: &[RoiTargets], device: &Device) -> RoiLossTargets {
+pub(crate) fn roi_loss_targets(targets: &[RoiTargets], device: &Device) -> RoiLossTargets {
     let cls: Vec<f32> = targets
         .iter()
         .flat_map(|t| t.cls_targets.iter().copied())

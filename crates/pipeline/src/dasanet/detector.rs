@@ -1,0 +1,231 @@
+//! DASANet's detector: pseudo cloud → both branches' voxels → stage one → proposals →
+//! TDIS over both branches' RoI grids and STCA over the points in each RoI → detection
+//! head → refined boxes → NMS → KITTI results. Batch 1, as Voxel R-CNN's detector.
+
+use super::config::DasanetSection;
+use super::data::{DasanetData, collate};
+use crate::config::ExperimentConfig;
+use crate::detect::{FrameResults, StageTimes};
+use crate::error::{PipelineError, Result};
+use crate::voxel_rcnn::VoxelRcnnSection;
+use crate::voxel_rcnn::detector::{
+    batch_proposals, final_boxes, to_result, values, voxel_geometry,
+};
+use burn::prelude::*;
+use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
+use fusiondet_models::dasanet::{
+    Dasanet, DasanetNetConfig, DasanetRoiInputs, DasanetShape, DasanetStageOne, RoiPoints,
+    load_dasanet,
+};
+use fusiondet_models::voxel_rcnn::{BackboneOutput, RoiBox, RoiGridIndex, pooled_maps};
+use fusiondet_nn::sparse::SparseSites;
+use std::path::Path;
+use std::time::Instant;
+
+pub const STAGE_PSEUDO: &str = "depth completion + pseudo points";
+pub const STAGE_VOXELIZE: &str = "augment-free scene + voxelize (both clouds)";
+pub const STAGE_LIDAR_BACKBONE: &str = "LiDAR 3D backbone";
+pub const STAGE_PSEUDO_BACKBONE: &str = "pseudo 3D backbone";
+pub const STAGE_BEV: &str = "BEV backbone + anchor head";
+pub const STAGE_PROPOSALS: &str = "proposals (decode, NMS)";
+pub const STAGE_TDIS: &str = "RoI grid pooling (both) + TDIS";
+pub const STAGE_STCA: &str = "STCA (crop, encoder, attention)";
+pub const STAGE_HEAD: &str = "detection head";
+pub const STAGE_NMS: &str = "boxes + NMS";
+
+/// The RoI grid query of one branch's maps.
+fn grid_index(
+    section: &VoxelRcnnSection,
+    maps: &BackboneOutput,
+    rois: &[Vec<RoiBox>],
+) -> RoiGridIndex {
+    let levels = &section.network.roi.levels;
+    let sites: Vec<&SparseSites> = pooled_maps(maps, levels)
+        .iter()
+        .map(|m| m.sites.as_ref())
+        .collect();
+    RoiGridIndex::new(
+        rois,
+        &sites,
+        levels,
+        section.network.roi.grid_size,
+        &voxel_geometry(section),
+    )
+}
+
+/// What stage two reads for `rois[b]` of each frame b: both branches' grid queries (with
+/// TDIS) and each cloud's points in the RoIs (with STCA).
+pub fn roi_inputs(
+    section: &VoxelRcnnSection,
+    network: &DasanetNetConfig,
+    stage_one: &DasanetStageOne,
+    rois: &[Vec<RoiBox>],
+    clouds: &[(Vec<f32>, Vec<f32>)],
+) -> DasanetRoiInputs {
+    let m = &network.modules;
+    let grids = m.tdis.then(|| {
+        (
+            grid_index(section, &stage_one.lidar, rois),
+            grid_index(section, &stage_one.pseudo, rois),
+        )
+    });
+    let points = m.stca.then(|| {
+        let flat: Vec<RoiBox> = rois.iter().flatten().copied().collect();
+        let batch_of_roi: Vec<usize> = rois
+            .iter()
+            .enumerate()
+            .flat_map(|(b, list)| std::iter::repeat_n(b, list.len()))
+            .collect();
+        let lidar: Vec<(&[f32], usize)> = clouds.iter().map(|(l, _)| (l.as_slice(), 4)).collect();
+        let pseudo: Vec<(&[f32], usize)> = clouds.iter().map(|(_, p)| (p.as_slice(), 6)).collect();
+        (
+            RoiPoints::new(&lidar, &flat, &batch_of_roi, &m.stca_shape),
+            RoiPoints::new(&pseudo, &flat, &batch_of_roi, &m.stca_shape),
+        )
+    });
+    DasanetRoiInputs { grids, points }
+}
+
+pub struct DasanetDetector {
+    pub config: ExperimentConfig,
+    pub model: Dasanet,
+    pub shape: DasanetShape,
+    pub data: DasanetData,
+}
+
+/// The Voxel R-CNN and DASANet sections of a DASANet configuration.
+pub fn sections(config: &ExperimentConfig) -> Result<(&VoxelRcnnSection, &DasanetSection)> {
+    match (&config.voxel_rcnn, &config.dasanet) {
+        (Some(v), Some(d)) => Ok((v, d)),
+        _ => Err(PipelineError::Invalid(format!(
+            "{}: not a dasanet configuration",
+            config.name
+        ))),
+    }
+}
+
+impl DasanetDetector {
+    pub fn load(config: ExperimentConfig, checkpoint: &Path, device: &Device) -> Result<Self> {
+        let (voxel, dasanet) = sections(&config)?;
+        let shape = dasanet.shape(voxel);
+        let model = load_dasanet(&shape, checkpoint, device)?;
+        let data = super::task::detection_data(voxel, dasanet)?;
+        Ok(DasanetDetector {
+            model,
+            shape,
+            data,
+            config,
+        })
+    }
+
+    /// Detects on every frame; a frame without LiDAR or pseudo points in range gets no
+    /// boxes. `depth_dir` holds completed maps to use instead of completing.
+    pub fn detect_frames(
+        &self,
+        device: &Device,
+        frames: &InMemoryFrames<SensorFrame>,
+        depth_dir: Option<&Path>,
+        timing: &mut StageTimes,
+    ) -> Result<FrameResults> {
+        let section = &self.data.voxel.section;
+        let mut results = FrameResults::default();
+        for index in 0..frames.len() {
+            let frame = frames.frame(index)?;
+            let t = Instant::now();
+            let pseudo = self.data.pseudo.cloud(&frame, depth_dir)?;
+            timing.add(STAGE_PSEUDO, t.elapsed());
+            let t = Instant::now();
+            let sample = self.data.sample_with_cloud(&frame, pseudo, None)?;
+            timing.add(STAGE_VOXELIZE, t.elapsed());
+            let objects = results.objects.entry(frame.id.clone()).or_default();
+            if !sample.has_voxels() {
+                continue;
+            }
+            let batch = collate(&self.data, vec![sample], false, device)?;
+            let t = Instant::now();
+            let lidar = self
+                .model
+                .lidar_backbone
+                .forward(batch.lidar_features, &batch.lidar_plan);
+            let _ = values(&lidar.output.features.clone().slice([0..1, 0..1]));
+            timing.add(STAGE_LIDAR_BACKBONE, t.elapsed());
+            let t = Instant::now();
+            let pseudo = self
+                .model
+                .pseudo_backbone
+                .forward(batch.pseudo_features, &batch.pseudo_plan);
+            let _ = values(&pseudo.output.features.clone().slice([0..1, 0..1]));
+            timing.add(STAGE_PSEUDO_BACKBONE, t.elapsed());
+            let t = Instant::now();
+            let anchors = self.model.bev_and_anchors(&lidar, &pseudo);
+            let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
+            timing.add(STAGE_BEV, t.elapsed());
+            let t = Instant::now();
+            let proposals =
+                batch_proposals(&self.data.voxel, &anchors, &section.proposals.test).remove(0);
+            timing.add(STAGE_PROPOSALS, t.elapsed());
+            if proposals.is_empty() {
+                continue;
+            }
+            let rois = vec![
+                proposals
+                    .iter()
+                    .map(|p| p.bbox.to_array())
+                    .collect::<Vec<_>>(),
+            ];
+            let stage_one = DasanetStageOne {
+                lidar,
+                pseudo,
+                anchors,
+            };
+            let pred = self.refine_timed(&stage_one, &rois, &batch.clouds, timing);
+            let t = Instant::now();
+            let kept = final_boxes(
+                section,
+                &proposals,
+                &values(&pred.cls),
+                &values(&pred.boxes),
+            );
+            objects.extend(
+                kept.iter()
+                    .filter_map(|p| to_result(&p.bbox, p.class, p.score, &frame)),
+            );
+            results.samples += 1;
+            timing.add(STAGE_NMS, t.elapsed());
+        }
+        Ok(results)
+    }
+
+    /// Stage two with each module's time.
+    fn refine_timed(
+        &self,
+        stage_one: &DasanetStageOne,
+        rois: &[Vec<RoiBox>],
+        clouds: &[(Vec<f32>, Vec<f32>)],
+        timing: &mut StageTimes,
+    ) -> fusiondet_models::voxel_rcnn::RoiPredictions {
+        let section = &self.data.voxel.section;
+        let network = &self.shape.network;
+        let t = Instant::now();
+        let inputs = roi_inputs(section, network, stage_one, rois, clouds);
+        let supplemented = self.model.supplemented(network, stage_one, &inputs);
+        if let Some(f) = &supplemented {
+            let _ = values(&f.clone().slice([0..1, 0..1]));
+            timing.add(STAGE_TDIS, t.elapsed());
+        }
+        let t = Instant::now();
+        let attention = self
+            .model
+            .attention(&inputs, &stage_one.anchors.cls.device());
+        if let Some(f) = &attention {
+            let _ = values(&f.clone().slice([0..1, 0..1]));
+            timing.add(STAGE_STCA, t.elapsed());
+        }
+        let parts = Dasanet::head_input(&supplemented, &attention);
+        let t = Instant::now();
+        let pred = self.model.head.forward(parts);
+        let _ = values(&pred.cls);
+        timing.add(STAGE_HEAD, t.elapsed());
+        pred
+    }
+}

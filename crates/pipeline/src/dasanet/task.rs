@@ -1,0 +1,282 @@
+//! Training DASANet: frames with their pseudo clouds augmented and voxelized on the data
+//! thread; stage one's anchor loss (Voxel R-CNN's L_RPN); proposals from its detached
+//! predictions; RoIs sampled against the ground truth; L_RCNN of the detection head
+//! (BCE, smooth-L1, 3D GIoU) and, when both modules are on, the auxiliary heads.
+
+use super::config::DasanetSection;
+use super::data::{DasanetBatch, DasanetData, collate};
+use super::detector::{roi_inputs, sections};
+use super::pseudo::PseudoCloudMaker;
+use crate::config::ExperimentConfig;
+use crate::error::{PipelineError, Result};
+use crate::trainer::{StepLoss, TrainOptions, TrainSummary, TrainingTask, open_run, run_training};
+use crate::voxel_rcnn::VoxelRcnnSection;
+use crate::voxel_rcnn::data::VoxelData;
+use crate::voxel_rcnn::detector::batch_proposals;
+use crate::voxel_rcnn::task::{data_gt_database_dir, roi_loss_targets};
+use burn::prelude::*;
+use fusiondet_dataset::rng::Sampler;
+use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
+use fusiondet_models::dasanet::{Dasanet, DasanetShape, load_dasanet, rcnn_loss, save_dasanet};
+use fusiondet_models::voxel_rcnn::anchor_loss;
+use fusiondet_voxel::{GtDatabase, GtSampler, sample_rois};
+use rayon::prelude::*;
+use std::path::Path;
+
+/// Where a run keeps the ground-truth database (with pseudo points) it built.
+pub const PSEUDO_GT_DATABASE_DIR: &str = "gt_database_pseudo";
+
+/// Where `fusiondet gt-database --pseudo` keeps a data set's database of `split`.
+pub fn data_pseudo_gt_database_dir(data_dir: &Path, split: &str) -> std::path::PathBuf {
+    data_gt_database_dir(data_dir, &format!("{split}-pseudo"))
+}
+
+/// The data side of detection (no augmentation, no database).
+pub fn detection_data(voxel: &VoxelRcnnSection, dasanet: &DasanetSection) -> Result<DasanetData> {
+    DasanetData::new(
+        VoxelData::new(voxel, None)?,
+        dasanet,
+        PseudoCloudMaker::new(&dasanet.pseudo, voxel.voxels.point_range),
+    )
+}
+
+/// The labelled objects of `frames` with their LiDAR and pseudo points, built in
+/// parallel (in frame order).
+pub fn build_pseudo_gt_database(
+    frames: &InMemoryFrames<SensorFrame>,
+    maker: &PseudoCloudMaker,
+) -> Result<GtDatabase> {
+    let parts = (0..frames.len())
+        .into_par_iter()
+        .map(|i| {
+            let frame = frames.frame(i)?;
+            let cloud = maker.cloud(&frame, None)?;
+            Ok(GtDatabase::of_frame_with_pseudo(frame.as_ref(), &cloud))
+        })
+        .collect::<Result<Vec<GtDatabase>>>()?;
+    let mut db = GtDatabase::new();
+    for part in parts {
+        db.extend(part);
+    }
+    Ok(db)
+}
+
+pub struct DasanetTask<'a> {
+    config: &'a ExperimentConfig,
+    frames: InMemoryFrames<SensorFrame>,
+    data: DasanetData,
+    shape: DasanetShape,
+    device: Device,
+    /// Frames with LiDAR and pseudo points in range.
+    usable: Vec<usize>,
+}
+
+pub struct TrainBatch {
+    pub batch: DasanetBatch,
+    pub roi_seed: u64,
+}
+
+/// A freshly initialised network whose weights depend on the seed alone.
+pub fn seeded_network(
+    config: &ExperimentConfig,
+    shape: &DasanetShape,
+    device: &Device,
+) -> Result<Dasanet> {
+    crate::trainer::seeded(config.train.seed, device, || {
+        Dasanet::new(&shape.network, shape.grid_z, device).map_err(PipelineError::Invalid)
+    })
+}
+
+impl TrainingTask for DasanetTask<'_> {
+    type Model = Dasanet;
+    type Batch = TrainBatch;
+
+    fn frames(&self) -> usize {
+        self.frames.len()
+    }
+    fn samples(&self) -> usize {
+        self.usable.len()
+    }
+    fn sample_noun(&self) -> &'static str {
+        "frames"
+    }
+    fn sample_note(&self) -> String {
+        format!(
+            " ({} of {} frames have no LiDAR or no pseudo point in range)",
+            self.frames.len() - self.usable.len(),
+            self.frames.len()
+        )
+    }
+    fn new_model(&self, device: &Device) -> Result<Dasanet> {
+        seeded_network(self.config, &self.shape, device)
+    }
+    fn load_model(&self, path: &Path, device: &Device) -> Result<Dasanet> {
+        Ok(load_dasanet(&self.shape, path, device)?)
+    }
+    fn save_model(&self, model: &Dasanet, path: &Path) -> Result<()> {
+        Ok(save_dasanet(model, &self.shape, path)?)
+    }
+    fn epoch_batches(
+        &self,
+        epoch: usize,
+    ) -> Box<dyn ExactSizeIterator<Item = Result<TrainBatch>> + Send + '_> {
+        let cfg = self.config;
+        let seed = cfg.train.seed;
+        let mut order: Vec<usize> = self.usable.clone();
+        Sampler::from_path(seed, &[0x5A11, epoch as u64]).shuffle(&mut order);
+        let batches: Vec<Vec<usize>> = order
+            .chunks(cfg.train.batch_size)
+            .map(<[usize]>::to_vec)
+            .collect();
+        Box::new(batches.into_iter().enumerate().map(move |(k, frames)| {
+            // Frames of a batch in parallel: depth completion dominates their preparation.
+            let samples = frames
+                .par_iter()
+                .map(|&i| {
+                    let frame = self.frames.frame(i)?;
+                    let mut rng = Sampler::from_path(seed, &[0xA06, epoch as u64, i as u64]);
+                    self.data.sample(&frame, Some(&mut rng))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            Ok(TrainBatch {
+                batch: collate(&self.data, samples, true, &self.device)?,
+                roi_seed: fusiondet_dataset::rng::derive(&[seed, 0x2015, epoch as u64, k as u64]),
+            })
+        }))
+    }
+    fn loss(&self, net: &Dasanet, prepared: TrainBatch, device: &Device) -> Result<StepLoss> {
+        let section = &self.data.voxel.section;
+        let dasanet = &self.data.section;
+        let TrainBatch { batch, roi_seed } = prepared;
+        let out = net.stage_one(
+            batch.lidar_features.clone().to_device(device),
+            &batch.lidar_plan,
+            batch.pseudo_features.clone().to_device(device),
+            &batch.pseudo_plan,
+        );
+        let targets = batch
+            .anchor_targets
+            .as_ref()
+            .expect("training batches carry targets");
+        let [cls, loc, dir] = anchor_loss(&out.anchors, targets, &section.loss);
+        let proposals = batch_proposals(&self.data.voxel, &out.anchors, &section.proposals.train);
+        let mut rng = Sampler::new(roi_seed);
+        let sampled = proposals
+            .iter()
+            .zip(&batch.gts)
+            .map(|(p, gts)| sample_rois(p, gts, &section.roi_targets, &mut rng))
+            .collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(|e| PipelineError::Invalid(e.to_string()))?;
+        let rois: Vec<Vec<[f64; 7]>> = sampled
+            .iter()
+            .map(|t| t.rois.iter().map(|b| b.to_array()).collect())
+            .collect();
+        let inputs = roi_inputs(section, &self.shape.network, &out, &rois, &batch.clouds);
+        let pred = net.stage_two(&self.shape.network, &out, &inputs, true);
+        let mut terms = vec![("cls", cls), ("loc", loc), ("dir", dir)];
+        terms.extend(rcnn_loss(
+            &pred,
+            &roi_loss_targets(&sampled, device),
+            &section.loss,
+            dasanet.giou_weight,
+            dasanet.modules.aux_weights,
+        ));
+        let total = terms
+            .iter()
+            .map(|(_, t)| t.clone())
+            .reduce(|a, b| a + b)
+            .expect("at least the stage-one terms");
+        let mut components = vec![("total", total.clone().into_scalar::<f32>())];
+        components.extend(
+            terms
+                .iter()
+                .map(|(n, t)| (*n, t.clone().into_scalar::<f32>())),
+        );
+        Ok(StepLoss { total, components })
+    }
+}
+
+/// The training database with pseudo points: the data set's own (`fusiondet gt-database
+/// --pseudo`) when it has one for the split, else the run's, read back on resume or built
+/// from the training frames and written into the run directory.
+fn pseudo_gt_database(
+    data_dir: &Path,
+    split: &str,
+    run_root: &Path,
+    frames: &InMemoryFrames<SensorFrame>,
+    maker: &PseudoCloudMaker,
+) -> Result<GtDatabase> {
+    let load =
+        |dir: &Path| GtDatabase::load(dir).map_err(|e| PipelineError::Invalid(e.to_string()));
+    for dir in [
+        data_pseudo_gt_database_dir(data_dir, split),
+        run_root.join(PSEUDO_GT_DATABASE_DIR),
+    ] {
+        if dir.join("index.json").is_file() {
+            return load(&dir);
+        }
+    }
+    let db = build_pseudo_gt_database(frames, maker)?;
+    db.save(&run_root.join(PSEUDO_GT_DATABASE_DIR))
+        .map_err(|e| PipelineError::Invalid(e.to_string()))?;
+    Ok(db)
+}
+
+/// Trains a DASANet row.
+pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
+    let cfg = &options.config;
+    cfg.validate(Path::new("the training configuration"))?;
+    let (voxel, dasanet) = sections(cfg)?;
+    let opened = open_run(options, cfg, |old| old == *cfg)?;
+    let frames: InMemoryFrames<SensorFrame> = fusiondet_dataset::load_split(
+        &options.data_dir,
+        &cfg.train.split,
+        cfg.train.max_frames,
+        true,
+    )?;
+    let maker = PseudoCloudMaker::new(&dasanet.pseudo, voxel.voxels.point_range);
+    let sampler = if voxel.augment.sample_groups.is_empty() {
+        None
+    } else {
+        let db = pseudo_gt_database(
+            &options.data_dir,
+            &cfg.train.split,
+            &opened.run.root,
+            &frames,
+            &maker,
+        )?;
+        Some(
+            GtSampler::new(db, &voxel.augment)
+                .map_err(|e| PipelineError::Invalid(e.to_string()))?,
+        )
+    };
+    let data = DasanetData::new(VoxelData::new(voxel, sampler)?, dasanet, maker)?;
+    let usable = (0..frames.len())
+        .into_par_iter()
+        .map(|i| {
+            let frame = frames.frame(i)?;
+            Ok((i, data.sample(&frame, None)?.has_voxels()))
+        })
+        .collect::<Result<Vec<(usize, bool)>>>()?
+        .into_iter()
+        .filter_map(|(i, ok)| ok.then_some(i))
+        .collect();
+    let task = DasanetTask {
+        config: cfg,
+        shape: dasanet.shape(voxel),
+        data,
+        frames,
+        device: options.device.device().autodiff(),
+        usable,
+    };
+    run_training(&task, options, opened)
+}
+
+/// Parameters of the configuration's network at inference (without the auxiliary heads).
+pub fn trained_parameters(config: &ExperimentConfig) -> Result<usize> {
+    let (voxel, dasanet) = sections(config)?;
+    let shape = dasanet.shape(voxel);
+    let model = Dasanet::new(&shape.network, shape.grid_z, &Device::flex())
+        .map_err(PipelineError::Invalid)?;
+    Ok(model.param_rows().iter().map(|r| r.1).sum())
+}
