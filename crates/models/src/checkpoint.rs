@@ -85,6 +85,53 @@ pub(crate) fn load_weights<M: ModuleSnapshot>(mut model: M, path: &Path) -> Resu
     Ok(model)
 }
 
+/// Writes a network of family `kind` with the shape that fixes its tensors (JSON).
+pub(crate) fn save_shaped<M: ModuleSnapshot, S: serde::Serialize>(
+    model: &M,
+    kind: DetectorKind,
+    shape: &S,
+    path: &Path,
+) -> Result<(), ModelError> {
+    let json = serde_json::to_string(shape).expect("the network shape serialises");
+    write_tagged(model, kind, json, path)
+}
+
+/// The shape stored in a checkpoint of family `kind` (refuses other families).
+pub(crate) fn read_shape<S: serde::de::DeserializeOwned>(
+    path: &Path,
+    kind: DetectorKind,
+) -> Result<S, ModelError> {
+    let json = read_tagged_config(path, kind)?;
+    serde_json::from_str(&json)
+        .map_err(|e| ckpt_err(path, format!("unreadable network shape: {e}")))
+}
+
+/// Loads a checkpoint of family `kind` whose stored shape must equal `shape`, into the
+/// network `build` makes for it.
+pub(crate) fn load_shaped<M, S>(
+    shape: &S,
+    kind: DetectorKind,
+    path: &Path,
+    build: impl FnOnce() -> Result<M, String>,
+) -> Result<M, ModelError>
+where
+    M: ModuleSnapshot,
+    S: serde::Serialize + serde::de::DeserializeOwned + PartialEq,
+{
+    let stored: S = read_shape(path, kind)?;
+    if stored != *shape {
+        return Err(ModelError::ConfigMismatch {
+            path: path.to_path_buf(),
+            differences: format!(
+                "the configuration builds {} but the checkpoint holds {}",
+                serde_json::to_string(shape).unwrap_or_default(),
+                serde_json::to_string(&stored).unwrap_or_default()
+            ),
+        });
+    }
+    load_weights(build().map_err(ModelError::InvalidConfig)?, path)
+}
+
 /// The family a checkpoint belongs to, from its metadata.
 pub fn read_checkpoint_kind(path: &Path) -> Result<DetectorKind, ModelError> {
     let reader =

@@ -53,6 +53,24 @@ pub struct StepLoss {
     pub components: Vec<(&'static str, f32)>,
 }
 
+impl StepLoss {
+    /// The sum of named (already weighted) terms, each logged under its name.
+    pub fn from_terms(terms: Vec<(&'static str, Tensor<1>)>) -> StepLoss {
+        let total = terms
+            .iter()
+            .map(|(_, t)| t.clone())
+            .reduce(|a, b| a + b)
+            .expect("a loss has at least one term");
+        let mut components = vec![("total", total.clone().into_scalar::<f32>())];
+        components.extend(
+            terms
+                .iter()
+                .map(|(n, t)| (*n, t.clone().into_scalar::<f32>())),
+        );
+        StepLoss { total, components }
+    }
+}
+
 /// What the training loop needs from a detector family: its network, its prepared
 /// training data, and its loss.
 pub trait TrainingTask: Sync {

@@ -3,7 +3,7 @@
 //! family. The auxiliary heads are stored with the rest (training resumes with them).
 
 use super::{Dasanet, DasanetNetConfig};
-use crate::checkpoint::{ckpt_err, load_weights, read_tagged_config, write_tagged};
+use crate::checkpoint::{load_shaped, read_shape, save_shaped};
 use crate::error::ModelError;
 use crate::family::DetectorKind;
 use burn::prelude::*;
@@ -19,15 +19,12 @@ pub struct DasanetShape {
 }
 
 pub fn save_dasanet(model: &Dasanet, shape: &DasanetShape, path: &Path) -> Result<(), ModelError> {
-    let config = serde_json::to_string(shape).expect("the network shape serialises");
-    write_tagged(model, DetectorKind::Dasanet, config, path)
+    save_shaped(model, DetectorKind::Dasanet, shape, path)
 }
 
-/// The shape stored in a DASANet checkpoint (refuses other families).
+/// The shape stored in a checkpoint of this family (refuses other families).
 pub fn read_dasanet_shape(path: &Path) -> Result<DasanetShape, ModelError> {
-    let json = read_tagged_config(path, DetectorKind::Dasanet)?;
-    serde_json::from_str(&json)
-        .map_err(|e| ckpt_err(path, format!("unreadable network shape: {e}")))
+    read_shape(path, DetectorKind::Dasanet)
 }
 
 /// Loads a checkpoint whose stored shape must equal `shape`.
@@ -36,20 +33,9 @@ pub fn load_dasanet(
     path: &Path,
     device: &Device,
 ) -> Result<Dasanet, ModelError> {
-    let stored = read_dasanet_shape(path)?;
-    if stored != *shape {
-        return Err(ModelError::ConfigMismatch {
-            path: path.to_path_buf(),
-            differences: format!(
-                "the configuration builds {} but the checkpoint holds {}",
-                serde_json::to_string(shape).unwrap_or_default(),
-                serde_json::to_string(&stored).unwrap_or_default()
-            ),
-        });
-    }
-    let model =
-        Dasanet::new(&shape.network, shape.grid_z, device).map_err(ModelError::InvalidConfig)?;
-    load_weights(model, path)
+    load_shaped(shape, DetectorKind::Dasanet, path, || {
+        Dasanet::new(&shape.network, shape.grid_z, device)
+    })
 }
 
 #[cfg(test)]

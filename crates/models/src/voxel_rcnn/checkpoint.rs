@@ -3,7 +3,7 @@
 //! refused by a configuration of another shape or family instead of failing on a tensor.
 
 use super::{VoxelRcnn, VoxelRcnnNetConfig};
-use crate::checkpoint::{ckpt_err, load_weights, read_tagged_config, write_tagged};
+use crate::checkpoint::{load_shaped, read_shape, save_shaped};
 use crate::error::ModelError;
 use crate::family::DetectorKind;
 use burn::prelude::*;
@@ -23,15 +23,12 @@ pub fn save_voxel_rcnn(
     shape: &VoxelRcnnShape,
     path: &Path,
 ) -> Result<(), ModelError> {
-    let config = serde_json::to_string(shape).expect("the network shape serialises");
-    write_tagged(model, DetectorKind::VoxelRcnn, config, path)
+    save_shaped(model, DetectorKind::VoxelRcnn, shape, path)
 }
 
-/// The shape stored in a Voxel R-CNN checkpoint (refuses other families).
+/// The shape stored in a checkpoint of this family (refuses other families).
 pub fn read_voxel_rcnn_shape(path: &Path) -> Result<VoxelRcnnShape, ModelError> {
-    let json = read_tagged_config(path, DetectorKind::VoxelRcnn)?;
-    serde_json::from_str(&json)
-        .map_err(|e| ckpt_err(path, format!("unreadable network shape: {e}")))
+    read_shape(path, DetectorKind::VoxelRcnn)
 }
 
 /// Loads a checkpoint whose stored shape must equal `shape`.
@@ -40,20 +37,9 @@ pub fn load_voxel_rcnn(
     path: &Path,
     device: &Device,
 ) -> Result<VoxelRcnn, ModelError> {
-    let stored = read_voxel_rcnn_shape(path)?;
-    if stored != *shape {
-        return Err(ModelError::ConfigMismatch {
-            path: path.to_path_buf(),
-            differences: format!(
-                "the configuration builds {} but the checkpoint holds {}",
-                serde_json::to_string(shape).unwrap_or_default(),
-                serde_json::to_string(&stored).unwrap_or_default()
-            ),
-        });
-    }
-    let model =
-        VoxelRcnn::new(&shape.network, shape.grid_z, device).map_err(ModelError::InvalidConfig)?;
-    load_weights(model, path)
+    load_shaped(shape, DetectorKind::VoxelRcnn, path, || {
+        VoxelRcnn::new(&shape.network, shape.grid_z, device)
+    })
 }
 
 #[cfg(test)]

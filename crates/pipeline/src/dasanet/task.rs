@@ -13,13 +13,15 @@ use crate::trainer::{StepLoss, TrainOptions, TrainSummary, TrainingTask, open_ru
 use crate::voxel_rcnn::VoxelRcnnSection;
 use crate::voxel_rcnn::data::VoxelData;
 use crate::voxel_rcnn::detector::batch_proposals;
-use crate::voxel_rcnn::task::{data_gt_database_dir, roi_loss_targets};
+use crate::voxel_rcnn::task::{
+    augment_sampler, data_gt_database_dir, epoch_frame_batches, roi_loss_targets, roi_seed,
+    sample_training_rois,
+};
 use burn::prelude::*;
-use fusiondet_dataset::rng::Sampler;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
 use fusiondet_models::dasanet::{Dasanet, DasanetShape, load_dasanet, rcnn_loss, save_dasanet};
 use fusiondet_models::voxel_rcnn::anchor_loss;
-use fusiondet_voxel::{GtDatabase, GtSampler, sample_rois};
+use fusiondet_voxel::{GtDatabase, GtSampler};
 use rayon::prelude::*;
 use std::path::Path;
 
@@ -120,27 +122,21 @@ impl TrainingTask for DasanetTask<'_> {
         &self,
         epoch: usize,
     ) -> Box<dyn ExactSizeIterator<Item = Result<TrainBatch>> + Send + '_> {
-        let cfg = self.config;
-        let seed = cfg.train.seed;
-        let mut order: Vec<usize> = self.usable.clone();
-        Sampler::from_path(seed, &[0x5A11, epoch as u64]).shuffle(&mut order);
-        let batches: Vec<Vec<usize>> = order
-            .chunks(cfg.train.batch_size)
-            .map(<[usize]>::to_vec)
-            .collect();
+        let seed = self.config.train.seed;
+        let batches = epoch_frame_batches(&self.usable, seed, epoch, self.config.train.batch_size);
         Box::new(batches.into_iter().enumerate().map(move |(k, frames)| {
             // Frames of a batch in parallel: depth completion dominates their preparation.
             let samples = frames
                 .par_iter()
                 .map(|&i| {
                     let frame = self.frames.frame(i)?;
-                    let mut rng = Sampler::from_path(seed, &[0xA06, epoch as u64, i as u64]);
-                    self.data.sample(&frame, Some(&mut rng))
+                    self.data
+                        .sample(&frame, Some(&mut augment_sampler(seed, epoch, i)))
                 })
                 .collect::<Result<Vec<_>>>()?;
             Ok(TrainBatch {
                 batch: collate(&self.data, samples, true, &self.device)?,
-                roi_seed: fusiondet_dataset::rng::derive(&[seed, 0x2015, epoch as u64, k as u64]),
+                roi_seed: roi_seed(seed, epoch, k),
             })
         }))
     }
@@ -160,17 +156,7 @@ impl TrainingTask for DasanetTask<'_> {
             .expect("training batches carry targets");
         let [cls, loc, dir] = anchor_loss(&out.anchors, targets, &section.loss);
         let proposals = batch_proposals(&self.data.voxel, &out.anchors, &section.proposals.train);
-        let mut rng = Sampler::new(roi_seed);
-        let sampled = proposals
-            .iter()
-            .zip(&batch.gts)
-            .map(|(p, gts)| sample_rois(p, gts, &section.roi_targets, &mut rng))
-            .collect::<std::result::Result<Vec<_>, _>>()
-            .map_err(|e| PipelineError::Invalid(e.to_string()))?;
-        let rois: Vec<Vec<[f64; 7]>> = sampled
-            .iter()
-            .map(|t| t.rois.iter().map(|b| b.to_array()).collect())
-            .collect();
+        let (sampled, rois) = sample_training_rois(section, &proposals, &batch.gts, roi_seed)?;
         let inputs = roi_inputs(section, &self.shape.network, &out, &rois, &batch.clouds);
         let pred = net.stage_two(&self.shape.network, &out, &inputs, true);
         let mut terms = vec![("cls", cls), ("loc", loc), ("dir", dir)];
@@ -181,18 +167,7 @@ impl TrainingTask for DasanetTask<'_> {
             dasanet.giou_weight,
             dasanet.modules.aux_weights,
         ));
-        let total = terms
-            .iter()
-            .map(|(_, t)| t.clone())
-            .reduce(|a, b| a + b)
-            .expect("at least the stage-one terms");
-        let mut components = vec![("total", total.clone().into_scalar::<f32>())];
-        components.extend(
-            terms
-                .iter()
-                .map(|(n, t)| (*n, t.clone().into_scalar::<f32>())),
-        );
-        Ok(StepLoss { total, components })
+        Ok(StepLoss::from_terms(terms))
     }
 }
 

@@ -127,27 +127,20 @@ impl TrainingTask for VoxelRcnnTask<'_> {
         &self,
         epoch: usize,
     ) -> Box<dyn ExactSizeIterator<Item = Result<TrainBatch>> + Send + '_> {
-        let cfg = self.config;
-        let seed = cfg.train.seed;
-        let mut order: Vec<usize> = self.usable.clone();
-        Sampler::from_path(seed, &[0x5A11, epoch as u64]).shuffle(&mut order);
-        let batches: Vec<Vec<usize>> = order
-            .chunks(cfg.train.batch_size)
-            .map(<[usize]>::to_vec)
-            .collect();
+        let seed = self.config.train.seed;
+        let batches = epoch_frame_batches(&self.usable, seed, epoch, self.config.train.batch_size);
         Box::new(batches.into_iter().enumerate().map(move |(k, frames)| {
-            let device = &self.device;
             let samples = frames
                 .iter()
                 .map(|&i| {
                     let frame = self.frames.frame(i)?;
-                    let mut rng = Sampler::from_path(seed, &[0xA06, epoch as u64, i as u64]);
-                    self.data.sample(&frame, Some(&mut rng))
+                    self.data
+                        .sample(&frame, Some(&mut augment_sampler(seed, epoch, i)))
                 })
                 .collect::<Result<Vec<_>>>()?;
             Ok(TrainBatch {
-                batch: collate(&self.data, samples, true, device)?,
-                roi_seed: fusiondet_dataset::rng::derive(&[seed, 0x2015, epoch as u64, k as u64]),
+                batch: collate(&self.data, samples, true, &self.device)?,
+                roi_seed: roi_seed(seed, epoch, k),
             })
         }))
     }
@@ -162,41 +155,66 @@ impl TrainingTask for VoxelRcnnTask<'_> {
             .expect("training batches carry targets");
         let [cls, loc, dir] = anchor_loss(&out.anchors, targets, &section.loss);
         let proposals = batch_proposals(&self.data, &out.anchors, &section.proposals.train);
-        let mut rng = Sampler::new(roi_seed);
-        let sampled = proposals
-            .iter()
-            .zip(&batch.gts)
-            .map(|(p, gts)| sample_rois(p, gts, &section.roi_targets, &mut rng))
-            .collect::<std::result::Result<Vec<_>, _>>()
-            .map_err(|e| PipelineError::Invalid(e.to_string()))?;
-        let rois: Vec<Vec<[f64; 7]>> = sampled
-            .iter()
-            .map(|t| t.rois.iter().map(|b| b.to_array()).collect())
-            .collect();
+        let (sampled, rois) = sample_training_rois(section, &proposals, &batch.gts, roi_seed)?;
         let pred = refine(net, section, &out.backbone, &rois, None);
         let [rcnn_cls, rcnn_reg, corner] =
             roi_loss(&pred, &roi_loss_targets(&sampled, device), &section.loss);
-        let terms = [
+        Ok(StepLoss::from_terms(vec![
             ("cls", cls),
             ("loc", loc),
             ("dir", dir),
             ("rcnn_cls", rcnn_cls),
             ("rcnn_reg", rcnn_reg),
             ("rcnn_corner", corner),
-        ];
-        let total = terms
-            .iter()
-            .map(|(_, t)| t.clone())
-            .reduce(|a, b| a + b)
-            .expect("six terms");
-        let mut components = vec![("total", total.clone().into_scalar::<f32>())];
-        components.extend(
-            terms
-                .iter()
-                .map(|(n, t)| (*n, t.clone().into_scalar::<f32>())),
-        );
-        Ok(StepLoss { total, components })
+        ]))
     }
+}
+
+/// The frames of each batch of epoch `epoch`: the usable frames in the epoch's seeded order.
+pub(crate) fn epoch_frame_batches(
+    usable: &[usize],
+    seed: u64,
+    epoch: usize,
+    batch_size: usize,
+) -> Vec<Vec<usize>> {
+    let mut order = usable.to_vec();
+    Sampler::from_path(seed, &[0x5A11, epoch as u64]).shuffle(&mut order);
+    order.chunks(batch_size).map(<[usize]>::to_vec).collect()
+}
+
+/// The stream frame `frame`'s augmentation draws from in epoch `epoch`.
+pub(crate) fn augment_sampler(seed: u64, epoch: usize, frame: usize) -> Sampler {
+    Sampler::from_path(seed, &[0xA06, epoch as u64, frame as u64])
+}
+
+/// The seed of batch `k`'s RoI sampling in epoch `epoch`.
+pub(crate) fn roi_seed(seed: u64, epoch: usize, k: usize) -> u64 {
+    fusiondet_dataset::rng::derive(&[seed, 0x2015, epoch as u64, k as u64])
+}
+
+/// The sampled RoIs of every frame with their targets, and the same RoIs as boxes.
+pub(crate) type SampledRois = (Vec<RoiTargets>, Vec<Vec<[f64; 7]>>);
+
+/// Stage two's training RoIs of every frame: sampled from its proposals against its
+/// ground truth (OpenPCDet's proposal target layer), with their targets.
+pub(crate) fn sample_training_rois(
+    section: &VoxelRcnnSection,
+    proposals: &[Vec<fusiondet_voxel::Proposal>],
+    gts: &[Vec<fusiondet_voxel::GtBox>],
+    roi_seed: u64,
+) -> Result<SampledRois> {
+    let mut rng = Sampler::new(roi_seed);
+    let sampled = proposals
+        .iter()
+        .zip(gts)
+        .map(|(p, gts)| sample_rois(p, gts, &section.roi_targets, &mut rng))
+        .collect::<std::result::Result<Vec<_>, _>>()
+        .map_err(|e| PipelineError::Invalid(e.to_string()))?;
+    let rois = sampled
+        .iter()
+        .map(|t| t.rois.iter().map(|b| b.to_array()).collect())
+        .collect();
+    Ok((sampled, rois))
 }
 
 /// Where `fusiondet gt-database` keeps a data set's database of `split`: beside the data,
