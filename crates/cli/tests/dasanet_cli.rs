@@ -193,6 +193,44 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
         "{out}"
     );
 
+    // The ablation trains the baseline and DASANet with two seeds each and puts the
+    // seeds' means, ranges and differences from the baseline beside the per-run rows.
+    let ablation = dir.path().join("ablation");
+    let baseline = repo_root().join("configs/tiny-voxel-rcnn.toml");
+    let o = run(
+        "ablation",
+        &[
+            "--configs",
+            s(&baseline),
+            s(&config),
+            "--data",
+            s(&data),
+            "--out",
+            s(&ablation),
+            "--epochs",
+            "1",
+            "--seeds",
+            "1,2",
+        ],
+    );
+    let out = all_output(&o);
+    assert!(o.status.success(), "{out}");
+    let table = std::fs::read_to_string(ablation.join("ablation.md")).unwrap();
+    for needle in [
+        "| tiny-dasanet (seed 2)    |",
+        "over 2 seeds",
+        "tiny-dasanet (2 seeds)",
+        "*vs tiny-voxel-rcnn*",
+        "by distance, occlusion and LiDAR points",
+    ] {
+        assert!(table.contains(needle), "missing `{needle}` in\n{table}");
+    }
+    assert!(
+        ablation
+            .join("runs/tiny-dasanet/seed-2/model.bpk")
+            .is_file()
+    );
+
     // A frame without its image, and one whose image has another size, are named.
     let image = data.join(format!("training/image_2/{}.png", val[0]));
     let saved = std::fs::read(&image).unwrap();

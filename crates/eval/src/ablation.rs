@@ -89,7 +89,7 @@ fn format_columns(rows: &[Vec<Cell>]) -> Vec<Vec<String>> {
 
 /// A Markdown table with padded columns, so it also reads well as plain text. The first
 /// column is left-aligned, the others right-aligned (numbers).
-fn markdown_table(header: &[String], rows: &[Vec<String>]) -> String {
+pub(crate) fn markdown_table(header: &[String], rows: &[Vec<String>]) -> String {
     let widths: Vec<usize> = (0..header.len())
         .map(|c| {
             rows.iter()
@@ -239,7 +239,7 @@ pub fn ablation_table(rows: &[AblationRow], class: ObjectClass, setting: usize) 
     out
 }
 
-fn bin_header(axis: BreakdownAxis, bin: &str) -> String {
+pub(crate) fn bin_header(axis: BreakdownAxis, bin: &str) -> String {
     match axis {
         BreakdownAxis::Occlusion => format!("Occl. {bin}"),
         BreakdownAxis::Distance => bin.to_string(),
@@ -247,7 +247,7 @@ fn bin_header(axis: BreakdownAxis, bin: &str) -> String {
     }
 }
 
-fn find_bin<'a>(
+pub(crate) fn find_bin<'a>(
     rows: &'a [BreakdownRow],
     class: ObjectClass,
     metric: Metric,

@@ -48,6 +48,7 @@ pub mod protocol;
 #[cfg(test)]
 mod reference;
 pub mod report;
+pub mod seeds;
 pub mod synthetic;
 
 pub use ablation::{
@@ -63,6 +64,7 @@ pub use frames::{FrameDet, FrameGt};
 pub use load::{LoadedFrames, evaluate_dirs, frame_ids, load_dirs, read_result_file};
 pub use protocol::{Difficulty, Metric, N_SAMPLE_PTS, OverlapSetting, parse_classes};
 pub use report::{EvalReport, MetricResult, PrCurve};
+pub use seeds::{SeedGroup, seed_ablation_table, seed_breakdown_table};
 
 use serde::Serialize;
 use std::path::Path;

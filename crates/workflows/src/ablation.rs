@@ -9,8 +9,9 @@
 
 use anyhow::{Context, bail};
 use fusiondet_eval::{
-    AblationRow, Difficulty, EvalConfig, Metric, ablation_breakdown_table, ablation_table,
-    count_lidar_points, evaluate, evaluate_breakdown, frame_ids, load_dirs, write_ablation_json,
+    AblationRow, Difficulty, EvalConfig, Metric, SeedGroup, ablation_breakdown_table,
+    ablation_table, count_lidar_points, evaluate, evaluate_breakdown, frame_ids, load_dirs,
+    seed_ablation_table, seed_breakdown_table, write_ablation_json,
 };
 use fusiondet_kitti::DatasetDir;
 use fusiondet_pipeline::{
@@ -31,6 +32,10 @@ pub struct AblationOptions {
     pub out: PathBuf,
     /// Extra `fusiondet train` flags for every configuration (`--epochs 4`, ...).
     pub train_flags: Vec<String>,
+    /// Training seeds: every configuration is trained once per seed and the tables also
+    /// give the mean, the seeds' range and which differences exceed it. Empty: each
+    /// configuration's own seed, once.
+    pub seeds: Vec<u64>,
     /// The `fusiondet` executable the trainings run in.
     pub executable: PathBuf,
     /// Where detection runs (each training takes the `train` default).
@@ -83,25 +88,41 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
     let label_dir = dataset.training().root.join("label_2");
     let ids = frame_ids(&label_dir, Some(&dataset.split("val")))?;
 
-    let mut entries = Vec::new();
-    // A refinement row refines the boxes of the nearest first-stage row above it.
-    let mut first_stage: Option<PathBuf> = None;
-    for (path, config) in &configs {
-        let first = config.refine.as_ref().and(first_stage.as_deref());
-        entries.push(run_one(args, path, config, first, &label_dir, &ids)?);
-        if config.refine.is_none() {
-            first_stage = Some(run_dir_of(args, config).join("model.bpk"));
+    let seeds: Vec<Option<u64>> = if args.seeds.is_empty() {
+        vec![None]
+    } else {
+        args.seeds.iter().copied().map(Some).collect()
+    };
+    // Per configuration, its runs (one per seed).
+    let mut groups: Vec<Vec<Entry>> = configs.iter().map(|_| Vec::new()).collect();
+    for &seed in &seeds {
+        // A refinement row refines the boxes of the nearest first-stage row above it
+        // (trained with the same seed).
+        let mut first_stage: Option<PathBuf> = None;
+        for ((path, config), runs) in configs.iter().zip(&mut groups) {
+            let first = config.refine.as_ref().and(first_stage.as_deref());
+            runs.push(run_one(args, path, config, seed, first, &label_dir, &ids)?);
+            if config.refine.is_none() {
+                first_stage = Some(run_dir_of(args, config, seed).join("model.bpk"));
+            }
         }
     }
+    let entries: Vec<&Entry> = groups.iter().flatten().collect();
 
-    let rows: Vec<AblationRow> = entries
+    let row = |e: &Entry| AblationRow {
+        name: e.name.clone(),
+        report: e.report.clone(),
+        breakdown: Some(e.breakdown.clone()),
+        params: Some(e.params),
+        frames_per_second: Some(e.frames_per_second),
+    };
+    let rows: Vec<AblationRow> = entries.iter().map(|e| row(e)).collect();
+    let seed_groups: Vec<SeedGroup> = configs
         .iter()
-        .map(|e| AblationRow {
-            name: e.name.clone(),
-            report: e.report.clone(),
-            breakdown: Some(e.breakdown.clone()),
-            params: Some(e.params),
-            frames_per_second: Some(e.frames_per_second),
+        .zip(&groups)
+        .map(|((_, c), runs)| SeedGroup {
+            name: c.name.clone(),
+            runs: runs.iter().map(row).collect(),
         })
         .collect();
     let mut text = format!(
@@ -116,6 +137,14 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
             &format!("\n### {class}: AP_R40 by distance, occlusion and LiDAR points (hard)\n\n");
         text += &ablation_breakdown_table(&rows, class, 0, Difficulty::Hard);
         text += "\n";
+        if seeds.len() >= 2 {
+            text += &format!("### {class}: over {} seeds\n\n", seeds.len());
+            text += &seed_ablation_table(&seed_groups, class, 0);
+            text += "\n";
+            for metric in [Metric::ThreeD, Metric::Bev] {
+                text += &seed_breakdown_table(&seed_groups, class, 0, metric, Difficulty::Hard);
+            }
+        }
         for (metric, tag) in [(Metric::ThreeD, "3d"), (Metric::Bev, "bev")] {
             let curves: Vec<(&str, &fusiondet_eval::MetricResult)> = rows
                 .iter()
@@ -147,8 +176,22 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn run_dir_of(args: &AblationOptions, config: &ExperimentConfig) -> PathBuf {
-    args.out.join("runs").join(&config.name)
+/// `OUT/<kind>/<name>`, or `OUT/<kind>/<name>/seed-<seed>` when the ablation has seeds.
+fn dir_of(
+    args: &AblationOptions,
+    kind: &str,
+    config: &ExperimentConfig,
+    seed: Option<u64>,
+) -> PathBuf {
+    let dir = args.out.join(kind).join(&config.name);
+    match seed {
+        Some(s) => dir.join(format!("seed-{s}")),
+        None => dir,
+    }
+}
+
+fn run_dir_of(args: &AblationOptions, config: &ExperimentConfig, seed: Option<u64>) -> PathBuf {
+    dir_of(args, "runs", config, seed)
 }
 
 /// Trains (in a child process; a refinement stage over `first_stage`), detects on the
@@ -157,11 +200,16 @@ fn run_one(
     args: &AblationOptions,
     path: &Path,
     config: &ExperimentConfig,
+    seed: Option<u64>,
     first_stage: Option<&Path>,
     label_dir: &Path,
     ids: &[String],
 ) -> anyhow::Result<Entry> {
-    let run_dir = run_dir_of(args, config);
+    let run_dir = run_dir_of(args, config, seed);
+    let name = match seed {
+        Some(s) => format!("{} (seed {s})", config.name),
+        None => config.name.clone(),
+    };
     let mut train = Command::new(&args.executable);
     train
         .arg("train")
@@ -175,21 +223,23 @@ fn run_one(
         train.arg("--resume");
     }
     train.args(&args.train_flags);
+    if let Some(s) = seed {
+        train.arg("--seed").arg(s.to_string());
+    }
     if let Some(first) = first_stage {
         train.arg("--first-stage").arg(first);
     }
-    eprintln!("== {}: training ({})", config.name, path.display());
+    eprintln!("== {name}: training ({})", path.display());
     let status = train.status().context("cannot start `fusiondet train`")?;
     if !status.success() {
         bail!(
-            "training {} failed ({status}); its run directory is {}",
-            config.name,
+            "training {name} failed ({status}); its run directory is {}",
             run_dir.display()
         );
     }
     // The run directory holds the configuration it was trained with (overrides included).
     let trained = ExperimentConfig::from_file(&run_dir.join("config.toml"))?;
-    let results = args.out.join("results").join(&config.name);
+    let results = dir_of(args, "results", config, seed);
     if results.exists() {
         std::fs::remove_dir_all(&results)
             .with_context(|| format!("{}: cannot clear", results.display()))?;
@@ -222,11 +272,11 @@ fn run_one(
     // A refinement row counts both stages, as the papers do.
     let params = trained_parameters(&trained)?;
     eprintln!(
-        "== {}: {} frames, {} boxes, {frames_per_second:.1} frames/s, {params} parameters",
-        config.name, summary.frames, summary.boxes_written
+        "== {name}: {} frames, {} boxes, {frames_per_second:.1} frames/s, {params} parameters",
+        summary.frames, summary.boxes_written
     );
     Ok(Entry {
-        name: config.name.clone(),
+        name,
         report,
         breakdown,
         params,

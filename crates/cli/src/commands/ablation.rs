@@ -31,6 +31,11 @@ pub struct AblationArgs {
     /// Applied to every configuration.
     #[command(flatten)]
     pub overrides: TrainOverrides,
+    /// Train every configuration once per seed (e.g. `--seeds 1,2`): runs go to
+    /// OUT/runs/<name>/seed-<s>/, and the tables add each configuration's mean over seeds,
+    /// their range, and which differences from the baseline exceed it.
+    #[arg(long, value_delimiter = ',', conflicts_with = "seed")]
+    pub seeds: Vec<u64>,
 }
 
 pub fn run(args: AblationArgs) -> anyhow::Result<()> {
@@ -39,6 +44,7 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
         data: args.data,
         out: args.out,
         train_flags: args.overrides.to_args(),
+        seeds: args.seeds,
         executable: std::env::current_exe().context("cannot locate the fusiondet binary")?,
         device: Default::default(),
     })
