@@ -222,6 +222,7 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
         "tiny-dasanet (2 seeds)",
         "*vs tiny-voxel-rcnn*",
         "by distance, occlusion and LiDAR points",
+        "GMACs",
     ] {
         assert!(table.contains(needle), "missing `{needle}` in\n{table}");
     }

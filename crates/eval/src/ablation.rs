@@ -26,6 +26,9 @@ pub struct AblationRow {
     pub breakdown: Option<Vec<BreakdownRow>>,
     /// Trainable parameters of the network (both stages' for a refinement model).
     pub params: Option<usize>,
+    /// Multiply-adds of one frame's inference on a typical scene, where the family
+    /// counts them.
+    pub multiply_adds: Option<u64>,
     /// Inference speed, frames per second.
     pub frames_per_second: Option<f64>,
 }
@@ -38,6 +41,7 @@ impl AblationRow {
             report,
             breakdown: None,
             params: None,
+            multiply_adds: None,
             frames_per_second: None,
         }
     }
@@ -168,8 +172,8 @@ fn consistency_note(rows: &[AblationRow], class: ObjectClass, setting: usize) ->
 /// The paper-style ablation table of `class` under overlap setting `setting` (an index
 /// into the reports' settings): two Markdown tables, AP_R40 (the current benchmark)
 /// then AP11 (what older papers report), each with one row per configuration and
-/// columns 3D easy / moderate / hard, BEV easy / moderate / hard, and parameters and
-/// frames/s when some row gives them. The best value of each AP column is bold;
+/// columns 3D easy / moderate / hard, BEV easy / moderate / hard, and parameters,
+/// multiply-adds (G) and frames/s when some row gives them. The best value of each AP column is bold;
 /// `n/a` marks a result the report lacks.
 pub fn ablation_table(rows: &[AblationRow], class: ObjectClass, setting: usize) -> String {
     let mut out = String::new();
@@ -177,6 +181,7 @@ pub fn ablation_table(rows: &[AblationRow], class: ObjectClass, setting: usize) 
         .first()
         .map_or((0, [0; 3]), |r| (r.report.frames, r.report.n_gt(class)));
     let with_params = rows.iter().any(|r| r.params.is_some());
+    let with_macs = rows.iter().any(|r| r.multiply_adds.is_some());
     let with_fps = rows.iter().any(|r| r.frames_per_second.is_some());
     for (label, r40) in [("AP_R40", true), ("AP11", false)] {
         let _ = writeln!(
@@ -217,6 +222,12 @@ pub fn ablation_table(rows: &[AblationRow], class: ObjectClass, setting: usize) 
             if with_params {
                 text.push(r.params.map_or("n/a".to_string(), format_params));
             }
+            if with_macs {
+                text.push(
+                    r.multiply_adds
+                        .map_or("n/a".to_string(), |m| format!("{:.2}", m as f64 / 1e9)),
+                );
+            }
             if with_fps {
                 text.push(
                     r.frames_per_second
@@ -226,6 +237,9 @@ pub fn ablation_table(rows: &[AblationRow], class: ObjectClass, setting: usize) 
         }
         if with_params {
             header.push("Params".to_string());
+        }
+        if with_macs {
+            header.push("GMACs".to_string());
         }
         if with_fps {
             header.push("Frames/s".to_string());
@@ -353,6 +367,8 @@ struct JsonConfiguration<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     params: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
+    multiply_adds: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     frames_per_second: Option<f64>,
     frames: usize,
     results: Vec<JsonRow>,
@@ -366,7 +382,7 @@ struct JsonAblation<'a> {
 }
 
 /// The whole ablation as JSON: `{"configurations": [{"name", "params"?,
-/// "frames_per_second"?, "frames", "results", "breakdown"?}, ...]}`, where `results`
+/// "multiply_adds"?, "frames_per_second"?, "frames", "results", "breakdown"?}, ...]}`, where `results`
 /// and `breakdown` have the rows of [`to_json`](crate::to_json) (AP in percent).
 pub fn ablation_to_json(rows: &[AblationRow]) -> String {
     let doc = JsonAblation {
@@ -375,6 +391,7 @@ pub fn ablation_to_json(rows: &[AblationRow]) -> String {
             .map(|r| JsonConfiguration {
                 name: &r.name,
                 params: r.params,
+                multiply_adds: r.multiply_adds,
                 frames_per_second: r.frames_per_second,
                 frames: r.report.frames,
                 results: r.report.results.iter().map(Into::into).collect(),

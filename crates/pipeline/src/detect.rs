@@ -259,6 +259,37 @@ pub fn trained_parameters(config: &ExperimentConfig) -> Result<usize> {
     }
 }
 
+/// Multiply-adds of one frame's inference on the synthetic KITTI-like scene `info` uses,
+/// for the families that count them (Voxel R-CNN, DASANet); `None` for the frustum family,
+/// whose work depends on the 2D detections.
+pub fn inference_multiply_adds(config: &ExperimentConfig) -> Result<Option<u64>> {
+    let device = Device::flex();
+    let total = |rows: &[(&'static str, u64)]| rows.iter().map(|r| r.1).sum::<u64>();
+    match config.kind() {
+        DetectorKind::Frustum => Ok(None),
+        DetectorKind::VoxelRcnn => {
+            let section = VoxelRcnnDetector::section(config)?;
+            let shape = section.shape();
+            let model =
+                fusiondet_models::voxel_rcnn::VoxelRcnn::new(&shape.network, shape.grid_z, &device)
+                    .map_err(PipelineError::Invalid)?;
+            Ok(Some(total(
+                &crate::voxel_rcnn::info::stage_costs(section, &model).rows,
+            )))
+        }
+        DetectorKind::Dasanet => {
+            let (voxel, dasanet) = crate::dasanet::detector::sections(config)?;
+            let shape = dasanet.shape(voxel);
+            let model =
+                fusiondet_models::dasanet::Dasanet::new(&shape.network, shape.grid_z, &device)
+                    .map_err(PipelineError::Invalid)?;
+            Ok(Some(total(
+                &crate::dasanet::info::stage_costs(voxel, dasanet, &model).rows,
+            )))
+        }
+    }
+}
+
 /// What detection runs on: the detector on its device, and the split's inputs.
 pub(crate) struct DetectInputs {
     pub detector: Detector,

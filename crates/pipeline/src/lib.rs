@@ -23,7 +23,7 @@ pub use config::{
 };
 pub use detect::{
     DetectOptions, DetectSummary, Detector, FrameResults, SplitInputs, StageTimes, detect,
-    trained_parameters, write_results,
+    inference_multiply_adds, trained_parameters, write_results,
 };
 pub use device::ComputeDevice;
 pub use error::{PipelineError, Result};

@@ -15,7 +15,8 @@ use fusiondet_eval::{
 };
 use fusiondet_kitti::DatasetDir;
 use fusiondet_pipeline::{
-    ComputeDevice, DetectOptions, ExperimentConfig, detect, frames_per_second, trained_parameters,
+    ComputeDevice, DetectOptions, ExperimentConfig, detect, frames_per_second,
+    inference_multiply_adds, trained_parameters,
 };
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -48,6 +49,7 @@ struct Entry {
     report: fusiondet_eval::EvalReport,
     breakdown: Vec<fusiondet_eval::BreakdownRow>,
     params: usize,
+    multiply_adds: Option<u64>,
     frames_per_second: f64,
 }
 
@@ -114,6 +116,7 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
         report: e.report.clone(),
         breakdown: Some(e.breakdown.clone()),
         params: Some(e.params),
+        multiply_adds: e.multiply_adds,
         frames_per_second: Some(e.frames_per_second),
     };
     let rows: Vec<AblationRow> = entries.iter().map(|e| row(e)).collect();
@@ -271,6 +274,7 @@ fn run_one(
     let breakdown = evaluate_breakdown(&frames.gt, &frames.det, &eval_config, Some(&points))?;
     // A refinement row counts both stages, as the papers do.
     let params = trained_parameters(&trained)?;
+    let multiply_adds = inference_multiply_adds(&trained)?;
     eprintln!(
         "== {name}: {} frames, {} boxes, {frames_per_second:.1} frames/s, {params} parameters",
         summary.frames, summary.boxes_written
@@ -280,6 +284,7 @@ fn run_one(
         report,
         breakdown,
         params,
+        multiply_adds,
         frames_per_second,
     })
 }
