@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{all_output, assert_fails_with, repo_root, run, s};
+use common::{all_output, assert_fails_with, eval_val, repo_root, run, s};
 
 #[test]
 fn info_counts_the_published_rows_against_table_five() {
@@ -110,20 +110,7 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
         "{out}"
     );
     assert!(out.contains("depth completion + pseudo points"), "{out}");
-    let o = run(
-        "eval",
-        &[
-            "--label-dir",
-            s(&data.join("training/label_2")),
-            "--result-dir",
-            s(&results),
-            "--split",
-            s(&data.join("ImageSets/val.txt")),
-            "--classes",
-            "Car",
-        ],
-    );
-    assert!(o.status.success(), "{}", all_output(&o));
+    eval_val(&data, &results);
 
     // Given completed maps (as `depth-complete` writes them, IP-Basic's default without
     // extrapolation), detection reads them instead of completing: the same boxes up to the

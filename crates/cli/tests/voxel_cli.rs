@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{all_output, assert_fails_with, repo_root, run, s};
+use common::{all_output, assert_fails_with, eval_val, repo_root, run, s};
 
 #[test]
 fn info_counts_the_published_network_and_its_multiply_adds() {
@@ -127,20 +127,7 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
         std::fs::read_to_string(results.join(format!("{}.txt", val[0]))).unwrap(),
         ""
     );
-    let o = run(
-        "eval",
-        &[
-            "--label-dir",
-            s(&data.join("training/label_2")),
-            "--result-dir",
-            s(&results),
-            "--split",
-            s(&data.join("ImageSets/val.txt")),
-            "--classes",
-            "Car",
-        ],
-    );
-    assert!(o.status.success(), "{}", all_output(&o));
+    eval_val(&data, &results);
 
     // The pictures draw this family's results like any other.
     let picture = dir.path().join("frame.png");

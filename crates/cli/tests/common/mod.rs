@@ -42,3 +42,22 @@ pub fn assert_fails_with(subcommand: &str, args: &[&str], needle: &str) {
     );
     assert!(out.contains(needle), "expected `{needle}` in:\n{out}");
 }
+
+/// `fusiondet eval` of a result directory against a simulated data set's val split (Car),
+/// which must succeed.
+pub fn eval_val(data: &Path, results: &Path) {
+    let o = run(
+        "eval",
+        &[
+            "--label-dir",
+            s(&data.join("training/label_2")),
+            "--result-dir",
+            s(results),
+            "--split",
+            s(&data.join("ImageSets/val.txt")),
+            "--classes",
+            "Car",
+        ],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+}

@@ -9,7 +9,7 @@ use crate::detect::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use crate::voxel_rcnn::VoxelRcnnSection;
 use crate::voxel_rcnn::detector::{
-    batch_proposals, final_boxes, to_result, values, voxel_geometry,
+    batch_proposals, frame_objects, single_frame_rois, values, voxel_geometry,
 };
 use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
@@ -167,12 +167,7 @@ impl DasanetDetector {
             if proposals.is_empty() {
                 continue;
             }
-            let rois = vec![
-                proposals
-                    .iter()
-                    .map(|p| p.bbox.to_array())
-                    .collect::<Vec<_>>(),
-            ];
+            let rois = single_frame_rois(&proposals);
             let stage_one = DasanetStageOne {
                 lidar,
                 pseudo,
@@ -180,16 +175,7 @@ impl DasanetDetector {
             };
             let pred = self.refine_timed(&stage_one, &rois, &batch.clouds, timing);
             let t = Instant::now();
-            let kept = final_boxes(
-                section,
-                &proposals,
-                &values(&pred.cls),
-                &values(&pred.boxes),
-            );
-            objects.extend(
-                kept.iter()
-                    .filter_map(|p| to_result(&p.bbox, p.class, p.score, &frame)),
-            );
+            objects.extend(frame_objects(section, &proposals, &pred, &frame));
             results.samples += 1;
             timing.add(STAGE_NMS, t.elapsed());
         }

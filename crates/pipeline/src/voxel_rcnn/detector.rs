@@ -155,6 +155,25 @@ pub fn final_boxes(
         .collect()
 }
 
+/// The KITTI results of one frame: its proposals refined by the head's predictions,
+/// thresholded, suppressed, in the camera frame.
+pub fn frame_objects(
+    section: &VoxelRcnnSection,
+    proposals: &[Proposal],
+    pred: &RoiPredictions,
+    frame: &SensorFrame,
+) -> Vec<Object> {
+    final_boxes(section, proposals, &values(&pred.cls), &values(&pred.boxes))
+        .iter()
+        .filter_map(|p| to_result(&p.bbox, p.class, p.score, frame))
+        .collect()
+}
+
+/// Each frame's proposals as the RoI boxes of a batch of one.
+pub fn single_frame_rois(proposals: &[Proposal]) -> Vec<Vec<RoiBox>> {
+    vec![proposals.iter().map(|p| p.bbox.to_array()).collect()]
+}
+
 pub struct VoxelRcnnDetector {
     pub config: ExperimentConfig,
     pub model: VoxelRcnn,
@@ -222,24 +241,10 @@ impl VoxelRcnnDetector {
             if proposals.is_empty() {
                 continue;
             }
-            let rois = vec![
-                proposals
-                    .iter()
-                    .map(|p| p.bbox.to_array())
-                    .collect::<Vec<_>>(),
-            ];
+            let rois = single_frame_rois(&proposals);
             let pred = refine(&self.model, section, &backbone, &rois, Some(timing));
             let t = Instant::now();
-            let kept = final_boxes(
-                section,
-                &proposals,
-                &values(&pred.cls),
-                &values(&pred.boxes),
-            );
-            objects.extend(
-                kept.iter()
-                    .filter_map(|p| to_result(&p.bbox, p.class, p.score, &frame)),
-            );
+            objects.extend(frame_objects(section, &proposals, &pred, &frame));
             results.samples += 1;
             timing.add(STAGE_NMS, t.elapsed());
         }
