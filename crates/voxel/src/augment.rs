@@ -1,6 +1,7 @@
 //! Training-time augmentation of a [`Scene`], as the published configuration runs it:
-//! ground-truth sampling, then a random flip across the x axis, a rotation about z
-//! and a scaling of the whole scene — LiDAR and pseudo points alike. Every draw comes from the caller's [`Sampler`]
+//! ground-truth sampling, (optionally) per-object noise, then a random flip across the x
+//! axis, a rotation about z and a scaling of the whole scene — LiDAR and pseudo points
+//! alike. Every draw comes from the caller's [`Sampler`]
 //! (one forked stream per step, so switching one step off leaves the others' draws
 //! unchanged).
 //!
@@ -78,6 +79,65 @@ pub fn scale(scene: &mut Scene, factor: f64) {
             *v *= factor;
         }
     }
+}
+
+/// Turns and moves points inside `from` as its box goes to `to` (same size): about the
+/// old centre by the heading change, then to the new centre.
+fn move_object<const N: usize>(points: &mut [[f32; N]], from: &LidarBox, to: &LidarBox) {
+    let inside = points_in_box_xyz(from, points);
+    let angle = to.heading - from.heading;
+    for (p, inside) in points.iter_mut().zip(inside) {
+        if inside {
+            let [x, y] = rotate_z([p[0] as f64 - from.x, p[1] as f64 - from.y], angle);
+            p[0] = (x + to.x) as f32;
+            p[1] = (y + to.y) as f32;
+            p[2] = (p[2] as f64 - from.z + to.z) as f32;
+        }
+    }
+}
+
+/// Which points (of any width, x, y, z first) lie inside the box.
+fn points_in_box_xyz<const N: usize>(b: &LidarBox, points: &[[f32; N]]) -> Vec<bool> {
+    points
+        .iter()
+        .map(|p| b.contains([p[0] as f64, p[1] as f64, p[2] as f64]))
+        .collect()
+}
+
+/// Per-object noise (SECOND's `noise_per_object`, as DASANet's "local rotation" and
+/// "local noising"): each box, in turn, turned about its centre and moved by a normal
+/// offset with the points in it (both clouds); a box whose moved footprint would overlap
+/// another box keeps its place. Returns how many moved.
+pub fn local_noise(scene: &mut Scene, config: &AugmentConfig, sampler: &mut Sampler) -> usize {
+    let [r0, r1] = config.local_rotation;
+    let std = config.local_translation_std;
+    let mut moved = 0;
+    for i in 0..scene.gts.len() {
+        // Every object draws, moved or not, so one object's fate leaves the others' draws.
+        let angle = if r1 > r0 { sampler.range(r0, r1) } else { r0 };
+        let offset: [f64; 3] = std::array::from_fn(|a| sampler.normal() * std[a]);
+        let from = scene.gts[i].bbox;
+        let to = LidarBox {
+            x: from.x + offset[0],
+            y: from.y + offset[1],
+            z: from.z + offset[2],
+            heading: from.heading + angle,
+            ..from
+        };
+        let collides = scene
+            .gts
+            .iter()
+            .enumerate()
+            .any(|(j, g)| j != i && bev_intersection(&to, &g.bbox) > 0.0);
+        if collides {
+            continue;
+        }
+        move_object(&mut scene.points, &from, &to);
+        move_object(&mut scene.pseudo, &from, &to);
+        scene.gts[i].bbox = to;
+        moved += 1;
+    }
+    moved
 }
 
 /// The database objects each sample group may paste, filtered once.
@@ -225,6 +285,8 @@ impl GtSampler {
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct AugmentReport {
     pub pasted: usize,
+    /// Objects the per-object noise moved.
+    pub moved: usize,
     pub flipped: bool,
     pub rotation: f64,
     pub scale: f64,
@@ -246,6 +308,8 @@ pub fn augment(
     let mut flip_stream = sampler.fork();
     let mut rotation_stream = sampler.fork();
     let mut scale_stream = sampler.fork();
+    // Forked only when on, so that scenes without it draw exactly as before.
+    let mut local_stream = config.local_noise().then(|| sampler.fork());
     if config.sample_groups.iter().any(|g| g.count > 0) {
         let gs = gt_sampler.ok_or_else(|| {
             VoxelError::Input(
@@ -255,6 +319,9 @@ pub fn augment(
             )
         })?;
         report.pasted = gs.paste(scene, &mut paste_stream);
+    }
+    if let Some(stream) = local_stream.as_mut() {
+        report.moved = local_noise(scene, config, stream);
     }
     if config.flip_x && flip_stream.chance(0.5) {
         flip_x(scene);
@@ -530,5 +597,62 @@ mod tests {
         s.pseudo.push([20.5, 10.0, -1.0, 0.0, 0.0, 0.0]);
         gs.paste(&mut s, &mut Sampler::new(0));
         assert_eq!(s.pseudo, scene().pseudo);
+    }
+
+    /// Per-object noise turns and moves each object with its points (both clouds), leaves
+    /// an object in place when its moved box would hit another, and is seeded.
+    #[test]
+    fn local_noise_moves_objects_with_their_points() {
+        let config = AugmentConfig {
+            local_rotation: [FRAC_PI_2, FRAC_PI_2],
+            local_translation_std: [0.0; 3],
+            ..AugmentConfig::none()
+        };
+        let mut s = scene();
+        // A point 1 m ahead of the car's centre (heading 0.3) along its axis.
+        let (sin, cos) = 0.3f64.sin_cos();
+        s.points
+            .push([(10.0 + cos) as f32, (2.0 + sin) as f32, -1.0, 0.7]);
+        s.pseudo
+            .push([(10.0 + cos) as f32, (2.0 + sin) as f32, -1.0, 0.1, 0.1, 0.1]);
+        assert_eq!(local_noise(&mut s, &config, &mut Sampler::new(1)), 1);
+        let b = s.gts[0].bbox;
+        assert!(close(b.heading, 0.3 + FRAC_PI_2) && close(b.x, 10.0) && close(b.y, 2.0));
+        // Turned a quarter about the centre: now 1 m along the new heading.
+        let (sin, cos) = (0.3 + FRAC_PI_2).sin_cos();
+        for p in [&s.points[2][..3], &s.pseudo[2][..3]] {
+            assert!(
+                close(p[0] as f64, 10.0 + cos) && close(p[1] as f64, 2.0 + sin),
+                "{p:?}"
+            );
+        }
+        // Points outside the box stay.
+        assert_eq!(s.points[1], scene().points[1]);
+
+        // A second car right beside: turning the first would hit it, so neither moves
+        // (the second's turn would hit the first).
+        let mut s = scene();
+        s.gts.push(GtBox {
+            bbox: car(10.0, 4.5, 0.3),
+            class: ObjectClass::Car,
+        });
+        let before = s.clone();
+        assert_eq!(local_noise(&mut s, &config, &mut Sampler::new(1)), 0);
+        assert_eq!(s, before);
+
+        // Through `augment`, seeded and reported.
+        let noisy = AugmentConfig {
+            local_rotation: [-0.5, 0.5],
+            local_translation_std: [0.25, 0.25, 0.0],
+            ..AugmentConfig::none()
+        };
+        let run = |seed| {
+            let mut s = scene();
+            let r = augment(&mut s, &noisy, None, &mut Sampler::new(seed)).unwrap();
+            (s, r.moved)
+        };
+        assert_eq!(run(5), run(5));
+        assert_eq!(run(5).1, 1);
+        assert_ne!(run(5).0.gts[0].bbox, scene().gts[0].bbox);
     }
 }

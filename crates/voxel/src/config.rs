@@ -354,8 +354,9 @@ pub struct SampleGroup {
     pub min_points: usize,
 }
 
-/// Training-time augmentation, in the order it is applied: ground-truth sampling, flip
-/// along x, rotation about z, scaling.
+/// Training-time augmentation, in the order it is applied: ground-truth sampling, the
+/// per-object noise (off by default; DASANet's "local rotation and noising"), flip along
+/// x, rotation about z, scaling.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AugmentConfig {
@@ -372,6 +373,12 @@ pub struct AugmentConfig {
     pub rotation: [f64; 2],
     /// Scale the scene by a factor uniform in [min, max].
     pub scaling: [f64; 2],
+    /// Turn each object (its box and the points in it) about its own centre by an angle
+    /// uniform in [min, max] radians; [0, 0]: off.
+    pub local_rotation: [f64; 2],
+    /// Move each object by a normal offset of these standard deviations (x, y, z, metres);
+    /// zeros: off. An object whose moved box would overlap another keeps its place.
+    pub local_translation_std: [f64; 3],
 }
 
 impl Default for AugmentConfig {
@@ -387,6 +394,8 @@ impl Default for AugmentConfig {
             flip_x: true,
             rotation: [-FRAC_PI_4, FRAC_PI_4],
             scaling: [0.95, 1.05],
+            local_rotation: [0.0, 0.0],
+            local_translation_std: [0.0; 3],
         }
     }
 }
@@ -401,10 +410,33 @@ impl AugmentConfig {
             flip_x: false,
             rotation: [0.0, 0.0],
             scaling: [1.0, 1.0],
+            local_rotation: [0.0, 0.0],
+            local_translation_std: [0.0; 3],
         }
     }
 
+    /// Whether the per-object noise is on.
+    pub fn local_noise(&self) -> bool {
+        self.local_rotation != [0.0, 0.0] || self.local_translation_std != [0.0; 3]
+    }
+
     pub fn validate(&self) -> Result<()> {
+        let [l0, l1] = self.local_rotation;
+        if !(l0.is_finite() && l1.is_finite() && l0 <= l1) {
+            return bad(format!(
+                "`local_rotation` [{l0}, {l1}] must be finite with min ≤ max"
+            ));
+        }
+        if self
+            .local_translation_std
+            .iter()
+            .any(|s| !(s.is_finite() && *s >= 0.0))
+        {
+            return bad(format!(
+                "`local_translation_std` {:?} must be finite and ≥ 0",
+                self.local_translation_std
+            ));
+        }
         let [r0, r1] = self.rotation;
         if !(r0.is_finite() && r1.is_finite() && r0 <= r1) {
             return bad(format!(
