@@ -161,17 +161,23 @@ pub fn collate(
         branch_inputs(&pseudo, PSEUDO_VOXEL_FEATURES, shape, device)?;
     let gts: Vec<&[GtBox]> = samples.iter().map(|s| s.lidar.gts.as_slice()).collect();
     let anchor_targets = with_targets.then(|| anchor_targets(&data.voxel, &gts, device));
+    // The samples are consumed here: ids, boxes and clouds move into the batch.
+    let mut ids = Vec::with_capacity(samples.len());
+    let mut gts = Vec::with_capacity(samples.len());
+    let mut clouds = Vec::with_capacity(samples.len());
+    for s in samples {
+        ids.push(s.lidar.id);
+        gts.push(s.lidar.gts);
+        clouds.push((s.lidar_points, s.pseudo_points));
+    }
     Ok(DasanetBatch {
-        ids: samples.iter().map(|s| s.lidar.id.clone()).collect(),
+        ids,
         lidar_features,
         lidar_plan,
         pseudo_features,
         pseudo_plan,
-        gts: samples.iter().map(|s| s.lidar.gts.clone()).collect(),
-        clouds: samples
-            .into_iter()
-            .map(|s| (s.lidar_points, s.pseudo_points))
-            .collect(),
+        gts,
+        clouds,
         anchor_targets,
     })
 }

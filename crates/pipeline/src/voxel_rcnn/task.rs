@@ -236,27 +236,20 @@ pub fn build_gt_database(frames: &InMemoryFrames<SensorFrame>) -> Result<GtDatab
     Ok(db)
 }
 
-/// The training database: the data set's own (`fusiondet gt-database`) when it has one for
-/// the split, else the run's, read back on resume or built from the training frames and
-/// written into the run directory.
-fn gt_database(
-    data_dir: &Path,
-    split: &str,
-    run_root: &Path,
-    frames: &InMemoryFrames<SensorFrame>,
+/// A training database: the data set's prepared one (`fusiondet gt-database`) when it has
+/// one, else the run's, read back on resume or built and written into the run directory.
+pub(crate) fn cached_gt_database(
+    prepared: &Path,
+    run_dir: &Path,
+    build: impl FnOnce() -> Result<GtDatabase>,
 ) -> Result<GtDatabase> {
-    let load =
-        |dir: &Path| GtDatabase::load(dir).map_err(|e| PipelineError::Invalid(e.to_string()));
-    let prepared = data_gt_database_dir(data_dir, split);
-    if prepared.join("index.json").is_file() {
-        return load(&prepared);
+    for dir in [prepared, run_dir] {
+        if dir.join("index.json").is_file() {
+            return GtDatabase::load(dir).map_err(|e| PipelineError::Invalid(e.to_string()));
+        }
     }
-    let dir = run_root.join(GT_DATABASE_DIR);
-    if dir.join("index.json").is_file() {
-        return load(&dir);
-    }
-    let db = build_gt_database(frames)?;
-    db.save(&dir)
+    let db = build()?;
+    db.save(run_dir)
         .map_err(|e| PipelineError::Invalid(e.to_string()))?;
     Ok(db)
 }
@@ -276,11 +269,10 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     let sampler = if section.augment.sample_groups.is_empty() {
         None
     } else {
-        let db = gt_database(
-            &options.data_dir,
-            &cfg.train.split,
-            &opened.run.root,
-            &frames,
+        let db = cached_gt_database(
+            &data_gt_database_dir(&options.data_dir, &cfg.train.split),
+            &opened.run.root.join(GT_DATABASE_DIR),
+            || build_gt_database(&frames),
         )?;
         Some(
             GtSampler::new(db, &section.augment)
