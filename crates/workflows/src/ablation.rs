@@ -7,6 +7,7 @@
 //! in a process of its own (two in one process share rayon's pool), and a finished run is
 //! resumed rather than repeated, so an interrupted ablation continues where it stopped.
 
+use crate::{out, outln};
 use anyhow::{Context, bail};
 use fusiondet_eval::{
     AblationRow, Difficulty, EvalConfig, Metric, SeedGroup, ablation_breakdown_table,
@@ -168,11 +169,11 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
             );
         }
     }
-    print!("{text}");
+    out!("{text}");
     fusiondet_kitti::write_atomic(&args.out.join("ablation.md"), text.as_bytes())
         .with_context(|| format!("{}: cannot write", args.out.display()))?;
     write_ablation_json(&args.out.join("ablation.json"), &rows)?;
-    println!(
+    outln!(
         "wrote {}/ablation.md, ablation.json and the PR plots",
         args.out.display()
     );

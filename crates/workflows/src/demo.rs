@@ -7,6 +7,7 @@
 //! Nothing here reads the source tree: an installed binary runs it from any directory.
 
 use crate::bundled::{self, ShippedFiles};
+use crate::{out, outln};
 use anyhow::{Context, bail};
 use fusiondet_eval::{EvalConfig, evaluate_dirs};
 use fusiondet_kitti::{DatasetDir, read_split};
@@ -133,7 +134,7 @@ fn detect_and_evaluate(
         detections: None,
         depth_dir: None,
     })?;
-    println!(
+    outln!(
         "\n== {title}: {} frames, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",
         s.frames,
         s.detections_2d,
@@ -152,7 +153,7 @@ fn detect_and_evaluate(
         Some(&dataset.split("val")),
         &eval_config,
     )?;
-    print!("{}", report.table());
+    out!("{}", report.table());
     fusiondet_eval::write_json(json, &report, None)?;
     Ok(())
 }
@@ -200,7 +201,7 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
         },
         &|_, _| {},
     )?;
-    println!(
+    outln!(
         "== simulated {} frames ({} labelled objects, median {:.0} LiDAR points per frame) in {:.1} s -> {}",
         stats.frames,
         stats.labels.values().sum::<usize>(),
@@ -240,9 +241,9 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
     std::fs::create_dir_all(&pics).with_context(|| format!("{}: cannot create", pics.display()))?;
     let mut drawn = pictures(&sim, &results.join("sim"), &pics, "sim", 2)?;
     drawn.extend(pictures(kitti, &results.join("kitti"), &pics, "kitti", 2)?);
-    println!("\n== pictures:");
+    outln!("\n== pictures:");
     for p in &drawn {
-        println!("   {}", p.display());
+        outln!("   {}", p.display());
     }
     let what = if args.train_tiny {
         "a tiny network trained for seconds: the numbers show the pipeline, not F-ConvNet's accuracy".to_string()
@@ -252,7 +253,7 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
             args.model.title()
         )
     };
-    println!(
+    outln!(
         "\ndemo finished in {:.1} s ({what})",
         started.elapsed().as_secs_f64()
     );
@@ -274,7 +275,7 @@ fn shipped_model(out: &Path, which: ShippedModel) -> anyhow::Result<(ExperimentC
     let size = bytes.len();
     let config = ExperimentConfig::from_file(&config_path)?;
     let params = parameter_count(&config.model)?;
-    println!(
+    outln!(
         "== the shipped {} Car model ({:.1} MB, {params} parameters) -> {}",
         which.title(),
         size as f64 / 1e6,
@@ -298,7 +299,7 @@ fn train_tiny(args: &DemoOptions, sim: &Path) -> anyhow::Result<(ExperimentConfi
         resume: false,
         progress: std::io::stderr().is_terminal(),
     })?;
-    println!(
+    outln!(
         "== trained the tiny F-ConvNet ({} epochs, {} frustums from {} frames, final loss {:.3}) in {:.1} s -> {}",
         summary.epochs_run,
         summary.samples,

@@ -1,7 +1,9 @@
 //! Workflows that chain the library's steps (what the binary used to do itself): the
 //! demo, the ablation (trainings in child processes, detection, evaluation, tables and
-//! plots), and the data and models built into the binary for the demo.
+//! plots), the data and models built into the binary for the demo, and the console output
+//! that all commands print through.
 
 pub mod ablation;
 pub mod bundled;
+pub mod console;
 pub mod demo;

@@ -3,6 +3,7 @@
 
 use crate::commands::detect::ModelOnSplit;
 use fusiondet_pipeline::{BenchOptions, bench_detect};
+use fusiondet_workflows::outln;
 
 #[derive(clap::Args)]
 pub struct BenchArgs {
@@ -34,6 +35,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         max_frames: args.max_frames,
         device: input.device,
     })?;
-    println!("{name}: {bench}");
+    outln!("{name}: {bench}");
     Ok(())
 }

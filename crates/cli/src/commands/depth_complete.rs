@@ -6,6 +6,7 @@ use fusiondet_depth::{
     Blur, DepthCompleter, DepthErrors, DepthMap, IpBasic, read_depth_png, write_depth_png,
 };
 use fusiondet_kitti::FrameDir;
+use fusiondet_workflows::outln;
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -102,7 +103,7 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
         let map = read_depth_png(sparse)?;
         let dense = completer.complete(&map);
         write_depth_png(out, &dense)?;
-        println!(
+        outln!(
             "{}: {} of {} pixels measured -> {} filled -> {}",
             sparse.display(),
             map.valid_count(),
@@ -146,7 +147,7 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
         }
         _ => bail!("give --sparse-dir or --data-dir (one of them) with --out-dir"),
     };
-    println!(
+    outln!(
         "{} depth maps: {} measured pixels -> {} filled -> {}",
         summary.maps,
         summary.sparse_pixels,
@@ -173,10 +174,10 @@ fn measure(
     for (k, id) in ids.iter().enumerate() {
         let frame = fusiondet_dataset::SensorFrame::load(frames, id, false)?;
         let e = errors_of(k, id, &fusiondet_depth::project_scan(&frame))?;
-        println!("{id}: {}", line(&e));
+        outln!("{id}: {}", line(&e));
         per_frame.push(e);
     }
-    println!(
+    outln!(
         "all {} frames: {}",
         ids.len(),
         line(&DepthErrors::pool(&per_frame))

@@ -3,6 +3,7 @@
 
 use fusiondet_models::DetectorKind;
 use fusiondet_pipeline::{ComputeDevice, DetectOptions, ExperimentConfig, detect};
+use fusiondet_workflows::outln;
 use std::path::PathBuf;
 
 /// The arguments `detect` and `bench` share: a model, its configuration, the frames and
@@ -75,7 +76,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     let skipped = s.skipped;
     match kind {
         DetectorKind::Frustum => {
-            println!(
+            outln!(
                 "{} frames, {} 2D detections -> {} frustums -> {} boxes written to {}",
                 s.frames,
                 s.detections_2d,
@@ -83,19 +84,22 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
                 s.boxes_written,
                 args.out.display()
             );
-            println!(
+            outln!(
                 "skipped frustums: {} outside the image, {} too small, {} without points, {} in frames not in the split",
-                skipped.outside_image, skipped.too_small, skipped.no_points, skipped.unknown_frame
+                skipped.outside_image,
+                skipped.too_small,
+                skipped.no_points,
+                skipped.unknown_frame
             );
         }
-        DetectorKind::VoxelRcnn => println!(
+        DetectorKind::VoxelRcnn => outln!(
             "{} frames ({} with LiDAR points in range) -> {} boxes written to {}",
             s.frames,
             s.samples,
             s.boxes_written,
             args.out.display()
         ),
-        DetectorKind::Dasanet => println!(
+        DetectorKind::Dasanet => outln!(
             "{} frames ({} with LiDAR and pseudo points in range) -> {} boxes written to {}",
             s.frames,
             s.samples,
@@ -109,7 +113,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         .iter()
         .map(|(name, d)| format!("{name} {:.3} s", d.as_secs_f64()))
         .collect();
-    println!(
+    outln!(
         "time: load {:.2} s, {}",
         t.load.as_secs_f64(),
         stages.join(", ")

@@ -7,6 +7,7 @@ use fusiondet_eval::{
     EvalConfig, breakdown_table, count_lidar_points, evaluate, evaluate_breakdown, frame_ids,
     load_dirs, parse_classes, write_json,
 };
+use fusiondet_workflows::out;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -113,13 +114,13 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         );
     }
     let report = evaluate(&frames.gt, &frames.det, &cfg)?;
-    print!("{}", report.table());
+    out!("{}", report.table());
 
     let breakdown = match lidar {
         Some((velodyne_dir, calib_dir)) => {
             let points = count_lidar_points(&frames.gt, &frames.det, &velodyne_dir, &calib_dir)?;
             let rows = evaluate_breakdown(&frames.gt, &frames.det, &cfg, Some(&points))?;
-            print!("{}", breakdown_table(&rows));
+            out!("{}", breakdown_table(&rows));
             Some(rows)
         }
         None => None,

@@ -8,6 +8,7 @@ use fusiondet_pipeline::dasanet::{
     PseudoCloudConfig, build_pseudo_gt_database, data_pseudo_gt_database_dir,
 };
 use fusiondet_pipeline::voxel_rcnn::{build_gt_database, data_gt_database_dir};
+use fusiondet_workflows::outln;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -76,7 +77,7 @@ pub fn run(args: GtDatabaseArgs) -> anyhow::Result<()> {
         .iter()
         .map(|(c, (n, p))| format!("{c} {n} ({p} LiDAR points)"))
         .collect();
-    println!(
+    outln!(
         "{} objects from {} frames of `{}` -> {}: {}",
         db.objects().len(),
         fusiondet_dataset::FrameSource::len(&frames),

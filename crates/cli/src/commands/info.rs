@@ -4,6 +4,7 @@
 use fusiondet_models::info::parameter_count;
 use fusiondet_models::render_info;
 use fusiondet_pipeline::ExperimentConfig;
+use fusiondet_workflows::{out, outln};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -17,14 +18,14 @@ pub struct InfoArgs {
 pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     let experiment = ExperimentConfig::from_file(&args.config)?;
     if let (Some(voxel), Some(dasanet)) = (&experiment.voxel_rcnn, &experiment.dasanet) {
-        print!(
+        out!(
             "{}",
             fusiondet_pipeline::dasanet::info::render_info(&experiment.name, voxel, dasanet)?
         );
         return Ok(());
     }
     if let Some(section) = &experiment.voxel_rcnn {
-        print!(
+        out!(
             "{}",
             fusiondet_pipeline::voxel_rcnn::info::render_info(&experiment.name, section)?
         );
@@ -32,7 +33,7 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     }
     let config = experiment.network();
     let Some(refine) = &experiment.refine else {
-        println!("{}", render_info(&config)?);
+        outln!("{}", render_info(&config)?);
         return Ok(());
     };
     let first_path = &refine.first_stage;
@@ -41,23 +42,23 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     let first = match ExperimentConfig::for_checkpoint(first_path, None) {
         Ok(first) => first,
         Err(e) => {
-            println!("Refinement stage ({}):", args.config.display());
-            println!("{}", render_info(&config)?);
-            println!(
+            outln!("Refinement stage ({}):", args.config.display());
+            outln!("{}", render_info(&config)?);
+            outln!(
                 "First stage not counted: {e}
 (train it first, or point refine.first_stage at a trained checkpoint)"
             );
             return Ok(());
         }
     };
-    println!("First stage ({}):", first_path.display());
-    println!("{}", render_info(&first.network())?);
-    println!("Refinement stage ({}):", args.config.display());
-    println!("{}", render_info(&config)?);
+    outln!("First stage ({}):", first_path.display());
+    outln!("{}", render_info(&first.network())?);
+    outln!("Refinement stage ({}):", args.config.display());
+    outln!("{}", render_info(&config)?);
     let (a, b) = (
         parameter_count(&first.model)?,
         parameter_count(&config.model)?,
     );
-    println!("Both stages: {} parameters ({a} + {b})", a + b);
+    outln!("Both stages: {} parameters ({a} + {b})", a + b);
     Ok(())
 }

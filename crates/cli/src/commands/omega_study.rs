@@ -6,6 +6,7 @@
 use fusiondet_frustum::load_split;
 use fusiondet_frustum::{DEFAULT_OMEGAS, Slicing, omega_study_from_labels};
 use fusiondet_pipeline::ExperimentConfig;
+use fusiondet_workflows::out;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -35,6 +36,6 @@ pub fn run(args: OmegaStudyArgs) -> anyhow::Result<()> {
     let frames = load_split(&args.data, &args.split, args.max_frames, true)?;
     let study =
         omega_study_from_labels(frames, &config.frustum, config.train.seed, &DEFAULT_OMEGAS)?;
-    print!("{study}");
+    out!("{study}");
     Ok(())
 }

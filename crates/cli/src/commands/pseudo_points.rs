@@ -3,6 +3,7 @@
 
 use fusiondet_depth::{IpBasic, Thinning};
 use fusiondet_kitti::FrameDir;
+use fusiondet_workflows::outln;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -43,7 +44,7 @@ pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
         },
         args.thin.then(Thinning::default),
     )?;
-    println!(
+    outln!(
         "{} frames: {} pseudo points ({:.0} per frame) -> {}",
         summary.frames,
         summary.points,

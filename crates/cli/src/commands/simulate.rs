@@ -4,6 +4,7 @@
 
 use anyhow::Context;
 use fusiondet_sim::{DatasetOptions, SimConfig, write_dataset};
+use fusiondet_workflows::{out, outln};
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -88,7 +89,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     if interactive {
         eprintln!();
     }
-    println!(
+    outln!(
         "wrote {} frames to {} in {:.1} s ({:.1} frames/s, seed {})",
         args.frames,
         args.out.display(),
@@ -97,8 +98,8 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         args.seed
     );
     if args.stats {
-        print!("{}", stats.report());
-        println!(
+        out!("{}", stats.report());
+        outln!(
             "statistics written to {}",
             args.out.join(fusiondet_sim::dataset::STATS_FILE).display()
         );

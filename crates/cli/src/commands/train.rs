@@ -1,6 +1,7 @@
 //! `fusiondet train`: trains a frustum detector from a TOML experiment configuration.
 
 use fusiondet_pipeline::{ComputeDevice, ExperimentConfig, TrainOptions, train};
+use fusiondet_workflows::outln;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
@@ -90,7 +91,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         progress: std::io::stderr().is_terminal(),
         device: args.device,
     })?;
-    println!(
+    outln!(
         "trained on {}: {} epoch(s) run, {} done, final loss {}",
         if summary.sample_noun == "frames" {
             let skipped = summary.frames - summary.samples;
@@ -115,6 +116,6 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             .final_loss
             .map_or("-".to_string(), |l| format!("{l:.4}"))
     );
-    println!("model: {}", summary.model.display());
+    outln!("model: {}", summary.model.display());
     Ok(())
 }

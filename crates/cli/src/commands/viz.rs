@@ -5,6 +5,7 @@ use anyhow::{Context, bail};
 use fusiondet_kitti::FrameDir;
 use fusiondet_kitti::image::write_png;
 use fusiondet_viz::{BevRange, RenderOptions, load_frame, render_frame_with};
+use fusiondet_workflows::outln;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -103,7 +104,7 @@ pub fn run(args: VizArgs) -> anyhow::Result<()> {
     };
     let picture = render_frame_with(&view, &options);
     write_png(&args.out, &picture).context("cannot write the picture")?;
-    println!(
+    outln!(
         "wrote {} ({}x{})",
         args.out.display(),
         picture.width(),

@@ -61,3 +61,24 @@ pub fn eval_val(data: &Path, results: &Path) {
     );
     assert!(o.status.success(), "{}", all_output(&o));
 }
+
+/// Runs `fusiondet SUBCOMMAND ARGS...` with stdout a pipe whose reader has already gone (as in
+/// `fusiondet … | head -0`), so every write to stdout fails with a broken pipe.
+pub fn run_into_closed_pipe(subcommand: &str, args: &[&str]) -> Output {
+    let (reader, writer) = std::io::pipe().expect("pipe");
+    drop(reader);
+    Command::new(env!("CARGO_BIN_EXE_fusiondet"))
+        .arg(subcommand)
+        .args(args)
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .output()
+        .expect("run fusiondet")
+}
+
+/// A run into a closed pipe must end as a normal run would: success and no panic.
+pub fn assert_quiet_on_closed_pipe(o: &Output) {
+    let err = text(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
