@@ -98,6 +98,52 @@ fn mixed_case_through_the_binary_matches_the_devkit() {
 }
 
 #[test]
+fn a_frame_listed_twice_in_the_split_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let split = tmp.path().join("ids.txt");
+    let m = mixed();
+    let ids = std::fs::read_to_string(m.join("ids.txt")).unwrap();
+    let first = ids.lines().next().unwrap().to_string();
+    std::fs::write(&split, format!("{ids}{first}\n")).unwrap();
+    common::assert_fails_with(
+        "eval",
+        &[
+            "--label-dir",
+            s(&m.join("gt")),
+            "--result-dir",
+            s(&m.join("det")),
+            "--split",
+            s(&split),
+        ],
+        &format!("`{first}` is listed again (first on line 1)"),
+    );
+}
+
+#[test]
+fn a_reader_that_left_does_not_stop_the_json_being_written() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("eval.json");
+    let m = mixed();
+    let out = common::run_into_closed_pipe(
+        "eval",
+        &[
+            "--label-dir",
+            s(&m.join("gt")),
+            "--result-dir",
+            s(&m.join("det")),
+            "--split",
+            s(&m.join("ids.txt")),
+            "--json",
+            s(&json),
+        ],
+    );
+    common::assert_quiet_on_closed_pipe(&out);
+    let got: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(got["results"].as_array().unwrap().len(), 24);
+}
+
+#[test]
 fn breakdown_on_the_bundled_kitti_frames() {
     let tmp = tempfile::tempdir().unwrap();
     let split = tmp.path().join("real.txt");

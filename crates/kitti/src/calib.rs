@@ -55,9 +55,21 @@ fn to_mat33(v: &[f64]) -> Mat33 {
     m
 }
 
-/// Parses calibration text; every key is required (a missing one is an error naming it).
+/// The largest magnitude a calibration entry may have: focal lengths and principal points
+/// are pixels (hundreds to a few thousand), translations metres or pixel-metres. Beyond
+/// this a file is garbage, and projecting with it would overflow or lose all precision.
+const MAX_ENTRY: f64 = 1e6;
+
+/// How far the determinant of a stored rotation (R0_rect, Tr_velo_to_cam's 3×3 block) may
+/// be from 1: KITTI writes them to 7 digits, so real files are within 1e-5.
+const ROTATION_DET_TOLERANCE: f64 = 0.01;
+
+/// Parses calibration text; every key is required (a missing one is an error naming it),
+/// each given once, and the matrices we project with must be able to project: cameras with
+/// positive focal lengths, rotations that are rotations.
 pub fn parse_calib(text: &str, path: &Path) -> Result<Calib> {
     let mut values: [Option<Vec<f64>>; 7] = Default::default();
+    let mut lines = [0usize; 7];
     for (index, line) in text.lines().enumerate() {
         let line_no = index + 1;
         if line.trim().is_empty() {
@@ -91,7 +103,27 @@ pub fn parse_calib(text: &str, path: &Path) -> Result<Calib> {
                 format!("expected {count} numbers, found {}", nums.len()),
             ));
         }
+        if let Some(v) = nums.iter().find(|v| v.abs() > MAX_ENTRY) {
+            return Err(FormatError::field(
+                path,
+                line_no,
+                name,
+                format!("{v:e} is no calibration value (entries stay within ±{MAX_ENTRY:e})"),
+            ));
+        }
+        if values[slot].is_some() {
+            return Err(FormatError::field(
+                path,
+                line_no,
+                name,
+                format!(
+                    "given again (first on line {}); keep one `{name}` line",
+                    lines[slot]
+                ),
+            ));
+        }
         values[slot] = Some(nums);
+        lines[slot] = line_no;
     }
     for (slot, (name, _, _)) in KEYS.iter().enumerate() {
         if values[slot].is_none() {
@@ -104,7 +136,7 @@ pub fn parse_calib(text: &str, path: &Path) -> Result<Calib> {
         }
     }
     let v = |i: usize| values[i].as_deref().unwrap_or_default();
-    Ok(Calib {
+    let calib = Calib {
         p: [
             to_mat34(v(0)),
             to_mat34(v(1)),
@@ -114,7 +146,38 @@ pub fn parse_calib(text: &str, path: &Path) -> Result<Calib> {
         r0_rect: to_mat33(v(4)),
         tr_velo_to_cam: to_mat34(v(5)),
         tr_imu_to_velo: to_mat34(v(6)),
-    })
+    };
+    let bad =
+        |slot: usize, message: String| FormatError::field(path, lines[slot], KEYS[slot].0, message);
+    for (slot, p) in calib.p.iter().enumerate() {
+        let (fx, fy) = (p[0][0], p[1][1]);
+        if fx <= 0.0 || fy <= 0.0 || det3(p) <= 0.0 {
+            return Err(bad(
+                slot,
+                format!(
+                    "cannot project: a camera matrix needs focal lengths fx, fy > 0 (here {fx}, \
+                     {fy}) and an invertible left 3x3 block"
+                ),
+            ));
+        }
+    }
+    let rotations = [(4, det3(&calib.r0_rect)), (5, det3(&calib.tr_velo_to_cam))];
+    for (slot, det) in rotations {
+        if (det - 1.0).abs() > ROTATION_DET_TOLERANCE {
+            return Err(bad(
+                slot,
+                format!("not a rotation: its 3x3 block has determinant {det:.6}, not 1"),
+            ));
+        }
+    }
+    Ok(calib)
+}
+
+/// The determinant of a matrix's left 3×3 block (rows of 3 or 4 entries).
+fn det3<R: AsRef<[f64]>>(m: &[R; 3]) -> f64 {
+    let (a, b, c) = (m[0].as_ref(), m[1].as_ref(), m[2].as_ref());
+    a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+        + a[2] * (b[0] * c[1] - b[1] * c[0])
 }
 
 pub fn read_calib(path: &Path) -> Result<Calib> {
@@ -197,5 +260,65 @@ Tr_imu_to_velo: 9.999976000000e-01 7.553071000000e-04 -2.035826000000e-03 -8.086
         let text = SAMPLE.replace("4.575831000000e+01", "nan");
         let err = parse_calib(&text, p()).unwrap_err().to_string();
         assert!(err.contains(":3: field `P2`"), "{err}");
+    }
+
+    /// SAMPLE with the `key:` line replaced by `line`.
+    fn with_line(key: &str, line: &str) -> String {
+        SAMPLE
+            .lines()
+            .map(|l| {
+                if l.starts_with(&format!("{key}:")) {
+                    format!("{line}\n")
+                } else {
+                    format!("{l}\n")
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn calibrations_that_cannot_project_are_refused() {
+        let zeros = format!("P2:{}", " 0".repeat(12));
+        let err = parse_calib(&with_line("P2", &zeros), p())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(":3: field `P2`: cannot project"), "{err}");
+        let no_fx = "P2: 0 0 604 45 0 707 180 0 0 0 1 0";
+        let err = parse_calib(&with_line("P2", no_fx), p())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("fx, fy > 0 (here 0, 707)"), "{err}");
+        let huge = "P2: 1e308 0 604 45 0 707 180 0 0 0 1 0";
+        let err = parse_calib(&with_line("P2", huge), p())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(":3: field `P2`: 1e308 is no calibration value"),
+            "{err}"
+        );
+        let squashed = "R0_rect: 1 0 0 0 1 0 0 0 0.5";
+        let err = parse_calib(&with_line("R0_rect", squashed), p())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(":5: field `R0_rect`: not a rotation"), "{err}");
+        let flat = "Tr_velo_to_cam: 0 -1 0 0 0 0 -1 0 0 0 0 0";
+        let err = parse_calib(&with_line("Tr_velo_to_cam", flat), p())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(":6: field `Tr_velo_to_cam`: not a rotation"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_key_given_twice_is_refused() {
+        let second_p2 = SAMPLE.lines().nth(2).unwrap();
+        let text = format!("{SAMPLE}{second_p2}\n");
+        let err = parse_calib(&text, p()).unwrap_err().to_string();
+        assert!(
+            err.contains(":8: field `P2`: given again (first on line 3)"),
+            "{err}"
+        );
     }
 }

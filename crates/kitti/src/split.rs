@@ -3,9 +3,11 @@
 use crate::error::{FormatError, Result, read_text};
 use std::path::Path;
 
-/// Parses a split file; every non-blank line must be a frame id of ASCII digits.
+/// Parses a split file; every non-blank line must be a frame id of ASCII digits, each id
+/// once (a repeated id would count its frame twice in every evaluation and epoch).
 pub fn parse_split(text: &str, path: &Path) -> Result<Vec<String>> {
     let mut ids = Vec::new();
+    let mut first_line = std::collections::HashMap::new();
     for (index, line) in text.lines().enumerate() {
         let id = line.trim();
         if id.is_empty() {
@@ -17,6 +19,14 @@ pub fn parse_split(text: &str, path: &Path) -> Result<Vec<String>> {
                 index + 1,
                 "frame id",
                 format!("`{id}` is not a frame id (digits, e.g. 000042)"),
+            ));
+        }
+        if let Some(first) = first_line.insert(id, index + 1) {
+            return Err(FormatError::field(
+                path,
+                index + 1,
+                "frame id",
+                format!("`{id}` is listed again (first on line {first}); list each frame once"),
             ));
         }
         ids.push(id.to_string());
@@ -52,5 +62,14 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("val.txt:2"), "{err}");
+    }
+
+    #[test]
+    fn rejects_an_id_listed_twice() {
+        let err = parse_split("000000\n000002\n000000\n", Path::new("val.txt"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("val.txt:3"), "{err}");
+        assert!(err.contains("first on line 1"), "{err}");
     }
 }
