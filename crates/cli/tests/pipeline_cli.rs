@@ -289,6 +289,20 @@ fn train_then_detect_from_the_command_line() {
     ]);
     assert!(!o.status.success());
     assert!(text(&o).contains("--repeats"), "{}", text(&o));
+    // No 2D detection, no frustum: nothing to time (it reported millions of frames/s).
+    let empty = dir.path().join("no_detections.txt");
+    std::fs::write(&empty, "").unwrap();
+    let o = fusiondet(&[
+        "bench",
+        "--checkpoint",
+        run.join("model.bpk").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--detections",
+        empty.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("no speed to measure"), "{}", text(&o));
 }
 
 #[test]

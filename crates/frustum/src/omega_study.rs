@@ -250,6 +250,14 @@ pub fn omega_study<S: FrustumFrames>(
     let all: Vec<Option<StudyFrustum>> = measured.into_iter().flatten().collect();
     let without_object_points = all.iter().filter(|f| f.is_none()).count();
     let frustums: Vec<StudyFrustum> = all.into_iter().flatten().collect();
+    if frustums.is_empty() {
+        // Every share in the table would be 0/0.
+        return Err(FrustumError::Config(format!(
+            "no labelled frustum of the configured classes with points on its object in these \
+             frames ({without_object_points} without object points): nothing to study; give \
+             frames whose labels hold such objects"
+        )));
+    }
     Ok(OmegaStudy {
         frustums: frustums.len(),
         with_clutter: frustums
@@ -542,6 +550,12 @@ mod tests {
         let d = FrustumDataset::from_detections(frames(), &[det], config()).unwrap();
         let e = omega_study(&d, &[0.5]).unwrap_err().to_string();
         assert!(e.contains("labelled frustums"), "{e}");
+        let mut empty = synthetic_frame();
+        empty.objects.clear();
+        let e = omega_study_from_labels(InMemoryFrames::new(vec![empty]), &config(), 0, &[0.5])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("nothing to study"), "{e}");
     }
 
     /// The study that chose [`crate::DEFAULT_OMEGA`].

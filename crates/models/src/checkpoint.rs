@@ -9,6 +9,7 @@ use crate::config::ModelConfig;
 use crate::error::ModelError;
 use crate::family::DetectorKind;
 use crate::model::FConvNet;
+use burn::module::{ModuleVisitor, Param};
 use burn::prelude::*;
 use burn::store::burn_pack::Reader;
 use burn::store::{BurnpackStore, ModuleSnapshot};
@@ -47,10 +48,47 @@ pub(crate) fn write_tagged<M: ModuleSnapshot>(
         .metadata(CONFIG_KEY, config_json);
     // `valid()` first folds the batch-norm running statistics that training threads hold
     // apart (burn keeps them per thread until synchronised) into the stored values.
+    let model = model.valid();
+    if let Some(name) = first_non_finite_parameter(&model) {
+        return Err(ckpt_err(
+            path,
+            format!(
+                "not written: parameter `{name}` holds NaN or infinite values (the training \
+                 diverged); lower the learning rate or check the configuration"
+            ),
+        ));
+    }
     model
-        .valid()
         .save_into(&mut store)
         .map_err(|e| ckpt_err(path, format!("cannot write: {e}")))
+}
+
+/// The path of the first float parameter (or batch-norm statistic) of `module` that holds
+/// a NaN or an infinity: such weights detect nothing and must never reach a checkpoint.
+pub fn first_non_finite_parameter<M: Module>(module: &M) -> Option<String> {
+    struct Finder {
+        path: Vec<String>,
+        found: Option<String>,
+    }
+    impl ModuleVisitor for Finder {
+        fn enter_module(&mut self, name: &str, _container_type: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _name: &str, _container_type: &str) {
+            self.path.pop();
+        }
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            if self.found.is_none() && !param.val().into_data().iter::<f32>().all(f32::is_finite) {
+                self.found = Some(self.path.join("."));
+            }
+        }
+    }
+    let mut finder = Finder {
+        path: Vec::new(),
+        found: None,
+    };
+    module.visit(&mut finder);
+    finder.found
 }
 
 /// The configuration (JSON) stored in a checkpoint of family `kind`; refuses other families.
@@ -266,5 +304,29 @@ mod tests {
         pack(&foreign, None);
         let err = read_checkpoint_kind(&foreign).unwrap_err().to_string();
         assert!(err.contains("not a fusiondet checkpoint"), "{err}");
+    }
+
+    #[test]
+    fn weights_holding_nan_are_never_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("diverged.bpk");
+        let mut linear = LinearConfig::new(2, 2).init(&Device::flex());
+        assert_eq!(first_non_finite_parameter(&linear), None);
+        write_tagged(&linear, DetectorKind::Frustum, "{}".into(), &path).unwrap();
+        let before = std::fs::read(&path).unwrap();
+        linear.bias = linear.bias.map(|b| b.map(|t| t.div_scalar(0.0)));
+        assert_eq!(first_non_finite_parameter(&linear).as_deref(), Some("bias"));
+        let err = write_tagged(&linear, DetectorKind::Frustum, "{}".into(), &path)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("diverged.bpk") && err.contains("`bias`"),
+            "{err}"
+        );
+        assert_eq!(
+            std::fs::read(&path).unwrap(),
+            before,
+            "the good checkpoint stays"
+        );
     }
 }

@@ -4,7 +4,7 @@
 
 use crate::config::ExperimentConfig;
 use crate::detect::{DetectInputs, SideInputs, StageTimes, load_detect_inputs};
-use crate::error::Result;
+use crate::error::{PipelineError, Result};
 use std::fmt;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -127,6 +127,15 @@ pub fn bench_detect(options: &BenchOptions) -> Result<DetectBench> {
         if run > 0 {
             runs.push(timing);
         }
+    }
+    if samples == 0 {
+        // Timing a pipeline that never reached its network would report millions of frames/s.
+        return Err(PipelineError::Invalid(format!(
+            "the {} benchmarked frames gave the network nothing to run on (frustum family: no \
+             2D detection of the configured classes; voxel families: no point in range), so \
+             there is no speed to measure; bench a split whose frames have detections or points",
+            inputs.frames()
+        )));
     }
     Ok(DetectBench {
         frames: inputs.frames(),

@@ -429,11 +429,38 @@ impl ExperimentConfig {
             path: path.to_path_buf(),
             message: e.to_string(),
         })?;
+        if self.train.epochs == 0 {
+            return bad(
+                "train.epochs (--epochs) must be at least 1 (0 would train nothing and name a \
+                 model that was never written)"
+                    .into(),
+            );
+        }
         if self.train.batch_size == 0 {
             return bad("train.batch_size must be at least 1".into());
         }
         if self.detect.batch_size == 0 {
             return bad("detect.batch_size must be at least 1".into());
+        }
+        // NaN fails every range test below, so it is refused with the key's range.
+        let lr = &self.train.lr;
+        if !(lr.base_lr > 0.0 && lr.base_lr <= 10.0) {
+            return bad(format!(
+                "train.lr.base_lr must be in (0, 10], not {}",
+                lr.base_lr
+            ));
+        }
+        if !(lr.factor > 0.0 && lr.factor <= 1.0) {
+            return bad(format!(
+                "train.lr.factor must be in (0, 1], not {}",
+                lr.factor
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.train.weight_decay) {
+            return bad(format!(
+                "train.weight_decay must be in [0, 1], not {}",
+                self.train.weight_decay
+            ));
         }
         if let Some(c) = &self.train.one_cycle {
             c.validate().map_err(|m| PipelineError::Config {
@@ -693,6 +720,46 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(err.contains("batch_size"), "{err}");
+        let err = ExperimentConfig::from_toml_str(
+            &with_kind("[train]\nepochs = 0\n"),
+            Path::new("c.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("train.epochs (--epochs) must be at least 1"),
+            "{err}"
+        );
+        for (key, value, says) in [
+            (
+                "weight_decay",
+                "nan",
+                "train.weight_decay must be in [0, 1], not NaN",
+            ),
+            (
+                "weight_decay",
+                "-0.1",
+                "train.weight_decay must be in [0, 1]",
+            ),
+        ] {
+            let err = ExperimentConfig::from_toml_str(
+                &with_kind(&format!("[train]\n{key} = {value}\n")),
+                Path::new("c.toml"),
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(err.contains(says), "{err}");
+        }
+        let err = ExperimentConfig::from_toml_str(
+            &with_kind("[train.lr]\nbase_lr = inf\nfactor = 0.1\n"),
+            Path::new("c.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("train.lr.base_lr must be in (0, 10], not inf"),
+            "{err}"
+        );
     }
 }
 

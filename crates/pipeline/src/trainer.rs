@@ -239,6 +239,17 @@ pub fn run_training<T: TrainingTask>(
                 let net = slot.take().expect("the model is put back after every step");
                 lr = cfg.train.lr_at(epoch, steps, steps_per_epoch);
                 let loss = task.loss(&net, batch, &ad)?;
+                if let Some((name, value)) = loss.components.iter().find(|(_, v)| !v.is_finite()) {
+                    // Stop before the step spreads it into the weights; the run keeps its
+                    // last committed epoch.
+                    return Err(PipelineError::Invalid(format!(
+                        "training diverged: loss `{name}` is {value} at epoch {}, step {}; \
+                         nothing of this epoch is saved (the run keeps epoch {epoch}); lower \
+                         the learning rate or check the configuration",
+                        epoch + 1,
+                        steps + 1
+                    )));
+                }
                 let grads = GradientsParams::from_grads(loss.total.backward(), &net);
                 slot = Some(optim.step(lr, net, grads));
                 for (k, (name, value)) in loss.components.into_iter().enumerate() {
@@ -272,8 +283,10 @@ pub fn run_training<T: TrainingTask>(
                 message: format!("cannot write the optimizer state: {e}"),
             })?;
         task.save_model(&model, &run.model())?;
-        run.commit(&state)?;
 
+        // The metrics line goes first and the state commit last: a kill between the two
+        // leaves a line beyond the committed epochs, which resume truncates, so an epoch's
+        // state and its record are committed together.
         let mut record = json!({
             "epoch": epoch,
             "lr": lr,
@@ -286,6 +299,7 @@ pub fn run_training<T: TrainingTask>(
         }
         final_loss = sums.first().map(|(_, s)| s / steps.max(1) as f64);
         log.append(&record)?;
+        run.commit(&state)?;
         if options.progress {
             eprintln!(
                 "epoch {done}/{}: loss {:.4}, lr {lr:.1e}, {:.1} s",
@@ -304,4 +318,87 @@ pub fn run_training<T: TrainingTask>(
         final_loss,
         model: run.model(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::{Linear, LinearConfig};
+
+    /// A one-weight "network" whose batches scale its loss: a NaN batch makes a NaN loss.
+    struct ScaledLoss {
+        /// Each epoch's batches (the scales of its steps).
+        epochs: Vec<Vec<f32>>,
+    }
+
+    impl TrainingTask for ScaledLoss {
+        type Model = Linear;
+        type Batch = f32;
+
+        fn frames(&self) -> usize {
+            1
+        }
+        fn samples(&self) -> usize {
+            self.epochs[0].len()
+        }
+        fn sample_noun(&self) -> &'static str {
+            "frames"
+        }
+        fn new_model(&self, device: &Device) -> Result<Linear> {
+            Ok(LinearConfig::new(1, 1).init(device))
+        }
+        fn load_model(&self, _path: &Path, device: &Device) -> Result<Linear> {
+            self.new_model(device)
+        }
+        fn save_model(&self, _model: &Linear, path: &Path) -> Result<()> {
+            std::fs::write(path, b"weights").map_err(|e| PipelineError::Invalid(e.to_string()))
+        }
+        fn epoch_batches(
+            &self,
+            epoch: usize,
+        ) -> Box<dyn ExactSizeIterator<Item = Result<f32>> + Send + '_> {
+            Box::new(self.epochs[epoch].clone().into_iter().map(Ok))
+        }
+        fn loss(&self, model: &Linear, scale: f32, device: &Device) -> Result<StepLoss> {
+            let y = model.forward(Tensor::<2>::ones([1, 1], device));
+            Ok(StepLoss::from_terms(vec![(
+                "fit",
+                y.sum().mul_scalar(scale),
+            )]))
+        }
+    }
+
+    #[test]
+    fn a_diverged_loss_stops_the_run_at_its_last_committed_epoch() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut config = ExperimentConfig::default();
+        config.train.epochs = 3;
+        config.train.batch_size = 1;
+        let options = TrainOptions {
+            config: config.clone(),
+            data_dir: dir.path().join("data"),
+            run_dir: dir.path().join("run"),
+            resume: false,
+            progress: false,
+            device: Default::default(),
+        };
+        let task = ScaledLoss {
+            epochs: vec![vec![1.0, 1.0], vec![1.0, f32::NAN], vec![1.0, 1.0]],
+        };
+        let opened = open_run(&options, &config, |_| true).unwrap();
+        let err = run_training(&task, &options, opened)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("diverged: loss `total` is NaN at epoch 2, step 2"),
+            "{err}"
+        );
+        assert!(err.contains("keeps epoch 1"), "{err}");
+        let run = RunDir::new(&options.run_dir);
+        let state: RunState =
+            serde_json::from_str(&std::fs::read_to_string(run.state()).unwrap()).unwrap();
+        assert_eq!(state.epochs_done, 1);
+        let lines = std::fs::read_to_string(run.metrics()).unwrap();
+        assert_eq!(lines.lines().count(), 1, "{lines}");
+    }
 }
