@@ -212,9 +212,49 @@ pub fn format_objects(objects: &[Object]) -> String {
     out
 }
 
-/// Writes objects to `path` atomically.
+/// Writes objects to `path` atomically. A NaN or infinite value is refused (naming the line
+/// and field it would have had): no KITTI reader, ours included, accepts it back, and an
+/// evaluation of such a file would be meaningless.
 pub fn write_objects(path: &Path, objects: &[Object]) -> Result<()> {
+    for (i, o) in objects.iter().enumerate() {
+        if let Some((field, value)) = first_non_finite_field(o) {
+            return Err(FormatError::field(
+                path,
+                i + 1,
+                field,
+                format!("{value} is not a number to write; nothing was written"),
+            ));
+        }
+    }
     crate::atomic::write_atomic(path, format_objects(objects).as_bytes())
+}
+
+/// The first numeric field of `o` (in file order) that is NaN or infinite.
+fn first_non_finite_field(o: &Object) -> Option<(&'static str, f64)> {
+    let (b, d) = (&o.bbox, &o.box3d);
+    let values = [
+        o.truncation,
+        o.alpha,
+        b.x1,
+        b.y1,
+        b.x2,
+        b.y2,
+        d.h,
+        d.w,
+        d.l,
+        d.x,
+        d.y,
+        d.z,
+        d.ry,
+        o.score.unwrap_or(0.0),
+    ];
+    // FIELDS without `type` and `occluded` (an integer), in the same order.
+    let names = FIELDS
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != 0 && i != 2)
+        .map(|(_, n)| *n);
+    names.zip(values).find(|(_, v)| !v.is_finite())
 }
 
 #[cfg(test)]
@@ -299,5 +339,22 @@ DontCare -1 -1 -10 503.89 169.71 590.61 190.13 -1 -1 -1 -1000 -1000 -1000 -10\n"
             .unwrap_err()
             .to_string();
         assert!(err.contains("/no/such/label.txt"), "{err}");
+    }
+
+    #[test]
+    fn non_finite_values_are_never_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("000001.txt");
+        let mut objects = parse_objects(GT, p()).unwrap();
+        write_objects(&path, &objects).unwrap();
+        let before = std::fs::read(&path).unwrap();
+        objects[1].box3d.z = f64::NAN;
+        let err = write_objects(&path, &objects).unwrap_err().to_string();
+        assert!(err.contains("000001.txt:2: field `z`: NaN"), "{err}");
+        objects[1].box3d.z = 45.84;
+        objects[0].score = Some(f64::INFINITY);
+        let err = write_objects(&path, &objects).unwrap_err().to_string();
+        assert!(err.contains(":1: field `score`: inf"), "{err}");
+        assert_eq!(std::fs::read(&path).unwrap(), before);
     }
 }
