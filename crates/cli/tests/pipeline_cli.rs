@@ -370,10 +370,20 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
         2 * rows[0]["params"].as_u64().unwrap(),
         "{json}"
     );
-    // A re-run resumes the finished trainings instead of repeating them.
+    // A re-run resumes the finished trainings instead of repeating them, and a row stopped
+    // before its first epoch was committed (config.toml written, no state yet) starts over.
+    let saf = out.join("runs/tiny-saf");
+    std::fs::remove_dir_all(&saf).unwrap();
+    std::fs::create_dir_all(&saf).unwrap();
+    std::fs::write(
+        saf.join("config.toml"),
+        std::fs::read_to_string(c.join("tiny-saf.toml")).unwrap(),
+    )
+    .unwrap();
     let o = fusiondet(&args);
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("0 epoch(s) run"), "{}", text(&o));
+    assert!(saf.join("model.bpk").is_file());
 }
 
 #[test]

@@ -1,6 +1,11 @@
 //! Atomic file writes: results, checkpoints and simulated frames are written to a
 //! temporary sibling and renamed into place, so an interrupted run never leaves a
 //! torn file that looks complete.
+//!
+//! The temporary file is created exclusively under an unpredictable name (tempfile's
+//! `O_EXCL` creation), so a link planted at a guessable name cannot redirect the write
+//! outside the target directory. One left by a killed process is named
+//! `.<file name>.<random>.tmp`; [`is_temp_of`] recognises it for cleanup.
 
 use crate::error::{FormatError, Result};
 use std::io::Write;
@@ -16,18 +21,41 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         .file_name()
         .ok_or_else(|| FormatError::file(path, "not a file path"))?
         .to_string_lossy();
-    let tmp = dir.join(format!(".{file_name}.tmp{}", std::process::id()));
     let result = (|| {
-        let mut file = std::fs::File::create(&tmp)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
+        let mut tmp = tempfile::Builder::new()
+            .prefix(&format!(".{file_name}."))
+            .suffix(".tmp")
+            .tempfile_in(dir)?;
+        tmp.write_all(bytes)?;
+        tmp.as_file().sync_all()?;
+        // On failure the temporary file is removed when `tmp` drops.
+        tmp.persist(path).map(|_| ()).map_err(|e| e.error)
     })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(FormatError::io(path, e));
-    }
-    Ok(())
+    result.map_err(|e| FormatError::io(path, e))
+}
+
+/// Whether `name` is a temporary file that a write of `target` (a file name) left behind:
+/// ours (`.<target>.<random>.tmp`) or burn-pack's checkpoint scratch file
+/// (`<target>.<pid>-<n>.tmp`).
+pub fn is_temp_of(name: &str, target: &str) -> bool {
+    let Some(stem) = name.strip_suffix(".tmp") else {
+        return false;
+    };
+    let ours = stem
+        .strip_prefix('.')
+        .and_then(|s| s.strip_prefix(target))
+        .and_then(|s| s.strip_prefix('.'))
+        .is_some_and(|random| !random.is_empty());
+    let burn_pack = stem
+        .strip_prefix(target)
+        .and_then(|s| s.strip_prefix('.'))
+        .and_then(|s| s.split_once('-'))
+        .is_some_and(|(pid, n)| {
+            [pid, n]
+                .iter()
+                .all(|p| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()))
+        });
+    ours || burn_pack
 }
 
 #[cfg(test)]
@@ -45,9 +73,35 @@ mod tests {
         assert_eq!(names.len(), 1);
     }
 
+    #[cfg(unix)]
+    #[test]
+    fn a_link_planted_at_the_old_predictable_name_is_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let outside = tempfile::tempdir().unwrap();
+        let victim = outside.path().join("victim.txt");
+        std::fs::write(&victim, b"precious").unwrap();
+        let path = dir.path().join("a.txt");
+        let old_name = dir.path().join(format!(".a.txt.tmp{}", std::process::id()));
+        std::os::unix::fs::symlink(&victim, &old_name).unwrap();
+        write_atomic(&path, b"result").unwrap();
+        assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
+        assert_eq!(std::fs::read(&path).unwrap(), b"result");
+    }
+
     #[test]
     fn unwritable_directory_is_an_error_naming_the_file() {
         let err = write_atomic(Path::new("/nonexistent-dir/x.txt"), b"x").unwrap_err();
         assert!(err.to_string().contains("/nonexistent-dir/x.txt"));
+    }
+
+    #[test]
+    fn temp_files_of_a_target_are_recognised() {
+        assert!(is_temp_of(".state.json.Ab3xYz.tmp", "state.json"));
+        assert!(is_temp_of("model.bpk.4242-2.tmp", "model.bpk"));
+        assert!(!is_temp_of("model.bpk", "model.bpk"));
+        assert!(!is_temp_of(".state.json.tmp", "state.json"));
+        assert!(!is_temp_of("model.bpk.x-2.tmp", "model.bpk"));
+        assert!(!is_temp_of("notes.txt.tmp", "model.bpk"));
+        assert!(!is_temp_of(".other.json.Ab3.tmp", "state.json"));
     }
 }

@@ -11,10 +11,16 @@
 //! `state.json` is replaced atomically only after both checkpoint files of an epoch are
 //! complete, and older checkpoints are removed only after that: a kill at any moment
 //! leaves a state that names complete files, losing at most the epoch in progress.
+//!
+//! A training holds `RUN_DIR/.lock` (an advisory lock) while it writes, so a second
+//! `train` into the same directory is refused. Only the files above are ever removed:
+//! older epochs' checkpoints, and temporary files a killed write left behind.
 
 use crate::error::{PipelineError, Result};
+use fusiondet_kitti::atomic::is_temp_of;
 use fusiondet_kitti::write_atomic;
 use serde::{Deserialize, Serialize};
+use std::fs::{File, TryLockError};
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -28,6 +34,39 @@ pub struct RunState {
 #[derive(Debug, Clone)]
 pub struct RunDir {
     pub root: PathBuf,
+}
+
+/// The run directory's lock, held until dropped (see the module documentation).
+#[derive(Debug)]
+pub struct RunLock {
+    _file: File,
+}
+
+/// The lock file's name; not counted as content when a new run checks for an empty
+/// directory.
+const LOCK_FILE: &str = ".lock";
+
+/// Whether `name` (in `checkpoints/`) is one of a run's epoch checkpoint files.
+fn is_epoch_checkpoint(name: &str) -> bool {
+    let Some(rest) = name.strip_prefix("epoch-") else {
+        return false;
+    };
+    let digits = rest
+        .strip_suffix(".optim.bpk")
+        .or_else(|| rest.strip_suffix(".bpk"));
+    digits.is_some_and(|d| d.len() >= 4 && d.bytes().all(|b| b.is_ascii_digit()))
+}
+
+/// Whether `name` is a temporary file left by a write of one of the run's own files.
+fn is_run_temp(name: &str) -> bool {
+    ["config.toml", "state.json", "metrics.jsonl", "model.bpk"]
+        .iter()
+        .any(|target| is_temp_of(name, target))
+        || name
+            .strip_suffix(".tmp")
+            .and_then(|stem| stem.strip_prefix('.').or(Some(stem)))
+            .and_then(|stem| stem.find(".bpk.").map(|i| &stem[..i + 4]))
+            .is_some_and(|target| is_epoch_checkpoint(target) && is_temp_of(name, target))
 }
 
 impl RunDir {
@@ -72,18 +111,15 @@ impl RunDir {
         config_toml: &str,
         resume: bool,
         compatible: &dyn Fn(&str) -> bool,
-    ) -> Result<Option<RunState>> {
-        let non_empty = std::fs::read_dir(&self.root)
-            .map(|mut d| d.next().is_some())
-            .unwrap_or(false);
-        if non_empty && !resume {
-            return Err(self.err(
-                &self.root,
-                "the run directory is not empty; pass --resume to continue that run, or choose another --out",
-            ));
-        }
+    ) -> Result<(RunLock, Option<RunState>)> {
+        // Checked before the lock file is made, so that a directory that is not ours gets
+        // nothing written into it; and again under the lock, against a run started between.
+        self.check_contents(resume)?;
+        let lock = self.lock()?;
+        self.check_contents(resume)?;
         std::fs::create_dir_all(self.checkpoints())
             .map_err(|e| self.err(&self.root, format!("cannot create: {e}")))?;
+        self.remove_stale_temp_files();
         if resume && self.config().exists() {
             let stored = std::fs::read_to_string(self.config())
                 .map_err(|e| self.err(&self.config(), format!("cannot read: {e}")))?;
@@ -96,7 +132,7 @@ impl RunDir {
         }
         write_atomic(&self.config(), config_toml.as_bytes())?;
         if !resume || !self.state().exists() {
-            return Ok(None);
+            return Ok((lock, None));
         }
         let text = std::fs::read_to_string(self.state())
             .map_err(|e| self.err(&self.state(), format!("cannot read: {e}")))?;
@@ -111,11 +147,72 @@ impl RunDir {
                 return Err(self.err(&self.root.join(file), "named by state.json but missing"));
             }
         }
-        Ok(Some(state))
+        Ok((lock, Some(state)))
+    }
+
+    /// A new run needs an empty (or absent) directory; a resumed one a directory that
+    /// holds a run (its `config.toml`), or nothing yet.
+    fn check_contents(&self, resume: bool) -> Result<()> {
+        let non_empty = std::fs::read_dir(&self.root)
+            .map(|d| d.flatten().any(|e| e.file_name() != LOCK_FILE))
+            .unwrap_or(false);
+        if non_empty && !resume {
+            return Err(self.err(
+                &self.root,
+                "the run directory is not empty; pass --resume to continue that run, or choose another --out",
+            ));
+        }
+        if non_empty && !self.config().is_file() {
+            return Err(self.err(
+                &self.root,
+                "not a training run (it has no config.toml), so there is nothing to resume and \
+                 its files are not ours to replace; choose another --out",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Takes the run directory's lock, creating the directory if needed.
+    pub fn lock(&self) -> Result<RunLock> {
+        std::fs::create_dir_all(&self.root)
+            .map_err(|e| self.err(&self.root, format!("cannot create: {e}")))?;
+        let path = self.root.join(LOCK_FILE);
+        let file = File::options()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&path)
+            .map_err(|e| self.err(&path, format!("cannot open the run's lock file: {e}")))?;
+        match file.try_lock() {
+            Ok(()) => Ok(RunLock { _file: file }),
+            Err(TryLockError::WouldBlock) => Err(self.err(
+                &self.root,
+                "another fusiondet process is training into this run directory; wait for it \
+                 to finish or choose another --out",
+            )),
+            Err(TryLockError::Error(e)) => {
+                Err(self.err(&path, format!("cannot lock the run directory: {e}")))
+            }
+        }
+    }
+
+    /// Removes temporary files that killed writes of the run's own files left behind (only
+    /// under the lock: no writer of this run is running).
+    fn remove_stale_temp_files(&self) {
+        for dir in [self.root.clone(), self.checkpoints()] {
+            let Ok(entries) = std::fs::read_dir(&dir) else {
+                continue;
+            };
+            for entry in entries.flatten() {
+                if entry.file_name().to_str().is_some_and(is_run_temp) {
+                    let _ = std::fs::remove_file(entry.path());
+                }
+            }
+        }
     }
 
     /// Records a finished epoch whose checkpoint files are already written, then removes
-    /// the checkpoints of earlier epochs.
+    /// the checkpoints of earlier epochs (files of other names under `checkpoints/` stay).
     pub fn commit(&self, state: &RunState) -> Result<()> {
         let json = serde_json::to_string_pretty(state).expect("state serialises");
         write_atomic(&self.state(), json.as_bytes())?;
@@ -126,7 +223,8 @@ impl RunDir {
         if let Ok(entries) = std::fs::read_dir(self.checkpoints()) {
             for entry in entries.flatten() {
                 let path = entry.path();
-                if !keep.contains(&path) {
+                let ours = entry.file_name().to_str().is_some_and(is_epoch_checkpoint);
+                if ours && !keep.contains(&path) {
                     let _ = std::fs::remove_file(path);
                 }
             }
@@ -144,35 +242,87 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let run = RunDir::new(dir.path().join("run"));
         let same = |stored: &str| stored == "a = 1\n";
-        assert_eq!(run.open("a = 1\n", false, &same).unwrap(), None);
+        assert_eq!(run.open("a = 1\n", false, &same).unwrap().1, None);
         let err = run.open("a = 1\n", false, &same).unwrap_err().to_string();
         assert!(err.contains("--resume"), "{err}");
         std::fs::write(run.config(), "a = 2\n").unwrap();
         let err = run.open("a = 1\n", true, &same).unwrap_err().to_string();
         assert!(err.contains("another configuration"), "{err}");
         std::fs::write(run.config(), "a = 1\n").unwrap();
-        assert_eq!(run.open("a = 1\n", true, &same).unwrap(), None);
+        assert_eq!(run.open("a = 1\n", true, &same).unwrap().1, None);
     }
 
     #[test]
-    fn commit_keeps_only_the_named_checkpoint() {
+    fn commit_keeps_the_named_checkpoint_and_files_not_its_own() {
         let dir = tempfile::tempdir().unwrap();
         let run = RunDir::new(dir.path());
-        run.open("x\n", false, &|_| true).unwrap();
+        drop(run.open("x\n", false, &|_| true).unwrap());
         for e in 1..=2 {
             std::fs::write(run.root.join(run.epoch_model(e)), b"m").unwrap();
             std::fs::write(run.root.join(run.epoch_optimizer(e)), b"o").unwrap();
         }
+        let users = run.checkpoints().join("best.bpk");
+        std::fs::write(&users, b"a copy the user made").unwrap();
         let state = RunState {
             epochs_done: 2,
             model: run.epoch_model(2),
             optimizer: run.epoch_optimizer(2),
         };
         run.commit(&state).unwrap();
-        assert_eq!(std::fs::read_dir(run.checkpoints()).unwrap().count(), 2);
-        assert_eq!(run.open("x\n", true, &|_| true).unwrap(), Some(state));
+        assert_eq!(std::fs::read_dir(run.checkpoints()).unwrap().count(), 3);
+        assert!(users.is_file());
+        assert_eq!(run.open("x\n", true, &|_| true).unwrap().1, Some(state));
         std::fs::remove_file(run.root.join(run.epoch_optimizer(2))).unwrap();
         let err = run.open("x\n", true, &|_| true).unwrap_err().to_string();
         assert!(err.contains("missing"), "{err}");
+    }
+
+    #[test]
+    fn a_second_writer_is_refused_while_the_first_holds_the_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path().join("run"));
+        let (held, _) = run.open("x\n", false, &|_| true).unwrap();
+        let err = run.open("x\n", true, &|_| true).unwrap_err().to_string();
+        assert!(err.contains("another fusiondet process"), "{err}");
+        drop(held);
+        assert!(run.open("x\n", true, &|_| true).is_ok());
+    }
+
+    #[test]
+    fn resume_refuses_a_directory_that_is_not_a_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let users = dir.path().join("model.bpk");
+        std::fs::write(&users, b"the user's model").unwrap();
+        let err = RunDir::new(dir.path())
+            .open("x\n", true, &|_| true)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("not a training run"), "{err}");
+        assert_eq!(std::fs::read(&users).unwrap(), b"the user's model");
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().flatten().collect();
+        assert_eq!(names.len(), 1, "nothing written beside it");
+    }
+
+    #[test]
+    fn temporary_files_of_killed_writes_are_removed_on_open() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        drop(run.open("x\n", false, &|_| true).unwrap());
+        let stale = [
+            run.root.join("model.bpk.4242-2.tmp"),
+            run.root.join(".state.json.k3Jx9a.tmp"),
+            run.checkpoints().join("epoch-0003.bpk.4242-0.tmp"),
+            run.checkpoints().join("epoch-0003.optim.bpk.4242-1.tmp"),
+        ];
+        let kept = [
+            run.root.join("notes.tmp"),
+            run.checkpoints().join("best.bpk.4242-0.tmp"),
+        ];
+        for path in stale.iter().chain(&kept) {
+            std::fs::write(path, b"t").unwrap();
+        }
+        drop(run.open("x\n", true, &|_| true).unwrap());
+        assert!(stale.iter().all(|p| !p.exists()));
+        assert!(kept.iter().all(|p| p.exists()));
     }
 }

@@ -8,7 +8,7 @@ use crate::config::{ExperimentConfig, OptimizerKind};
 use crate::device::ComputeDevice;
 use crate::error::{PipelineError, Result};
 use crate::metrics_log::MetricsLog;
-use crate::run_dir::{RunDir, RunState};
+use crate::run_dir::{RunDir, RunLock, RunState};
 use burn::module::Module;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::grad_clipping::GradientClippingConfig;
@@ -139,6 +139,8 @@ pub fn seeded<M>(seed: u64, device: &Device, init: impl FnOnce() -> Result<M>) -
 pub struct OpenedRun {
     pub run: RunDir,
     pub resumed: Option<RunState>,
+    /// Held until the training ends.
+    pub lock: RunLock,
 }
 
 /// Opens `options.run_dir` for `stored` (the configuration as the run keeps it). A
@@ -157,8 +159,8 @@ pub fn open_run(
             compatible(old)
         })
     };
-    let resumed = run.open(&stored.to_toml_string(), options.resume, &check)?;
-    Ok(OpenedRun { run, resumed })
+    let (lock, resumed) = run.open(&stored.to_toml_string(), options.resume, &check)?;
+    Ok(OpenedRun { run, resumed, lock })
 }
 
 /// The loop: epochs from the resumed state to `config.train.epochs`, each committed to
@@ -169,7 +171,12 @@ pub fn run_training<T: TrainingTask>(
     opened: OpenedRun,
 ) -> Result<TrainSummary> {
     let cfg = &options.config;
-    let OpenedRun { run, resumed } = opened;
+    // The lock is held (bound, not dropped) until the loop ends.
+    let OpenedRun {
+        run,
+        resumed,
+        lock: _lock,
+    } = opened;
     let log = MetricsLog::new(run.metrics());
     if task.samples() < cfg.train.batch_size {
         return Err(PipelineError::Invalid(format!(

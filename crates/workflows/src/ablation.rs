@@ -223,7 +223,9 @@ fn run_one(
         .arg(&args.data)
         .arg("--out")
         .arg(&run_dir);
-    if run_dir.join("state.json").exists() {
+    // A run that has begun (its config.toml is written first) is resumed, also when it was
+    // stopped before its first epoch was committed.
+    if run_dir.join("config.toml").exists() {
         train.arg("--resume");
     }
     train.args(&args.train_flags);
