@@ -3,6 +3,7 @@
 mod common;
 
 use common::all_output as text;
+use std::path::Path;
 use std::process::Output;
 
 /// `fusiondet ARGS...` (the first argument is the subcommand).
@@ -266,6 +267,80 @@ fn train_then_detect_from_the_command_line() {
         "Car",
     ]);
     assert!(o.status.success(), "{}", text(&o));
+
+    // What detect writes is its own; nothing else is overwritten.
+    let detect_into = |out: &Path, force: bool| {
+        let mut args = vec![
+            "detect",
+            "--checkpoint",
+            run.join("model.bpk").to_str().unwrap().to_string().leak(),
+            "--data",
+            data.to_str().unwrap().to_string().leak(),
+            "--split",
+            "val",
+            "--out",
+            out.to_str().unwrap().to_string().leak(),
+        ];
+        if force {
+            args.push("--force");
+        }
+        fusiondet(&args)
+    };
+    let labels = data.join("training/label_2");
+    let before = std::fs::read(labels.join(format!("{}.txt", ids.lines().next().unwrap())));
+    let o = detect_into(&labels, true);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("would overwrite its inputs"),
+        "{}",
+        text(&o)
+    );
+    let after = std::fs::read(labels.join(format!("{}.txt", ids.lines().next().unwrap())));
+    assert_eq!(before.unwrap(), after.unwrap());
+    let users = dir.path().join("users");
+    std::fs::create_dir_all(&users).unwrap();
+    std::fs::write(users.join("notes.txt"), "mine").unwrap();
+    let o = detect_into(&users, true);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("did not write"), "{}", text(&o));
+    let o = detect_into(&results, false);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("pass --force"), "{}", text(&o));
+    let o = detect_into(&results, true);
+    assert!(o.status.success(), "{}", text(&o));
+
+    // An interrupted detect, or a result it lists gone missing, is not scored.
+    let eval_results = || {
+        fusiondet(&[
+            "eval",
+            "--label-dir",
+            labels.to_str().unwrap(),
+            "--result-dir",
+            results.to_str().unwrap(),
+            "--split",
+            data.join("ImageSets/val.txt").to_str().unwrap(),
+        ])
+    };
+    let manifest = results.join(".fusiondet-results");
+    let complete = std::fs::read_to_string(&manifest).unwrap();
+    std::fs::write(&manifest, complete.replace("complete: yes", "complete: no")).unwrap();
+    let o = eval_results();
+    assert!(!o.status.success());
+    assert!(text(&o).contains("did not finish"), "{}", text(&o));
+    std::fs::write(&manifest, &complete).unwrap();
+    let first = results.join(format!("{}.txt", ids.lines().next().unwrap()));
+    std::fs::remove_file(&first).unwrap();
+    let o = eval_results();
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("listed as written by detect but missing"),
+        "{}",
+        text(&o)
+    );
+    let o = detect_into(&results, true);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(eval_results().status.success());
+
     let o = fusiondet(&[
         "bench",
         "--checkpoint",

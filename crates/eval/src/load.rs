@@ -81,6 +81,31 @@ pub fn load_dirs(
             });
         }
     }
+    // A result directory that `fusiondet detect` wrote says whether it finished and which
+    // frames it holds: an interrupted one, or one missing a frame it lists, is refused
+    // rather than scored as if complete.
+    let manifest = fusiondet_kitti::read_manifest(result_dir).map_err(EvalError::Results)?;
+    if let Some(m) = &manifest {
+        if !m.complete {
+            return Err(EvalError::Dir {
+                path: result_dir.to_path_buf(),
+                message: "its `fusiondet detect` did not finish (killed, or a write failed): \
+                          some results may be stale or missing; run detect again with --force"
+                    .into(),
+            });
+        }
+        if let Some(id) = m
+            .frames
+            .iter()
+            .find(|id| !result_dir.join(format!("{id}.txt")).is_file())
+        {
+            return Err(EvalError::Dir {
+                path: result_dir.join(format!("{id}.txt")),
+                message: "listed as written by detect but missing; run detect again with --force"
+                    .into(),
+            });
+        }
+    }
     let loaded: Vec<Result<(FrameGt, Option<FrameDet>), EvalError>> = ids
         .par_iter()
         .map(|id| {

@@ -9,6 +9,7 @@ pub mod error;
 pub mod image;
 pub mod label;
 pub mod layout;
+pub mod results;
 pub mod split;
 pub mod velodyne;
 
@@ -19,5 +20,6 @@ pub use detections2d::{Detection2d, read_detections2d, write_detections2d};
 pub use error::{FormatError, Result};
 pub use label::{Box2d, Box3d, Object, ObjectClass, read_objects, write_objects};
 pub use layout::{DatasetDir, FrameDir, frame_id};
+pub use results::{ResultsManifest, read_manifest, write_manifest};
 pub use split::{read_split, write_split};
 pub use velodyne::{LidarPoint, read_velodyne, write_velodyne};

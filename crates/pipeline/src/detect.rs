@@ -11,7 +11,10 @@ use crate::voxel_rcnn::VoxelRcnnDetector;
 use burn::prelude::*;
 use fusiondet_dataset::SensorFrame;
 use fusiondet_frustum::{FrameSource, InMemoryFrames, SkipCounts};
-use fusiondet_kitti::{DatasetDir, Detection2d, Object, read_detections2d, write_objects};
+use fusiondet_kitti::{
+    DatasetDir, Detection2d, Object, ResultsManifest, read_detections2d, read_manifest,
+    write_manifest, write_objects,
+};
 use fusiondet_models::DetectorKind;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -32,6 +35,9 @@ pub struct DetectOptions {
     pub depth_dir: Option<PathBuf>,
     /// Where the network runs.
     pub device: ComputeDevice,
+    /// Replace the results an earlier detect left in `out_dir` (without it such a
+    /// directory is refused).
+    pub replace: bool,
 }
 
 /// What a detection run did, with its time per stage.
@@ -321,6 +327,9 @@ pub(crate) fn load_detect_inputs(
 /// Loads the split, runs detection and writes one KITTI result file per frame of the
 /// split (empty when nothing was detected), atomically.
 pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
+    // Before anything is loaded: a refused --out should not cost a model load.
+    refuse_input_dir(&options.out_dir, &options.data_dir)?;
+    check_result_dir(&options.out_dir, options.replace)?;
     let cfg = &options.config;
     let mut timing = StageTimes::default();
     let t = Instant::now();
@@ -342,7 +351,7 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
     )?;
     timing.load += t.elapsed();
     let results = detector.detect(&device, &inputs, &mut timing)?;
-    write_results(&options.out_dir, &results.objects)?;
+    write_results(&options.out_dir, &results.objects, options.replace)?;
     Ok(DetectSummary {
         frames: inputs.frames(),
         detections_2d: inputs.detections_2d(),
@@ -353,14 +362,106 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
     })
 }
 
-/// Writes `OUT/<id>.txt` for every frame.
-pub fn write_results(out_dir: &Path, results: &BTreeMap<String, Vec<Object>>) -> Result<()> {
-    std::fs::create_dir_all(out_dir).map_err(|e| PipelineError::RunDir {
-        path: out_dir.to_path_buf(),
-        message: format!("cannot create the result directory: {e}"),
-    })?;
+fn out_err(path: &Path, message: impl Into<String>) -> PipelineError {
+    PipelineError::RunDir {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+/// Refuses a result directory inside the data set's `training/` or `testing/` folders:
+/// results written there would overwrite its labels (`--out DATA/training/label_2`).
+fn refuse_input_dir(out_dir: &Path, data_dir: &Path) -> Result<()> {
+    // The nearest existing ancestor stands for a directory not made yet.
+    let existing = out_dir.ancestors().find(|a| a.exists()).unwrap_or(out_dir);
+    let (Ok(out), Ok(data)) = (existing.canonicalize(), data_dir.canonicalize()) else {
+        return Ok(());
+    };
+    for inputs in ["training", "testing"].map(|d| data.join(d)) {
+        if out.starts_with(&inputs) {
+            return Err(out_err(
+                out_dir,
+                format!(
+                    "is inside the data set's {} folder: results there would overwrite its \
+                     inputs; choose an --out outside it",
+                    inputs.display()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// A result directory must be new, empty, or an earlier detect's (then only with
+/// `replace`): files another program or the user put there are never overwritten.
+pub fn check_result_dir(out_dir: &Path, replace: bool) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(out_dir) else {
+        return if out_dir.exists() {
+            Err(out_err(out_dir, "exists and is not a directory"))
+        } else {
+            Ok(())
+        };
+    };
+    if entries.flatten().next().is_none() {
+        return Ok(());
+    }
+    match read_manifest(out_dir)? {
+        None => Err(out_err(
+            out_dir,
+            "holds files that `fusiondet detect` did not write; choose a new or empty --out",
+        )),
+        Some(_) if !replace => Err(out_err(
+            out_dir,
+            "holds the results of an earlier detect; pass --force to replace them, or choose \
+             another --out",
+        )),
+        Some(_) => Ok(()),
+    }
+}
+
+/// Writes `OUT/<id>.txt` for every frame, under a manifest that says which frames the run
+/// writes and, once all are written, that it is complete (see
+/// [`fusiondet_kitti::results`]). With `replace`, an earlier detect's files are removed
+/// first (those its manifest lists, nothing else).
+pub fn write_results(
+    out_dir: &Path,
+    results: &BTreeMap<String, Vec<Object>>,
+    replace: bool,
+) -> Result<()> {
+    check_result_dir(out_dir, replace)?;
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| out_err(out_dir, format!("cannot create the result directory: {e}")))?;
+    if let Some(old) = read_manifest(out_dir)? {
+        // Marked incomplete first: a kill while removing leaves a directory eval refuses.
+        write_manifest(
+            out_dir,
+            &ResultsManifest {
+                complete: false,
+                ..old.clone()
+            },
+        )?;
+        for id in &old.frames {
+            let path = out_dir.join(format!("{id}.txt"));
+            match std::fs::remove_file(&path) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(out_err(
+                        &path,
+                        format!("cannot remove the earlier result: {e}"),
+                    ));
+                }
+                _ => {}
+            }
+        }
+    }
+    let mut manifest = ResultsManifest {
+        complete: false,
+        frames: results.keys().cloned().collect(),
+    };
+    write_manifest(out_dir, &manifest)?;
     for (id, objects) in results {
         write_objects(&out_dir.join(format!("{id}.txt")), objects)?;
     }
+    manifest.complete = true;
+    write_manifest(out_dir, &manifest)?;
     Ok(())
 }

@@ -173,6 +173,7 @@ fn detect_writes_a_result_file_per_frame_that_the_evaluation_reads() {
         out_dir: out.clone(),
         detections: None,
         depth_dir: None,
+        replace: false,
     })
     .unwrap();
     let ids = read_split(&DatasetDir::new(dataset()).split("val")).unwrap();
@@ -208,6 +209,7 @@ fn a_checkpoint_from_another_config_is_refused() {
         out_dir: run.path().join("r"),
         detections: None,
         depth_dir: None,
+        replace: false,
     })
     .unwrap_err()
     .to_string();
@@ -280,6 +282,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
         out_dir: out.clone(),
         detections: None,
         depth_dir: None,
+        replace: false,
     })
     .unwrap();
     assert!(refined.samples > 0, "{refined:?}");
@@ -293,6 +296,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
         out_dir: second.path().join("first"),
         detections: None,
         depth_dir: None,
+        replace: false,
     })
     .unwrap();
     // Every first-stage box became a refinement frustum or was skipped (the summary's
@@ -347,6 +351,7 @@ fn another_heading_bin_count_trains_and_detects() {
         out_dir: out,
         detections: None,
         depth_dir: None,
+        replace: false,
     })
     .unwrap();
     assert!(detected.boxes_written > 0, "{detected:?}");

@@ -49,6 +49,7 @@ fn the_tiny_configuration_overfits_four_frames() {
         out_dir: results.clone(),
         detections: None,
         depth_dir: None,
+        replace: false,
         device: Default::default(),
     })
     .unwrap();

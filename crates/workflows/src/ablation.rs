@@ -259,6 +259,7 @@ fn run_one(
         out_dir: results.clone(),
         detections: None,
         depth_dir: None,
+        replace: true,
     })?;
     let frames_per_second = frames_per_second(summary.frames, &summary.timing);
     let eval_config = EvalConfig {

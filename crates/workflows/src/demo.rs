@@ -133,6 +133,8 @@ fn detect_and_evaluate(
         out_dir: results.to_path_buf(),
         detections: None,
         depth_dir: None,
+        // The demo's own directory (it refuses directories it did not write).
+        replace: true,
     })?;
     outln!(
         "\n== {title}: {} frames, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",

@@ -54,9 +54,13 @@ impl ModelOnSplit {
 pub struct DetectArgs {
     #[command(flatten)]
     pub input: ModelOnSplit,
-    /// Result directory: one KITTI result file per frame.
+    /// Result directory: one KITTI result file per frame (new or empty, or an earlier
+    /// detect's with --force).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the results an earlier detect left in --out.
+    #[arg(long)]
+    pub force: bool,
 }
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
@@ -72,6 +76,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         detections: input.detections,
         depth_dir: input.depth_dir,
         device: input.device,
+        replace: args.force,
     })?;
     let skipped = s.skipped;
     match kind {
