@@ -85,11 +85,21 @@ pub fn validate(opts: &DatasetOptions) -> Result<(), SimError> {
     Ok(())
 }
 
-/// Is `name` one of the files this simulator writes into `dir` (a subfolder name)?
-fn is_ours(dir: &str, name: &str) -> bool {
+/// Marks a directory as a data set `fusiondet simulate` wrote, with the frame count of that
+/// run: `--force` replaces only such a data set, and only its frames. The simulator also
+/// holds an advisory lock on it while writing, so two runs cannot mix their frames.
+pub const MARKER_FILE: &str = ".fusiondet-sim";
+/// The advisory lock a simulator holds on its output directory while writing.
+const LOCK_FILE: &str = ".fusiondet-sim.lock";
+
+/// Is `name` one of the files this simulator writes into `dir` (a subfolder name), for a
+/// run of `frames` frames?
+fn is_ours(dir: &str, name: &str, frames: usize) -> bool {
     let (stem, ext) = name.rsplit_once('.').unwrap_or((name, ""));
-    let frame = stem.len() == 6 && stem.bytes().all(|b| b.is_ascii_digit());
-    let temp = name.starts_with('.') && name.contains(".tmp");
+    let frame = stem.len() == 6
+        && stem.bytes().all(|b| b.is_ascii_digit())
+        && stem.parse::<usize>().is_ok_and(|i| i < frames);
+    let temp = name.starts_with('.') && name.ends_with(".tmp");
     match dir {
         "velodyne" => temp || (frame && ext == "bin"),
         "calib" | "label_2" => temp || (frame && ext == "txt"),
@@ -102,10 +112,26 @@ fn is_ours(dir: &str, name: &str) -> bool {
     }
 }
 
-/// Prepares the output directory: refuses a non-empty one unless `force`, in which
-/// case the simulator's own files from an earlier run are removed (nothing else).
-fn prepare_dir(opts: &DatasetOptions) -> Result<DatasetDir, SimError> {
+/// The frame count a marker file records.
+fn marked_frames(text: &str) -> Option<usize> {
+    let mut lines = text.lines();
+    (lines.next()? == "fusiondet simulate").then_some(())?;
+    lines.next()?.strip_prefix("frames: ")?.parse().ok()
+}
+
+/// The output directory, open for writing: its lock is held until dropped.
+struct PreparedDir {
+    ds: DatasetDir,
+    _lock: std::fs::File,
+}
+
+/// Prepares the output directory: refuses a non-empty one unless `force` and it is a data
+/// set this simulator wrote (its marker), in which case that run's own files are removed
+/// (nothing else: no other file, nothing behind a symbolic link).
+fn prepare_dir(opts: &DatasetOptions) -> Result<PreparedDir, SimError> {
     let root = &opts.out;
+    let marker = root.join(MARKER_FILE);
+    let mut earlier_frames = None;
     if root.exists() {
         if !root.is_dir() {
             return Err(SimError::InvalidArgument(format!(
@@ -121,31 +147,40 @@ fn prepare_dir(opts: &DatasetOptions) -> Result<DatasetDir, SimError> {
             return Err(SimError::NotEmpty(root.clone()));
         }
         if non_empty {
-            let dirs = [
-                ("training/velodyne", "velodyne"),
-                ("training/calib", "calib"),
-                ("training/label_2", "label_2"),
-                ("training/image_2", "image_2"),
-                ("training/depth_2", "depth_2"),
-                ("ImageSets", "ImageSets"),
-                ("rgb_detections", "rgb_detections"),
-                ("", ""),
-            ];
-            for (sub, kind) in dirs {
-                let dir = root.join(sub);
-                let Ok(entries) = std::fs::read_dir(&dir) else {
-                    continue;
-                };
-                for entry in entries {
-                    let entry = entry.map_err(io_err(&dir))?;
-                    let path = entry.path();
-                    if path.is_file() && is_ours(kind, &entry.file_name().to_string_lossy()) {
-                        std::fs::remove_file(&path).map_err(io_err(&path))?;
-                    }
-                }
-            }
+            let text = std::fs::read_to_string(&marker).unwrap_or_default();
+            let Some(frames) = marked_frames(&text) else {
+                return Err(SimError::InvalidArgument(format!(
+                    "{}: --force replaces only a data set that `fusiondet simulate` wrote (it \
+                     has no {MARKER_FILE}), and this directory holds other files; choose an \
+                     empty directory",
+                    root.display()
+                )));
+            };
+            earlier_frames = Some(frames);
         }
     }
+    std::fs::create_dir_all(root).map_err(io_err(root))?;
+    let lock_path = root.join(LOCK_FILE);
+    let lock = std::fs::File::options()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lock_path)
+        .map_err(io_err(&lock_path))?;
+    if lock.try_lock().is_err() {
+        return Err(SimError::InvalidArgument(format!(
+            "{}: another `fusiondet simulate` is writing into this directory",
+            root.display()
+        )));
+    }
+    if let Some(frames) = earlier_frames {
+        remove_earlier_run(root, frames)?;
+    }
+    // Written before any frame, so that a killed run can still be replaced with --force.
+    fusiondet_kitti::write_atomic(
+        &marker,
+        format!("fusiondet simulate\nframes: {}\n", opts.frames).as_bytes(),
+    )?;
     let ds = DatasetDir::new(root);
     let training = ds.training();
     for sub in ["velodyne", "calib", "label_2", "image_2", "depth_2"] {
@@ -155,7 +190,41 @@ fn prepare_dir(opts: &DatasetOptions) -> Result<DatasetDir, SimError> {
     for dir in [root.join("ImageSets"), root.join("rgb_detections")] {
         std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
     }
-    Ok(ds)
+    Ok(PreparedDir { ds, _lock: lock })
+}
+
+/// Removes the files an earlier run of `frames` frames wrote under `root`.
+fn remove_earlier_run(root: &Path, frames: usize) -> Result<(), SimError> {
+    let dirs = [
+        ("training/velodyne", "velodyne"),
+        ("training/calib", "calib"),
+        ("training/label_2", "label_2"),
+        ("training/image_2", "image_2"),
+        ("training/depth_2", "depth_2"),
+        ("ImageSets", "ImageSets"),
+        ("rgb_detections", "rgb_detections"),
+        ("", ""),
+    ];
+    for (sub, kind) in dirs {
+        let dir = root.join(sub);
+        // A linked folder leads outside the data set: not ours to clear.
+        let real_dir = std::fs::symlink_metadata(&dir).is_ok_and(|m| m.is_dir());
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        if !real_dir {
+            continue;
+        }
+        for entry in entries {
+            let entry = entry.map_err(io_err(&dir))?;
+            let path = entry.path();
+            let plain_file = entry.file_type().is_ok_and(|t| t.is_file());
+            if plain_file && is_ours(kind, &entry.file_name().to_string_lossy(), frames) {
+                std::fs::remove_file(&path).map_err(io_err(&path))?;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Writes one simulated frame's five files (the label last).
@@ -185,7 +254,8 @@ pub fn write_dataset(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<DatasetStats, SimError> {
     validate(opts)?;
-    let ds = prepare_dir(opts)?;
+    let prepared = prepare_dir(opts)?;
+    let ds = &prepared.ds;
     let done = AtomicUsize::new(0);
     let failed = std::sync::atomic::AtomicBool::new(false);
     let (tx, rx) = std::sync::mpsc::sync_channel::<crate::SimFrame>(QUEUE);
@@ -206,7 +276,7 @@ pub fn write_dataset(
                         if result.is_err() || failed.load(Ordering::Relaxed) {
                             continue;
                         }
-                        if let Err(e) = write_frame(&ds, &frame) {
+                        if let Err(e) = write_frame(ds, &frame) {
                             failed.store(true, Ordering::Relaxed);
                             result = Err(e);
                             continue;
@@ -310,20 +380,68 @@ mod tests {
     }
 
     #[test]
-    fn force_removes_only_our_files() {
+    fn force_removes_only_the_earlier_runs_files() {
         let dir = tempfile::tempdir().unwrap();
         let root = dir.path();
         std::fs::create_dir_all(root.join("training/velodyne")).unwrap();
+        std::fs::write(root.join(MARKER_FILE), "fusiondet simulate\nframes: 8\n").unwrap();
         std::fs::write(root.join("training/velodyne/000007.bin"), b"").unwrap();
+        std::fs::write(
+            root.join("training/velodyne/000012.bin"),
+            b"not from that run",
+        )
+        .unwrap();
         std::fs::write(root.join("training/velodyne/notes.txt"), b"mine").unwrap();
         std::fs::write(root.join("keep.txt"), b"mine").unwrap();
+        // A linked label folder leads outside: its files stay.
+        let outside = tempfile::tempdir().unwrap();
+        std::fs::write(outside.path().join("000001.txt"), b"real labels").unwrap();
+        #[cfg(unix)]
+        std::os::unix::fs::symlink(outside.path(), root.join("training/label_2")).unwrap();
         let mut o = opts(root, 1);
         o.force = true;
-        prepare_dir(&o).unwrap();
+        drop(prepare_dir(&o).unwrap());
         assert!(!root.join("training/velodyne/000007.bin").exists());
+        assert!(root.join("training/velodyne/000012.bin").exists());
         assert!(root.join("training/velodyne/notes.txt").exists());
         assert!(root.join("keep.txt").exists());
+        assert!(outside.path().join("000001.txt").exists());
         assert!(root.join("training/image_2").is_dir());
+        assert_eq!(
+            marked_frames(&std::fs::read_to_string(root.join(MARKER_FILE)).unwrap()),
+            Some(1)
+        );
+    }
+
+    #[test]
+    fn force_refuses_a_directory_the_simulator_did_not_write() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        std::fs::create_dir_all(root.join("training/label_2")).unwrap();
+        std::fs::write(root.join("training/label_2/000000.txt"), b"real labels").unwrap();
+        let mut o = opts(root, 2);
+        o.force = true;
+        let err = write_dataset(&o, &|_, _| {}).unwrap_err().to_string();
+        assert!(
+            err.contains("only a data set that `fusiondet simulate` wrote"),
+            "{err}"
+        );
+        assert_eq!(
+            std::fs::read(root.join("training/label_2/000000.txt")).unwrap(),
+            b"real labels"
+        );
+    }
+
+    #[test]
+    fn a_second_simulator_is_refused_while_the_first_writes() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut o = opts(dir.path(), 1);
+        let first = prepare_dir(&o).unwrap();
+        o.force = true;
+        let err = prepare_dir(&o).err().unwrap().to_string();
+        assert!(err.contains("another `fusiondet simulate`"), "{err}");
+        drop(first);
+        assert!(prepare_dir(&o).is_ok());
     }
 
     #[test]
@@ -332,6 +450,7 @@ mod tests {
         let root = dir.path();
         // A directory where frame 0's image should go makes its atomic rename fail.
         std::fs::create_dir_all(root.join("training/image_2/000000.png")).unwrap();
+        std::fs::write(root.join(MARKER_FILE), "fusiondet simulate\nframes: 2\n").unwrap();
         let mut o = opts(root, 2);
         o.force = true;
         let err = write_dataset(&o, &|_, _| {}).unwrap_err().to_string();
@@ -343,10 +462,11 @@ mod tests {
 
     #[test]
     fn our_file_names() {
-        assert!(is_ours("velodyne", "000001.bin"));
-        assert!(!is_ours("velodyne", "000001.txt"));
-        assert!(is_ours("image_2", ".000001.png.tmp123"));
-        assert!(is_ours("", "sim_stats.json"));
-        assert!(!is_ours("", "README.md"));
+        assert!(is_ours("velodyne", "000001.bin", 2));
+        assert!(!is_ours("velodyne", "000002.bin", 2));
+        assert!(!is_ours("velodyne", "000001.txt", 2));
+        assert!(is_ours("image_2", ".000001.png.Xk3a9.tmp", 2));
+        assert!(is_ours("", "sim_stats.json", 2));
+        assert!(!is_ours("", "README.md", 2));
     }
 }
