@@ -229,3 +229,40 @@ fn unwritable_output_is_an_error_naming_it() {
     assert!(stderr.contains("/no/such/dir/frame.png"), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
+
+#[test]
+fn the_frames_own_image_is_never_the_output() {
+    // A copy of frame 000001: should the guard fail, only the copy is overwritten.
+    let copy = tempfile::tempdir().unwrap();
+    for (sub, ext) in [
+        ("image_2", "png"),
+        ("calib", "txt"),
+        ("velodyne", "bin"),
+        ("label_2", "txt"),
+    ] {
+        std::fs::create_dir_all(copy.path().join(sub)).unwrap();
+        let name = format!("000001.{ext}");
+        std::fs::copy(
+            training_dir().join(sub).join(&name),
+            copy.path().join(sub).join(&name),
+        )
+        .unwrap();
+    }
+    let image = copy.path().join("image_2/000001.png");
+    let before = std::fs::read(&image).unwrap();
+    let o = viz(&[
+        "--data-dir",
+        copy.path().to_str().unwrap(),
+        "--id",
+        "1",
+        "--out",
+        image.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = common::text(&o.stderr);
+    assert!(
+        err.contains("would overwrite an input in --data-dir"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&image).unwrap(), before);
+}

@@ -94,6 +94,18 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         }
     };
 
+    if let Some(out) = &args.json {
+        super::outputs::refuse_output_in_inputs(
+            "--json",
+            out,
+            &[
+                ("--label-dir", Some(args.label_dir.as_path())),
+                ("--result-dir", Some(args.result_dir.as_path())),
+                ("--velodyne-dir", args.velodyne_dir.as_deref()),
+                ("--calib-dir", args.calib_dir.as_deref()),
+            ],
+        )?;
+    }
     let start = Instant::now();
     let ids = frame_ids(&args.label_dir, args.split.as_deref())?;
     let frames = load_dirs(&args.label_dir, &args.result_dir, &ids)?;

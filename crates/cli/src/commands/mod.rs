@@ -9,6 +9,7 @@ pub mod eval;
 pub mod gt_database;
 pub mod info;
 pub mod omega_study;
+pub mod outputs;
 pub mod pseudo_points;
 pub mod simulate;
 pub mod train;

@@ -68,6 +68,16 @@ pub fn run(args: VizArgs) -> anyhow::Result<()> {
             bail!("{name} must be in (0, 500] metres, got {v}");
         }
     }
+    super::outputs::refuse_output_in_inputs(
+        "--out",
+        &args.out,
+        &[
+            ("--data-dir", Some(args.data_dir.as_path())),
+            ("--result-dir", args.result_dir.as_deref()),
+            ("--pseudo-dir", args.pseudo_dir.as_deref()),
+            ("--depth-dir", args.depth_dir.as_deref()),
+        ],
+    )?;
     let frames = FrameDir::new(&args.data_dir);
     let mut view = load_frame(&frames, &id, args.result_dir.as_deref())
         .with_context(|| format!("cannot load frame {id} from {}", args.data_dir.display()))?;
