@@ -71,7 +71,71 @@ pub(crate) fn parse_finite(path: &Path, line: usize, field: &str, text: &str) ->
     Ok(value)
 }
 
+/// The largest text file a reader takes (labels, calibrations, splits, 2D detections):
+/// KITTI's largest, a full split's 2D detections, is a few MB.
+pub const MAX_TEXT_BYTES: u64 = 256 << 20;
+
+/// The largest binary file a reader takes (a LiDAR scan is about 2 MB).
+pub const MAX_BINARY_BYTES: u64 = 1 << 30;
+
+/// Reads a whole regular file of at most `cap` bytes, naming the file on failure. A FIFO,
+/// a device (`/dev/zero`) or a directory is refused before reading: reading one would block
+/// or grow without bound.
+pub(crate) fn read_regular(path: &Path, cap: u64) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let meta = std::fs::metadata(path).map_err(|e| FormatError::io(path, e))?;
+    if !meta.is_file() {
+        return Err(FormatError::file(
+            path,
+            "not a regular file (a directory, pipe or device); give the file itself",
+        ));
+    }
+    if meta.len() > cap {
+        return Err(FormatError::file(
+            path,
+            format!("{} bytes is more than such a file can hold ({cap} at most)", meta.len()),
+        ));
+    }
+    let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    // `take` guards against a file that grows while it is read.
+    file.take(cap + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| FormatError::io(path, e))?;
+    if bytes.len() as u64 > cap {
+        return Err(FormatError::file(path, "grew beyond its size cap while read"));
+    }
+    Ok(bytes)
+}
+
 /// Reads a whole text file, naming the file on failure.
 pub(crate) fn read_text(path: &Path) -> Result<String> {
-    std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))
+    String::from_utf8(read_regular(path, MAX_TEXT_BYTES)?).map_err(|e| {
+        FormatError::file(path, format!("not UTF-8 text ({e}); is it the right file?"))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_regular_files_within_the_cap_are_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = read_text(dir.path()).unwrap_err().to_string();
+        assert!(err.contains("not a regular file"), "{err}");
+        #[cfg(unix)]
+        {
+            let err = read_text(Path::new("/dev/zero")).unwrap_err().to_string();
+            assert!(err.contains("/dev/zero: not a regular file"), "{err}");
+        }
+        let big = dir.path().join("big.txt");
+        std::fs::write(&big, vec![b'a'; 100]).unwrap();
+        let err = read_regular(&big, 99).unwrap_err().to_string();
+        assert!(err.contains("100 bytes is more than"), "{err}");
+        assert_eq!(read_regular(&big, 100).unwrap().len(), 100);
+        std::fs::write(&big, [0xff, 0xfe]).unwrap();
+        let err = read_text(&big).unwrap_err().to_string();
+        assert!(err.contains("not UTF-8 text"), "{err}");
+    }
 }

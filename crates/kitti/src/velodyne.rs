@@ -43,7 +43,7 @@ pub fn parse_velodyne(bytes: &[u8], path: &Path) -> Result<Vec<LidarPoint>> {
 }
 
 pub fn read_velodyne(path: &Path) -> Result<Vec<LidarPoint>> {
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let bytes = crate::error::read_regular(path, crate::error::MAX_BINARY_BYTES)?;
     parse_velodyne(&bytes, path)
 }
 
