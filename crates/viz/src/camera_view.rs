@@ -78,10 +78,16 @@ pub fn draw_boxes(img: &mut RgbImage, cam: &CameraModel, objects: &[&Object], so
     }
 }
 
+/// The most labels one picture carries. Far fewer already cover the image; and since each
+/// label is placed against every earlier one, a cap keeps a result file of 100,000 boxes
+/// from taking minutes (the boxes themselves are all drawn).
+pub const MAX_LABELS: usize = 256;
+
 /// Draws the labels of `objects`: ground truth above its projected box, detections
 /// below, so the two rarely collide. A label that would cover one in `placed` is
 /// stacked further out (up for ground truth, down for detections): the first free
-/// place of a few is taken, else the least covered. Every label drawn joins `placed`.
+/// place of a few is taken, else the least covered. Every label drawn joins `placed`,
+/// until it holds [`MAX_LABELS`].
 pub fn draw_labels(
     img: &mut RgbImage,
     cam: &CameraModel,
@@ -93,6 +99,9 @@ pub fn draw_labels(
     const TRIES: i32 = 6;
     let (w, h) = (img.width() as f64, img.height() as f64);
     for o in objects.iter().filter(|o| o.class != ObjectClass::DontCare) {
+        if placed.len() >= MAX_LABELS {
+            return;
+        }
         let Some(bounds) = projected_bounds(&o.box3d, cam).and_then(|b| clip_to_image(&b, w, h))
         else {
             continue;
@@ -264,6 +273,25 @@ mod tests {
         assert_eq!(placed.len(), 2);
         assert_eq!(overlap_area(&placed[0], &placed[1]), 0, "{placed:?}");
         assert!(placed[1].1 > placed[0].1, "the second goes below the first");
+    }
+
+    #[test]
+    fn a_crowd_of_boxes_gets_at_most_max_labels() {
+        let cam = camera();
+        let mut img = RgbImage::new(1242, 375);
+        let crowd: Vec<Object> = (0..5_000)
+            .map(|i| {
+                let b = Box3d {
+                    x: -5.0 + (i % 100) as f64 * 0.1,
+                    ..car(10.0 + (i / 100) as f64 * 0.5)
+                };
+                object(b, Some(0.5))
+            })
+            .collect();
+        let refs: Vec<&Object> = crowd.iter().collect();
+        let mut placed = Vec::new();
+        draw_labels(&mut img, &cam, &refs, Source::Detection, 1, &mut placed);
+        assert_eq!(placed.len(), MAX_LABELS);
     }
 
     #[test]
