@@ -9,6 +9,15 @@ use crate::slicing::{DepthGuidedSlicing, SliceStrategy, Slicing, UniformSlicing}
 use fusiondet_kitti::ObjectClass;
 use serde::{Deserialize, Serialize};
 
+/// The most points a frustum (or one sub-frustum) may be sampled to; F-ConvNet uses 1,024.
+pub const MAX_POINTS_PER_FRUSTUM: usize = 65_536;
+/// The farthest depth a frustum may reach, in metres (KITTI's LiDAR sees about 120 m).
+pub const MAX_DEPTH: f64 = 500.0;
+/// The most sub-frustums over all scales (F-ConvNet's Car configuration has 280).
+pub const MAX_SLICES: usize = 4096;
+/// The most augmented copies of each labelled frustum per epoch.
+pub const MAX_COPIES: usize = 1000;
+
 /// How the data set is made and sliced.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -176,7 +185,9 @@ impl FrustumConfig {
         }
     }
 
-    /// Checks every field; the error names the field and what is wrong with it.
+    /// Checks every field, also against sizes a real model could use (a larger value would
+    /// abort on allocation or run for minutes); the error names the field and what is wrong
+    /// with it.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(FrustumError::Config(m));
         if self.classes.is_empty() {
@@ -190,8 +201,11 @@ impl FrustumConfig {
                 ));
             }
         }
-        if self.points_per_frustum == 0 {
-            return bad("`points_per_frustum` must be positive".into());
+        if !(1..=MAX_POINTS_PER_FRUSTUM).contains(&self.points_per_frustum) {
+            return bad(format!(
+                "`points_per_frustum` must be in [1, {MAX_POINTS_PER_FRUSTUM}], not {}",
+                self.points_per_frustum
+            ));
         }
         if self.sliced_points > self.points_per_frustum {
             return bad(format!(
@@ -200,6 +214,11 @@ impl FrustumConfig {
             ));
         }
         let [lo, hi] = self.depth_range;
+        if !(lo.abs() <= MAX_DEPTH && hi.abs() <= MAX_DEPTH) {
+            return bad(format!(
+                "`depth_range` [{lo:e}, {hi:e}] must lie within ±{MAX_DEPTH} m"
+            ));
+        }
         match &self.proposal_crop {
             None if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi > lo) => {
                 return bad(format!(
@@ -225,6 +244,23 @@ impl FrustumConfig {
             }
         }
         self.slicing.validate(self.depth_range)?;
+        let slices: usize = self.slicing.slices_per_scale(self.depth_range).iter().sum();
+        if slices > MAX_SLICES {
+            return bad(format!(
+                "`slicing` makes {slices} sub-frustums over `depth_range`; at most {MAX_SLICES} \
+                 (use longer strides)"
+            ));
+        }
+        if let Some(m) = self
+            .slicing
+            .max_points_per_scale()
+            .into_iter()
+            .find(|&m| m > MAX_POINTS_PER_FRUSTUM)
+        {
+            return bad(format!(
+                "`slicing` max_points {m} exceeds {MAX_POINTS_PER_FRUSTUM} per sub-frustum"
+            ));
+        }
         let scales = self.slicing.num_scales();
         if self.output_scale >= scales {
             return bad(format!(
@@ -241,8 +277,11 @@ impl FrustumConfig {
             }
         }
         let a = &self.augment;
-        if a.copies == 0 {
-            return bad("`augment.copies` must be at least 1".into());
+        if !(1..=MAX_COPIES).contains(&a.copies) {
+            return bad(format!(
+                "`augment.copies` must be in [1, {MAX_COPIES}], not {}",
+                a.copies
+            ));
         }
         if !(a.box_jitter.is_finite() && (0.0..1.0).contains(&a.box_jitter)) {
             return bad(format!(

@@ -93,7 +93,10 @@ pub(crate) fn read_regular(path: &Path, cap: u64) -> Result<Vec<u8>> {
     if meta.len() > cap {
         return Err(FormatError::file(
             path,
-            format!("{} bytes is more than such a file can hold ({cap} at most)", meta.len()),
+            format!(
+                "{} bytes is more than such a file can hold ({cap} at most)",
+                meta.len()
+            ),
         ));
     }
     let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
@@ -103,7 +106,10 @@ pub(crate) fn read_regular(path: &Path, cap: u64) -> Result<Vec<u8>> {
         .read_to_end(&mut bytes)
         .map_err(|e| FormatError::io(path, e))?;
     if bytes.len() as u64 > cap {
-        return Err(FormatError::file(path, "grew beyond its size cap while read"));
+        return Err(FormatError::file(
+            path,
+            "grew beyond its size cap while read",
+        ));
     }
     Ok(bytes)
 }

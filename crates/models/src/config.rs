@@ -173,6 +173,52 @@ pub struct LossConfig {
     pub projection_weight: f32,
 }
 
+/// The most channels a layer may have in a configuration.
+pub const MAX_CHANNELS: usize = 4096;
+/// The widest spatial-attention kernel (CBAM uses 7).
+pub const MAX_SPATIAL_KERNEL: usize = 31;
+
+impl LossConfig {
+    /// Every weight and shape within what a loss can use: a focal γ of 1e19 overflows.
+    pub fn validate(&self) -> Result<(), String> {
+        let bad = |msg: String| Err(msg);
+        let in_range = |v: f32, lo: f32, hi: f32| v.is_finite() && (lo..=hi).contains(&v);
+        if !in_range(self.focal_alpha, 0.0, 1.0) {
+            return bad(format!(
+                "focal_alpha must be in [0, 1], not {}",
+                self.focal_alpha
+            ));
+        }
+        if !in_range(self.focal_gamma, 0.0, 10.0) {
+            return bad(format!(
+                "focal_gamma must be in [0, 10], not {}",
+                self.focal_gamma
+            ));
+        }
+        for (name, v) in [
+            ("box_weight", self.box_weight),
+            ("heading_residual_weight", self.heading_residual_weight),
+            ("size_residual_weight", self.size_residual_weight),
+            ("corner_weight", self.corner_weight),
+            ("projection_weight", self.projection_weight),
+        ] {
+            if !in_range(v, 0.0, 1000.0) {
+                return bad(format!("{name} must be in [0, 1000], not {v}"));
+            }
+        }
+        for (name, v) in [
+            ("center_delta", self.center_delta),
+            ("residual_delta", self.residual_delta),
+            ("corner_delta", self.corner_delta),
+        ] {
+            if !(in_range(v, 0.0, 100.0) && v > 0.0) {
+                return bad(format!("{name} must be in (0, 100], not {v}"));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for ModelConfig {
     fn default() -> Self {
         Self::car()
@@ -281,9 +327,28 @@ impl ModelConfig {
         std::f32::consts::TAU / self.num_heading_bins as f32
     }
 
-    /// Checks the structural constraints the network relies on.
+    /// Checks the structural constraints the network relies on, and that every size is one
+    /// a real network could use (a width of 100,000 would abort on allocation).
     pub fn validate(&self) -> Result<(), ModelError> {
         let bad = |msg: String| Err(ModelError::InvalidConfig(msg));
+        let widths: [(&str, Vec<usize>); 3] = [
+            ("pointnet_widths", self.pointnet_widths.concat()),
+            ("fcn_channels", self.fcn_channels.clone()),
+            ("deconv_channels", vec![self.deconv_channels]),
+        ];
+        for (name, values) in widths {
+            if let Some(w) = values.into_iter().find(|&w| w > MAX_CHANNELS) {
+                return bad(format!(
+                    "{name}: at most {MAX_CHANNELS} channels a layer, not {w}"
+                ));
+            }
+        }
+        if self.num_heading_bins > 360 {
+            return bad(format!(
+                "num_heading_bins must be at most 360, not {}",
+                self.num_heading_bins
+            ));
+        }
         if self.pointnet_widths.len() != 4 {
             return bad(format!(
                 "pointnet_widths must list 4 scales, got {}",
@@ -315,8 +380,12 @@ impl ModelConfig {
             if a.channel_reduction == 0
                 || a.tanh_reduction == 0
                 || a.spatial_kernel.is_multiple_of(2)
+                || a.spatial_kernel > MAX_SPATIAL_KERNEL
             {
-                return bad("attention: reductions must be positive and spatial_kernel odd".into());
+                return bad(format!(
+                    "attention: reductions must be positive and spatial_kernel odd and at most \
+                     {MAX_SPATIAL_KERNEL}"
+                ));
             }
             if let Some(l) = a
                 .after_layers

@@ -328,7 +328,7 @@ impl ExperimentConfig {
             let dir = path.parent().unwrap_or(Path::new(""));
             r.first_stage = dir.join(&r.first_stage);
         }
-        config.validate(path)?;
+        config.validate(path).map_err(|e| at_line(e, text))?;
         Ok(config)
     }
 
@@ -428,6 +428,10 @@ impl ExperimentConfig {
         self.model.validate().map_err(|e| PipelineError::Config {
             path: path.to_path_buf(),
             message: e.to_string(),
+        })?;
+        self.loss.validate().map_err(|e| PipelineError::Config {
+            path: path.to_path_buf(),
+            message: format!("[loss] {e}"),
         })?;
         if self.train.epochs == 0 {
             return bad(
@@ -592,6 +596,51 @@ impl ExperimentConfig {
 }
 
 /// `text` with the `[detector]` table every configuration needs, for tests.
+/// A validation error of a configuration file pointed at the line that sets the key it
+/// names (the first key named in the message that the file sets), when there is one.
+fn at_line(err: PipelineError, text: &str) -> PipelineError {
+    let PipelineError::Config { path, message } = err else {
+        return err;
+    };
+    match key_line(text, &message) {
+        Some(line) => PipelineError::ConfigAt {
+            path,
+            line,
+            message,
+        },
+        None => PipelineError::Config { path, message },
+    }
+}
+
+/// The 1-based line of `text` that sets the first key `message` names: the words of the
+/// message made of letters, digits, `_` and `.` (`train.epochs`, `depth_range`) are tried
+/// in order, each by its last dotted part, against `key =` at the start of a line or inside
+/// an inline table.
+fn key_line(text: &str, message: &str) -> Option<usize> {
+    let words = message
+        .split(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == '.'))
+        .filter(|w| w.contains('_') || w.contains('.'));
+    for word in words {
+        let key = word.trim_matches('.').rsplit('.').next().unwrap_or(word);
+        if key.is_empty() || !key.contains('_') && !word.contains('.') {
+            continue;
+        }
+        let sets = |line: &str| {
+            let code = line.split('#').next().unwrap_or("");
+            code.match_indices(key).any(|(i, _)| {
+                let before = code[..i].trim_end();
+                let after = code[i + key.len()..].trim_start();
+                (before.is_empty() || before.ends_with('{') || before.ends_with(','))
+                    && after.starts_with('=')
+            })
+        };
+        if let Some(i) = text.lines().position(sets) {
+            return Some(i + 1);
+        }
+    }
+    None
+}
+
 #[cfg(test)]
 fn with_kind(text: &str) -> String {
     format!("[detector]\nkind = \"frustum\"\n{text}")
@@ -760,6 +809,38 @@ mod tests {
             err.contains("train.lr.base_lr must be in (0, 10], not inf"),
             "{err}"
         );
+        // Values no real model uses, at the line that sets them.
+        for (toml, says) in [
+            (
+                "[loss]\nfocal_gamma = 1e19\n",
+                "c.toml:4: [loss] focal_gamma must be in [0, 10]",
+            ),
+            (
+                "[frustum]\ndepth_range = [0.0, 1e300]\n",
+                "c.toml:4: frustum config: `depth_range` [0e0, 1e300] must lie within ±500 m",
+            ),
+            (
+                "[frustum]\npoints_per_frustum = 100000000\n",
+                "c.toml:4: frustum config: `points_per_frustum` must be in [1, 65536]",
+            ),
+            (
+                "[frustum.augment]\ncopies = 1000000\n",
+                "c.toml:4: frustum config: `augment.copies` must be in [1, 1000]",
+            ),
+            (
+                "[model]\ndeconv_channels = 10000000\n",
+                "c.toml:4: invalid model configuration: deconv_channels: at most 4096 channels a layer",
+            ),
+            (
+                "[train]\nepochs = 0\n",
+                "c.toml:4: train.epochs (--epochs) must be at least 1",
+            ),
+        ] {
+            let err = ExperimentConfig::from_toml_str(&with_kind(toml), Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(says), "{toml}: {err}");
+        }
     }
 }
 

@@ -14,6 +14,13 @@ pub enum PipelineError {
     Model(#[from] fusiondet_models::ModelError),
     #[error("{}: {message}", path.display())]
     Config { path: PathBuf, message: String },
+    /// A configuration value out of range, at the line that sets it.
+    #[error("{}:{line}: {message}", path.display())]
+    ConfigAt {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
     #[error("{}: {message}", path.display())]
     RunDir { path: PathBuf, message: String },
     #[error("{0}")]
