@@ -235,6 +235,27 @@ fn train_then_detect_from_the_command_line() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("1 epoch(s) run"), "{}", text(&o));
+    // The same seed writes the same checkpoint, byte for byte.
+    let again = dir.path().join("run-again");
+    let o = fusiondet(&[
+        "train",
+        "--config",
+        tiny.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+        "--epochs",
+        "1",
+        "--max-frames",
+        "6",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(
+        std::fs::read(run.join("model.bpk")).unwrap()
+            == std::fs::read(again.join("model.bpk")).unwrap(),
+        "two runs with one seed wrote different checkpoints"
+    );
     let results = dir.path().join("results");
     let o = fusiondet(&[
         "detect",

@@ -12,12 +12,16 @@ use crate::model::FConvNet;
 use burn::module::{ModuleVisitor, Param};
 use burn::prelude::*;
 use burn::store::burn_pack::Reader;
-use burn::store::{BurnpackStore, ModuleSnapshot};
+use burn::store::burn_pack::Tensor as PackTensor;
+use burn::store::{BurnpackStore, ModuleAdapter, ModuleContext, ModuleSnapshot};
 use std::path::Path;
 
 /// Metadata key of the checkpoint's family ([`DetectorKind::checkpoint_tag`]).
 const KIND_KEY: &str = "fusiondet.model";
 const CONFIG_KEY: &str = "fusiondet.model_config";
+/// Metadata key of the CRC-32 of every tensor's values ([`tensor_checksum`]), verified on
+/// load: a file whose bytes were damaged (say, flipped to NaN) is refused.
+const CHECKSUM_KEY: &str = "fusiondet.tensor_crc32";
 
 pub(crate) fn ckpt_err(path: &Path, message: impl Into<String>) -> ModelError {
     ModelError::Checkpoint {
@@ -41,14 +45,16 @@ pub(crate) fn write_tagged<M: ModuleSnapshot>(
     config_json: String,
     path: &Path,
 ) -> Result<(), ModelError> {
+    // `valid()` first folds the batch-norm running statistics that training threads hold
+    // apart (burn keeps them per thread until synchronised) into the stored values.
+    let model = model.valid();
     let mut store = BurnpackStore::from_file(path)
         .auto_extension(false)
         .overwrite(true)
         .metadata(KIND_KEY, kind.checkpoint_tag())
-        .metadata(CONFIG_KEY, config_json);
-    // `valid()` first folds the batch-norm running statistics that training threads hold
-    // apart (burn keeps them per thread until synchronised) into the stored values.
-    let model = model.valid();
+        .metadata(CONFIG_KEY, config_json)
+        .metadata(CHECKSUM_KEY, format!("{:08x}", tensor_checksum(&model)))
+        .with_to_adapter(NameIds);
     if let Some(name) = first_non_finite_parameter(&model) {
         return Err(ckpt_err(
             path,
@@ -61,6 +67,67 @@ pub(crate) fn write_tagged<M: ModuleSnapshot>(
     model
         .save_into(&mut store)
         .map_err(|e| ckpt_err(path, format!("cannot write: {e}")))
+}
+
+/// CRC-32 of the values of every float parameter and batch-norm statistic of `module`, in
+/// the module's own order (little-endian f32).
+pub fn tensor_checksum<M: Module>(module: &M) -> u32 {
+    struct Hasher(crc32fast::Hasher);
+    impl ModuleVisitor for Hasher {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            for v in param.val().into_data().iter::<f32>() {
+                self.0.update(&v.to_le_bytes());
+            }
+        }
+    }
+    let mut hasher = Hasher(crc32fast::Hasher::new());
+    module.visit(&mut hasher);
+    hasher.0.finalize()
+}
+
+/// Gives every tensor the id of its name: 64-bit FNV-1a, a fixed, documented hash (std's
+/// hashers may change between Rust releases, which would change the files). burn draws
+/// parameter ids at random and checkpoints store them, so two runs with one seed wrote
+/// different files.
+#[derive(Clone)]
+struct NameIds;
+
+impl NameIds {
+    fn id_of(name: &str) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for b in name.bytes() {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        h
+    }
+}
+
+impl ModuleAdapter for NameIds {
+    fn adapt(&self, mut tensor: PackTensor, _ctx: ModuleContext<'_>) -> PackTensor {
+        tensor.param_id = Some(Self::id_of(&tensor.name));
+        tensor
+    }
+    fn clone_box(&self) -> Box<dyn ModuleAdapter> {
+        Box::new(self.clone())
+    }
+}
+
+/// `module` with every parameter's id made from its name, as checkpoints store them: then
+/// the same seed writes the same bytes, and the optimizer's state (keyed by these ids) fits
+/// a resumed network's ids. Applied when a network is created, before any optimizer state
+/// exists, by a round trip through an in-memory checkpoint.
+pub fn deterministic_param_ids<M: Module>(mut module: M) -> M {
+    let mut out = BurnpackStore::from_bytes(None).with_to_adapter(NameIds);
+    module
+        .save_into(&mut out)
+        .expect("a network writes to memory");
+    let bytes = out.get_bytes().expect("the bytes just written");
+    let mut back = BurnpackStore::from_bytes(Some(bytes));
+    module
+        .load_from(&mut back)
+        .expect("a network reads back its own bytes");
+    module
 }
 
 /// The path of the first float parameter (or batch-norm statistic) of `module` that holds
@@ -119,6 +186,21 @@ pub(crate) fn load_weights<M: ModuleSnapshot>(mut model: M, path: &Path) -> Resu
             path,
             format!("tensors the network does not have: {:?}", result.unused),
         ));
+    }
+    // Files written before checksums were stored (the shipped models among them) carry none.
+    let reader =
+        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
+    if let Some(stored) = reader.metadata().get(CHECKSUM_KEY) {
+        let found = format!("{:08x}", tensor_checksum(&model));
+        if *stored != found {
+            return Err(ckpt_err(
+                path,
+                format!(
+                    "the weights are damaged (their checksum is {found}, the file was written \
+                     with {stored}); restore the file or train again"
+                ),
+            ));
+        }
     }
     Ok(model)
 }
@@ -327,6 +409,61 @@ mod tests {
             std::fs::read(&path).unwrap(),
             before,
             "the good checkpoint stays"
+        );
+    }
+
+    /// A Linear holding `weight` and `bias` under freshly drawn parameter ids.
+    fn linear_of(weight: &Tensor<2>, bias: &Tensor<1>) -> burn::nn::Linear {
+        let mut l = LinearConfig::new(2, 2).init(&Device::flex());
+        l.weight = Param::from_tensor(weight.clone());
+        l.bias = Some(Param::from_tensor(bias.clone()));
+        l
+    }
+
+    #[test]
+    fn the_same_weights_write_the_same_bytes() {
+        let dir = tempfile::tempdir().unwrap();
+        let l = LinearConfig::new(2, 2).init(&Device::flex());
+        let (w, b) = (l.weight.val(), l.bias.as_ref().unwrap().val());
+        let write = |model: &burn::nn::Linear, name: &str| {
+            let path = dir.path().join(name);
+            write_tagged(model, DetectorKind::Frustum, "{}".into(), &path).unwrap();
+            std::fs::read(path).unwrap()
+        };
+        // burn draws parameter ids at random; the files store each tensor's name's id.
+        let (a, b_) = (linear_of(&w, &b), linear_of(&w, &b));
+        assert_ne!(a.weight.id, b_.weight.id);
+        assert_eq!(write(&a, "a.bpk"), write(&b_, "b.bpk"));
+        // A network made with those ids keeps them across a save and a load, so an
+        // optimizer's state keyed by them fits the resumed network.
+        let a = deterministic_param_ids(linear_of(&w, &b));
+        let b_ = deterministic_param_ids(linear_of(&w, &b));
+        assert_eq!(a.weight.id, b_.weight.id);
+        write(&a, "a.bpk");
+        let loaded = load_weights(linear_of(&w, &b), &dir.path().join("a.bpk")).unwrap();
+        assert_eq!(loaded.weight.id, a.weight.id, "ids come back from the file");
+    }
+
+    #[test]
+    fn weights_that_do_not_match_their_checksum_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = LinearConfig::new(2, 2).init(&Device::flex());
+        let path = dir.path().join("model.bpk");
+        write_tagged(&good, DetectorKind::Frustum, "{}".into(), &path).unwrap();
+        load_weights(good.clone(), &path).unwrap();
+        // The same file with other values under the good file's checksum: a damaged file.
+        let mut damaged = good.clone();
+        damaged.weight = damaged.weight.map(|w| w.mul_scalar(f32::NAN));
+        let mut store = BurnpackStore::from_file(&path)
+            .auto_extension(false)
+            .overwrite(true)
+            .metadata(KIND_KEY, "fconvnet")
+            .metadata(CHECKSUM_KEY, format!("{:08x}", tensor_checksum(&good)));
+        damaged.save_into(&mut store).unwrap();
+        let err = load_weights(good, &path).unwrap_err().to_string();
+        assert!(
+            err.contains("model.bpk") && err.contains("weights are damaged"),
+            "{err}"
         );
     }
 }

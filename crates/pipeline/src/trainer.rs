@@ -128,11 +128,17 @@ fn bar(len: usize, enabled: bool) -> indicatif::ProgressBar {
 /// Draws a network's initial weights from `seed` alone. burn's initialisers draw from one
 /// process-wide generator, so seeding and drawing happen under a lock: two runs in one
 /// process (tests, ablations) cannot interleave draws.
-pub fn seeded<M>(seed: u64, device: &Device, init: impl FnOnce() -> Result<M>) -> Result<M> {
+/// Its parameter ids come from their paths, so the same seed writes the same checkpoint
+/// bytes ([`fusiondet_models::checkpoint::deterministic_param_ids`]).
+pub fn seeded<M: Module>(
+    seed: u64,
+    device: &Device,
+    init: impl FnOnce() -> Result<M>,
+) -> Result<M> {
     static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _guard = INIT.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     device.seed(seed);
-    init()
+    init().map(fusiondet_models::checkpoint::deterministic_param_ids)
 }
 
 /// A run directory opened for training: fresh, or resumed at its last finished epoch.
