@@ -628,3 +628,74 @@ fn a_refinement_stage_trains_and_detects_from_the_command_line() {
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("frames/s"), "{}", text(&o));
 }
+
+/// The process ids whose parent is `parent` (from /proc).
+#[cfg(target_os = "linux")]
+fn children_of(parent: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else {
+            continue;
+        };
+        // `pid (comm) state ppid ...`; comm may hold spaces, so read after the last ')'.
+        let after = &stat[stat.rfind(')').unwrap() + 1..];
+        let fields: Vec<&str> = after.split_whitespace().collect();
+        if fields.get(1).and_then(|p| p.parse::<u32>().ok()) == Some(parent) {
+            out.push(pid);
+        }
+    }
+    out
+}
+
+/// Whether `pid` is running (not gone, not a zombie).
+#[cfg(target_os = "linux")]
+fn running(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|stat| {
+        let after = &stat[stat.rfind(')').unwrap() + 1..];
+        !after.trim_start().starts_with('Z')
+    })
+}
+
+#[cfg(target_os = "linux")]
+#[test]
+fn a_killed_ablation_takes_its_training_with_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = simulate_six_frames(dir.path(), &["--seed", "6"]);
+    let mut ablation = std::process::Command::new(env!("CARGO_BIN_EXE_fusiondet"))
+        .args([
+            "ablation",
+            "--configs",
+            configs().join("tiny.toml").to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            dir.path().join("ablation").to_str().unwrap(),
+            "--epochs",
+            "1000",
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    let train = loop {
+        if let Some(&pid) = children_of(ablation.id()).first() {
+            break pid;
+        }
+        assert!(started.elapsed().as_secs() < 60, "no training started");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    ablation.kill().unwrap();
+    ablation.wait().unwrap();
+    let killed = std::time::Instant::now();
+    while running(train) {
+        assert!(
+            killed.elapsed().as_secs() < 30,
+            "the training {train} outlived its ablation"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}

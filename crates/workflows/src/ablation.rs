@@ -198,6 +198,33 @@ fn run_dir_of(args: &AblationOptions, config: &ExperimentConfig, seed: Option<u6
     dir_of(args, "runs", config, seed)
 }
 
+/// Makes the child end when this process does, however it ends (a kill included): an
+/// ablation stopped by the user must not leave its training running. The child gets
+/// SIGTERM, which leaves its run resumable (every checkpoint is written atomically).
+#[cfg(target_os = "linux")]
+fn ends_with_this_process(command: &mut Command) {
+    use std::os::unix::process::CommandExt;
+    let parent = std::process::id();
+    // SAFETY: the closure runs in the child between fork and exec and calls only
+    // async-signal-safe functions (prctl, getppid).
+    unsafe {
+        command.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The parent may have died before the request: then end now.
+            if libc::getppid() as u32 != parent {
+                libc::raise(libc::SIGTERM);
+            }
+            Ok(())
+        });
+    }
+}
+
+/// Elsewhere the child outlives a killed ablation (no portable way to ask otherwise).
+#[cfg(not(target_os = "linux"))]
+fn ends_with_this_process(_command: &mut Command) {}
+
 /// Trains (in a child process; a refinement stage over `first_stage`), detects on the
 /// val split and evaluates one configuration.
 fn run_one(
@@ -235,6 +262,7 @@ fn run_one(
     if let Some(first) = first_stage {
         train.arg("--first-stage").arg(first);
     }
+    ends_with_this_process(&mut train);
     eprintln!("== {name}: training ({})", path.display());
     let status = train.status().context("cannot start `fusiondet train`")?;
     if !status.success() {
