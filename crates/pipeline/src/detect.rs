@@ -99,6 +99,21 @@ pub struct FrameResults {
     pub samples: usize,
 }
 
+/// What a family reads beside the frames, read once for a split: the 2D detections (the
+/// frustum family) and where completed depth maps are (DASANet).
+#[derive(Debug, Clone, Default)]
+pub struct SplitSide {
+    pub detections: Vec<Detection2d>,
+    pub depth_dir: Option<PathBuf>,
+}
+
+/// Frames the voxel families' detection holds in memory at once: a split is detected in
+/// chunks of this many, so memory stays flat however long the split (about 1 MB a frame;
+/// KITTI's val split whole would take 4 GB). The frustum family still reads its split at
+/// once: each frustum's point-sampling stream is keyed by its place among the split's
+/// frustums, so chunks would sample other points (and change every published result).
+pub const DETECT_CHUNK_FRAMES: usize = 64;
+
 /// What a family reads beside the frames: 2D detections (the frustum family; `None`
 /// reads the data set's own file) and completed depth maps (DASANet; `None` completes).
 #[derive(Debug, Clone, Copy, Default)]
@@ -198,6 +213,14 @@ impl Detector {
         max_frames: usize,
         side: SideInputs,
     ) -> Result<SplitInputs> {
+        let side = self.read_side(data_dir, split, side)?;
+        let ids = fusiondet_dataset::split_ids(data_dir, split, max_frames)?;
+        self.load_frames(data_dir, &ids, &side, side.detections.clone())
+    }
+
+    /// What this family reads beside the frames, read once for a split; refuses what the
+    /// family does not read.
+    pub fn read_side(&self, data_dir: &Path, split: &str, side: SideInputs) -> Result<SplitSide> {
         let SideInputs {
             detections,
             depth_dir,
@@ -210,25 +233,44 @@ impl Detector {
                 self.config().kind()
             )));
         }
-        match self {
+        let detections = match self {
             Detector::Frustum(_) => {
-                let frames = fusiondet_dataset::load_split(data_dir, split, max_frames, false)?;
                 let path = detections
                     .map(Path::to_path_buf)
                     .unwrap_or_else(|| DatasetDir::new(data_dir).rgb_detections(split));
-                Ok(SplitInputs::Frustum {
-                    frames,
-                    detections: read_detections2d(&path)?,
-                })
+                read_detections2d(&path)?
             }
-            Detector::VoxelRcnn(_) => Ok(SplitInputs::Lidar {
-                frames: fusiondet_dataset::load_split(data_dir, split, max_frames, false)?,
-            }),
-            Detector::Dasanet(_) => Ok(SplitInputs::Camera {
-                frames: fusiondet_dataset::load_split(data_dir, split, max_frames, false)?,
-                depth_dir: depth_dir.map(Path::to_path_buf),
-            }),
-        }
+            Detector::VoxelRcnn(_) | Detector::Dasanet(_) => Vec::new(),
+        };
+        Ok(SplitSide {
+            detections,
+            depth_dir: depth_dir.map(Path::to_path_buf),
+        })
+    }
+
+    /// The frames `ids` in this family's form, with `detections` (the frustum family's 2D
+    /// boxes for these frames) and the rest of `side`.
+    pub fn load_frames(
+        &self,
+        data_dir: &Path,
+        ids: &[String],
+        side: &SplitSide,
+        detections: Vec<Detection2d>,
+    ) -> Result<SplitInputs> {
+        let training = DatasetDir::new(data_dir).training();
+        Ok(match self {
+            Detector::Frustum(_) => SplitInputs::Frustum {
+                frames: InMemoryFrames::load(&training, ids, false)?,
+                detections,
+            },
+            Detector::VoxelRcnn(_) => SplitInputs::Lidar {
+                frames: fusiondet_dataset::InMemoryFrames::load(&training, ids, false)?,
+            },
+            Detector::Dasanet(_) => SplitInputs::Camera {
+                frames: fusiondet_dataset::InMemoryFrames::load(&training, ids, false)?,
+                depth_dir: side.depth_dir.clone(),
+            },
+        })
     }
 
     /// Detects on every frame of `inputs` (in memory; no disk reads).
@@ -324,42 +366,70 @@ pub(crate) fn load_detect_inputs(
     })
 }
 
-/// Loads the split, runs detection and writes one KITTI result file per frame of the
-/// split (empty when nothing was detected), atomically.
+/// Runs detection over the split, [`DETECT_CHUNK_FRAMES`] frames at a time, and writes one
+/// KITTI result file per frame of the split (empty when nothing was detected), atomically,
+/// under the result directory's manifest.
 pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
+    detect_in_chunks(options, DETECT_CHUNK_FRAMES)
+}
+
+/// [`detect`] holding at most `chunk_frames` frames in memory at once (the voxel families;
+/// see [`DETECT_CHUNK_FRAMES`]).
+pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<DetectSummary> {
     // Before anything is loaded: a refused --out should not cost a model load.
     refuse_input_dir(&options.out_dir, &options.data_dir)?;
     check_result_dir(&options.out_dir, options.replace)?;
-    let cfg = &options.config;
-    let mut timing = StageTimes::default();
+    let mut summary = DetectSummary::default();
     let t = Instant::now();
-    let DetectInputs {
-        detector,
-        device,
-        inputs,
-    } = load_detect_inputs(
-        cfg,
-        &options.checkpoint,
+    let device = options.device.device();
+    let detector = Detector::load(options.config.clone(), &options.checkpoint, &device)?;
+    let side = detector.read_side(
         &options.data_dir,
         &options.split,
         SideInputs {
             detections: options.detections.as_deref(),
             depth_dir: options.depth_dir.as_deref(),
         },
-        0,
-        options.device,
     )?;
-    timing.load += t.elapsed();
-    let results = detector.detect(&device, &inputs, &mut timing)?;
-    write_results(&options.out_dir, &results.objects, options.replace)?;
-    Ok(DetectSummary {
-        frames: inputs.frames(),
-        detections_2d: inputs.detections_2d(),
-        samples: results.samples,
-        skipped: results.skipped,
-        boxes_written: results.objects.values().map(Vec::len).sum(),
-        timing,
-    })
+    let ids = fusiondet_dataset::split_ids(&options.data_dir, &options.split, 0)?;
+    // 2D detections of frames outside the split are counted as such once, not per chunk.
+    let in_split: std::collections::HashSet<&str> = ids.iter().map(String::as_str).collect();
+    let (mut detections, outside): (Vec<Detection2d>, Vec<Detection2d>) = side
+        .detections
+        .iter()
+        .cloned()
+        .partition(|d| in_split.contains(d.frame_id.as_str()));
+    summary.detections_2d += outside.len();
+    summary.skipped.unknown_frame += outside.len();
+    summary.timing.load += t.elapsed();
+
+    let chunk_frames = match detector {
+        Detector::Frustum(_) => ids.len(),
+        Detector::VoxelRcnn(_) | Detector::Dasanet(_) => chunk_frames,
+    };
+    let mut writer = ResultWriter::begin(&options.out_dir, &ids, options.replace)?;
+    for chunk in ids.chunks(chunk_frames.max(1)) {
+        let t = Instant::now();
+        let chunk_ids: std::collections::HashSet<&str> = chunk.iter().map(String::as_str).collect();
+        let (mine, rest) = detections
+            .into_iter()
+            .partition(|d| chunk_ids.contains(d.frame_id.as_str()));
+        detections = rest;
+        let inputs = detector.load_frames(&options.data_dir, chunk, &side, mine)?;
+        summary.timing.load += t.elapsed();
+        let results = detector.detect(&device, &inputs, &mut summary.timing)?;
+        summary.frames += inputs.frames();
+        summary.detections_2d += inputs.detections_2d();
+        summary.samples += results.samples;
+        summary.skipped.merge(&results.skipped);
+        for id in chunk {
+            let objects = results.objects.get(id).map_or(&[][..], Vec::as_slice);
+            summary.boxes_written += objects.len();
+            writer.write(id, objects)?;
+        }
+    }
+    writer.finish()?;
+    Ok(summary)
 }
 
 fn out_err(path: &Path, message: impl Into<String>) -> PipelineError {
@@ -419,49 +489,78 @@ pub fn check_result_dir(out_dir: &Path, replace: bool) -> Result<()> {
     }
 }
 
-/// Writes `OUT/<id>.txt` for every frame, under a manifest that says which frames the run
-/// writes and, once all are written, that it is complete (see
-/// [`fusiondet_kitti::results`]). With `replace`, an earlier detect's files are removed
-/// first (those its manifest lists, nothing else).
+/// Writes a result directory frame by frame under its manifest: it lists the frames
+/// first (marked incomplete), then each frame's file is written, then the manifest is
+/// marked complete (see [`fusiondet_kitti::results`]).
+pub struct ResultWriter {
+    out_dir: PathBuf,
+    manifest: ResultsManifest,
+}
+
+impl ResultWriter {
+    /// Opens `out_dir` for the frames `ids`. With `replace`, an earlier detect's files are
+    /// removed first (those its manifest lists, nothing else).
+    pub fn begin(out_dir: &Path, ids: &[String], replace: bool) -> Result<ResultWriter> {
+        check_result_dir(out_dir, replace)?;
+        std::fs::create_dir_all(out_dir)
+            .map_err(|e| out_err(out_dir, format!("cannot create the result directory: {e}")))?;
+        if let Some(old) = read_manifest(out_dir)? {
+            // Marked incomplete first: a kill while removing leaves a directory eval refuses.
+            write_manifest(
+                out_dir,
+                &ResultsManifest {
+                    complete: false,
+                    ..old.clone()
+                },
+            )?;
+            for id in &old.frames {
+                let path = out_dir.join(format!("{id}.txt"));
+                match std::fs::remove_file(&path) {
+                    Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                        return Err(out_err(
+                            &path,
+                            format!("cannot remove the earlier result: {e}"),
+                        ));
+                    }
+                    _ => {}
+                }
+            }
+        }
+        let manifest = ResultsManifest {
+            complete: false,
+            frames: ids.to_vec(),
+        };
+        write_manifest(out_dir, &manifest)?;
+        Ok(ResultWriter {
+            out_dir: out_dir.to_path_buf(),
+            manifest,
+        })
+    }
+
+    /// Writes frame `id`'s results.
+    pub fn write(&mut self, id: &str, objects: &[Object]) -> Result<()> {
+        write_objects(&self.out_dir.join(format!("{id}.txt")), objects)?;
+        Ok(())
+    }
+
+    /// Marks the directory complete.
+    pub fn finish(mut self) -> Result<()> {
+        self.manifest.complete = true;
+        write_manifest(&self.out_dir, &self.manifest)?;
+        Ok(())
+    }
+}
+
+/// Writes `OUT/<id>.txt` for every frame of `results` through a [`ResultWriter`].
 pub fn write_results(
     out_dir: &Path,
     results: &BTreeMap<String, Vec<Object>>,
     replace: bool,
 ) -> Result<()> {
-    check_result_dir(out_dir, replace)?;
-    std::fs::create_dir_all(out_dir)
-        .map_err(|e| out_err(out_dir, format!("cannot create the result directory: {e}")))?;
-    if let Some(old) = read_manifest(out_dir)? {
-        // Marked incomplete first: a kill while removing leaves a directory eval refuses.
-        write_manifest(
-            out_dir,
-            &ResultsManifest {
-                complete: false,
-                ..old.clone()
-            },
-        )?;
-        for id in &old.frames {
-            let path = out_dir.join(format!("{id}.txt"));
-            match std::fs::remove_file(&path) {
-                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                    return Err(out_err(
-                        &path,
-                        format!("cannot remove the earlier result: {e}"),
-                    ));
-                }
-                _ => {}
-            }
-        }
-    }
-    let mut manifest = ResultsManifest {
-        complete: false,
-        frames: results.keys().cloned().collect(),
-    };
-    write_manifest(out_dir, &manifest)?;
+    let ids: Vec<String> = results.keys().cloned().collect();
+    let mut writer = ResultWriter::begin(out_dir, &ids, replace)?;
     for (id, objects) in results {
-        write_objects(&out_dir.join(format!("{id}.txt")), objects)?;
+        writer.write(id, objects)?;
     }
-    manifest.complete = true;
-    write_manifest(out_dir, &manifest)?;
-    Ok(())
+    writer.finish()
 }

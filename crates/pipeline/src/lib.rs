@@ -22,8 +22,9 @@ pub use config::{
     RefineConfig, TrainConfig,
 };
 pub use detect::{
-    DetectOptions, DetectSummary, Detector, FrameResults, SplitInputs, StageTimes, detect,
-    inference_multiply_adds, trained_parameters, write_results,
+    DETECT_CHUNK_FRAMES, DetectOptions, DetectSummary, Detector, FrameResults, ResultWriter,
+    SplitInputs, SplitSide, StageTimes, detect, detect_in_chunks, inference_multiply_adds,
+    trained_parameters, write_results,
 };
 pub use device::ComputeDevice;
 pub use error::{PipelineError, Result};

@@ -4,7 +4,9 @@
 
 use fusiondet_geometry::iou_3d;
 use fusiondet_kitti::{ObjectClass, read_objects};
-use fusiondet_pipeline::{DetectOptions, ExperimentConfig, TrainOptions, detect, train};
+use fusiondet_pipeline::{
+    DetectOptions, ExperimentConfig, TrainOptions, detect, detect_in_chunks, train,
+};
 use std::path::Path;
 
 #[test]
@@ -41,18 +43,30 @@ fn the_tiny_configuration_overfits_four_frames() {
     .unwrap();
     assert_eq!(summary.frames, 4);
     let results = dir.path().join("results");
-    detect(&DetectOptions {
-        config,
+    let options = |out: &Path| DetectOptions {
+        config: config.clone(),
         checkpoint: run.join("model.bpk"),
         data_dir: data.clone(),
         split: "train".into(),
-        out_dir: results.clone(),
+        out_dir: out.to_path_buf(),
         detections: None,
         depth_dir: None,
         replace: false,
         device: Default::default(),
-    })
-    .unwrap();
+    };
+    detect(&options(&results)).unwrap();
+    // A frame's boxes do not depend on the frames detected beside it: one frame at a time
+    // writes the same files.
+    let one_by_one = dir.path().join("one-by-one");
+    detect_in_chunks(&options(&one_by_one), 1).unwrap();
+    for entry in std::fs::read_dir(&results).unwrap().flatten() {
+        let name = entry.file_name();
+        assert_eq!(
+            std::fs::read(entry.path()).unwrap(),
+            std::fs::read(one_by_one.join(&name)).unwrap(),
+            "{name:?}"
+        );
+    }
 
     let ids: Vec<String> = std::fs::read_to_string(data.join("ImageSets/train.txt"))
         .unwrap()
