@@ -462,8 +462,10 @@ fn refuse_input_dir(out_dir: &Path, data_dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// A result directory must be new, empty, or an earlier detect's (then only with
-/// `replace`): files another program or the user put there are never overwritten.
+/// A result directory must be new, empty, or an earlier detect's: one that finished only
+/// with `replace`, one that did not (killed, or stopped by an error; its results are
+/// unusable, and eval refuses them) always. Files another program or the user put there are
+/// never overwritten.
 pub fn check_result_dir(out_dir: &Path, replace: bool) -> Result<()> {
     let Ok(entries) = std::fs::read_dir(out_dir) else {
         return if out_dir.exists() {
@@ -480,7 +482,7 @@ pub fn check_result_dir(out_dir: &Path, replace: bool) -> Result<()> {
             out_dir,
             "holds files that `fusiondet detect` did not write; choose a new or empty --out",
         )),
-        Some(_) if !replace => Err(out_err(
+        Some(earlier) if earlier.complete && !replace => Err(out_err(
             out_dir,
             "holds the results of an earlier detect; pass --force to replace them, or choose \
              another --out",
