@@ -506,6 +506,7 @@ impl ResultWriter {
         check_result_dir(out_dir, replace)?;
         std::fs::create_dir_all(out_dir)
             .map_err(|e| out_err(out_dir, format!("cannot create the result directory: {e}")))?;
+        remove_stale_temp_files(out_dir);
         if let Some(old) = read_manifest(out_dir)? {
             // Marked incomplete first: a kill while removing leaves a directory eval refuses.
             write_manifest(
@@ -553,6 +554,34 @@ impl ResultWriter {
     }
 }
 
+/// Removes the temporary files that killed writes of detect's own files (a frame's result,
+/// the manifest) left in `out_dir`.
+fn remove_stale_temp_files(out_dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(out_dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(name) = name.to_str() else {
+            continue;
+        };
+        // `.<target>.<random>.tmp`, the target a frame's result or the manifest.
+        let target = name
+            .strip_prefix('.')
+            .and_then(|rest| rest.rsplitn(3, '.').nth(2));
+        let ours = target.is_some_and(|t| {
+            let frame_file = t
+                .strip_suffix(".txt")
+                .is_some_and(|id| id.len() == 6 && id.bytes().all(|b| b.is_ascii_digit()));
+            (frame_file || t == fusiondet_kitti::results::MANIFEST_FILE)
+                && fusiondet_kitti::atomic::is_temp_of(name, t)
+        });
+        if ours {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
+}
+
 /// Writes `OUT/<id>.txt` for every frame of `results` through a [`ResultWriter`].
 pub fn write_results(
     out_dir: &Path,
@@ -565,4 +594,44 @@ pub fn write_results(
         writer.write(id, objects)?;
     }
     writer.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ids(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn a_result_directory_is_replaced_only_where_it_is_detects_own() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("results");
+        let mut w = ResultWriter::begin(&out, &ids(&["000001", "000002"]), false).unwrap();
+        w.write("000001", &[]).unwrap();
+        // Killed here: the directory is unfinished, with a temporary file left behind.
+        drop(w);
+        let stale = out.join(".000002.txt.k3Jx9a.tmp");
+        std::fs::write(&stale, "partial").unwrap();
+        let users = out.join("notes.md");
+        std::fs::write(&users, "mine").unwrap();
+        // An unfinished detect's directory is replaced without being told.
+        let mut w = ResultWriter::begin(&out, &ids(&["000003"]), false).unwrap();
+        assert!(!stale.exists() && !out.join("000001.txt").exists());
+        assert!(users.is_file(), "only detect's own files are removed");
+        w.write("000003", &[]).unwrap();
+        w.finish().unwrap();
+        let manifest = read_manifest(&out).unwrap().unwrap();
+        assert!(manifest.complete);
+        assert_eq!(manifest.frames, ids(&["000003"]));
+        // A finished one only with `replace`.
+        let err = ResultWriter::begin(&out, &ids(&["000004"]), false)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("pass --force"), "{err}");
+        assert!(ResultWriter::begin(&out, &ids(&["000004"]), true).is_ok());
+        assert!(!out.join("000003.txt").exists());
+    }
 }
