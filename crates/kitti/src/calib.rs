@@ -184,13 +184,21 @@ pub fn read_calib(path: &Path) -> Result<Calib> {
     parse_calib(&read_text(path)?, path)
 }
 
-/// Formats a calibration the way KITTI writes it (12 significant digits, exponent form).
+/// Formats a calibration the way KITTI writes it (12 significant digits, exponent form),
+/// exactly: a value with more digits is written in full.
 pub fn format_calib(calib: &Calib) -> String {
     fn row(out: &mut String, key: &str, values: impl Iterator<Item = f64>) {
         out.push_str(key);
         out.push(':');
         for v in values {
-            let _ = write!(out, " {v:.12e}");
+            // KITTI's 12 significant digits, unless the value has more: then the shortest
+            // form that reads back exactly (found by fuzzing: -387.5744590000004).
+            let kitti = format!("{v:.12e}");
+            if kitti.parse::<f64>() == Ok(v) {
+                let _ = write!(out, " {kitti}");
+            } else {
+                let _ = write!(out, " {v:e}");
+            }
         }
         out.push('\n');
     }
@@ -240,6 +248,15 @@ Tr_imu_to_velo: 9.999976000000e-01 7.553071000000e-04 -2.035826000000e-03 -8.086
         let c = parse_calib(SAMPLE, p()).unwrap();
         let back = parse_calib(&format_calib(&c), p()).unwrap();
         assert_eq!(back, c);
+    }
+
+    #[test]
+    fn values_beyond_twelve_digits_round_trip_too() {
+        let mut c = parse_calib(SAMPLE, p()).unwrap();
+        c.p[1][0][3] = -387.5744590000004;
+        let back = parse_calib(&format_calib(&c), p()).unwrap();
+        assert_eq!(back, c);
+        assert!(format_calib(&c).starts_with("P0: 7.070493000000e2"), "KITTI's form kept");
     }
 
     #[test]
