@@ -15,6 +15,10 @@ fuzz_target!(|data: &[u8]| {
         let written = format_objects(&objects);
         let back = parse_objects(&written, path).expect("what we write, we read");
         assert_eq!(back.len(), objects.len());
-        assert_eq!(format_objects(&back), written, "formatting is a fixed point");
+        assert_eq!(
+            format_objects(&back),
+            written,
+            "formatting is a fixed point"
+        );
     }
 });
