@@ -185,71 +185,27 @@ fn train_and_detect_report_bad_input_clearly() {
     );
 
     let tiny = configs().join("tiny.toml");
-    let o = fusiondet(&[
-        "train",
-        "--config",
-        tiny.to_str().unwrap(),
-        "--data",
-        "/no/such/data",
-        "--out",
-        dir.path().join("run").to_str().unwrap(),
-    ]);
-    assert!(!o.status.success());
-    assert!(text(&o).contains("/no/such/data"), "{}", text(&o));
-
-    let o = fusiondet(&[
-        "detect",
-        "--checkpoint",
-        "/no/model.bpk",
-        "--data",
-        "x",
-        "--out",
-        "y",
-    ]);
-    assert!(!o.status.success());
-    assert!(
-        text(&o).contains("no configuration found for /no/model.bpk"),
-        "{}",
-        text(&o)
-    );
-}
-
-#[test]
-fn train_then_detect_from_the_command_line() {
-    let dir = tempfile::tempdir().unwrap();
-    let data = simulate_six_frames(dir.path(), &["--seed", "3"]);
-    let run = dir.path().join("run");
-    let tiny = configs().join("tiny.toml");
-    let o = fusiondet(&[
-        "train",
-        "--config",
-        tiny.to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--out",
-        run.to_str().unwrap(),
-        "--epochs",
-        "1",
-        "--max-frames",
-        "6",
-    ]);
+    let train_into = |out: &Path| {
+        fusiondet(&[
+            "train",
+            "--config",
+            tiny.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--epochs",
+            "1",
+            "--max-frames",
+            "6",
+        ])
+    };
+    let o = train_into(&run);
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("1 epoch(s) run"), "{}", text(&o));
     // The same seed writes the same checkpoint, byte for byte.
     let again = dir.path().join("run-again");
-    let o = fusiondet(&[
-        "train",
-        "--config",
-        tiny.to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--out",
-        again.to_str().unwrap(),
-        "--epochs",
-        "1",
-        "--max-frames",
-        "6",
-    ]);
+    let o = train_into(&again);
     assert!(o.status.success(), "{}", text(&o));
     assert!(
         std::fs::read(run.join("model.bpk")).unwrap()

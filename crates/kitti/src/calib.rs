@@ -256,7 +256,10 @@ Tr_imu_to_velo: 9.999976000000e-01 7.553071000000e-04 -2.035826000000e-03 -8.086
         c.p[1][0][3] = -387.5744590000004;
         let back = parse_calib(&format_calib(&c), p()).unwrap();
         assert_eq!(back, c);
-        assert!(format_calib(&c).starts_with("P0: 7.070493000000e2"), "KITTI's form kept");
+        assert!(
+            format_calib(&c).starts_with("P0: 7.070493000000e2"),
+            "KITTI's form kept"
+        );
     }
 
     #[test]

@@ -179,31 +179,24 @@ pub fn read_objects(path: &Path) -> Result<Vec<Object>> {
     parse_objects(&read_text(path)?, path)
 }
 
+/// The real-valued fields of `o` after `occluded`, in file order (alpha, the 2D box, the
+/// 3D box), with their names.
+fn box_fields(o: &Object) -> [(&'static str, f64); 12] {
+    let (b, d) = (&o.bbox, &o.box3d);
+    let values = [
+        o.alpha, b.x1, b.y1, b.x2, b.y2, d.h, d.w, d.l, d.x, d.y, d.z, d.ry,
+    ];
+    std::array::from_fn(|i| (FIELDS[3 + i], values[i]))
+}
+
 /// Formats objects as KITTI lines (2 decimals like the official files; score with 4).
 pub fn format_objects(objects: &[Object]) -> String {
     let mut out = String::new();
     for o in objects {
-        let b = &o.bbox;
-        let d = &o.box3d;
-        let _ = write!(
-            out,
-            "{} {:.2} {} {:.2} {:.2} {:.2} {:.2} {:.2} {:.2} {:.2} {:.2} {:.2} {:.2} {:.2} {:.2}",
-            o.class,
-            o.truncation,
-            o.occlusion,
-            o.alpha,
-            b.x1,
-            b.y1,
-            b.x2,
-            b.y2,
-            d.h,
-            d.w,
-            d.l,
-            d.x,
-            d.y,
-            d.z,
-            d.ry
-        );
+        let _ = write!(out, "{} {:.2} {}", o.class, o.truncation, o.occlusion);
+        for (_, v) in box_fields(o) {
+            let _ = write!(out, " {v:.2}");
+        }
         if let Some(score) = o.score {
             let _ = write!(out, " {score:.4}");
         }
@@ -231,30 +224,10 @@ pub fn write_objects(path: &Path, objects: &[Object]) -> Result<()> {
 
 /// The first numeric field of `o` (in file order) that is NaN or infinite.
 fn first_non_finite_field(o: &Object) -> Option<(&'static str, f64)> {
-    let (b, d) = (&o.bbox, &o.box3d);
-    let values = [
-        o.truncation,
-        o.alpha,
-        b.x1,
-        b.y1,
-        b.x2,
-        b.y2,
-        d.h,
-        d.w,
-        d.l,
-        d.x,
-        d.y,
-        d.z,
-        d.ry,
-        o.score.unwrap_or(0.0),
-    ];
-    // FIELDS without `type` and `occluded` (an integer), in the same order.
-    let names = FIELDS
-        .iter()
-        .enumerate()
-        .filter(|&(i, _)| i != 0 && i != 2)
-        .map(|(_, n)| *n);
-    names.zip(values).find(|(_, v)| !v.is_finite())
+    std::iter::once(("truncated", o.truncation))
+        .chain(box_fields(o))
+        .chain(o.score.map(|v| ("score", v)))
+        .find(|(_, v)| !v.is_finite())
 }
 
 #[cfg(test)]
