@@ -185,6 +185,41 @@ fn train_and_detect_report_bad_input_clearly() {
     );
 
     let tiny = configs().join("tiny.toml");
+    let o = fusiondet(&[
+        "train",
+        "--config",
+        tiny.to_str().unwrap(),
+        "--data",
+        "/no/such/data",
+        "--out",
+        dir.path().join("run").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("/no/such/data"), "{}", text(&o));
+
+    let o = fusiondet(&[
+        "detect",
+        "--checkpoint",
+        "/no/model.bpk",
+        "--data",
+        "x",
+        "--out",
+        "y",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("no configuration found for /no/model.bpk"),
+        "{}",
+        text(&o)
+    );
+}
+
+#[test]
+fn train_then_detect_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = simulate_six_frames(dir.path(), &["--seed", "3"]);
+    let run = dir.path().join("run");
+    let tiny = configs().join("tiny.toml");
     let train_into = |out: &Path| {
         fusiondet(&[
             "train",
