@@ -1,6 +1,6 @@
 //! The checkpoints shipped in `models/`: each fits the repository's size budget, has the
-//! configuration it was trained with beside it, and loads into a detector (both stages
-//! for the refinement model).
+//! configuration it was trained with beside it, and loads into a detector of its family
+//! (both stages for the refinement model).
 
 use burn::prelude::Device;
 use fusiondet_pipeline::{Detector, ExperimentConfig};
@@ -35,22 +35,21 @@ fn every_shipped_checkpoint_is_small_configured_and_loads() {
         assert_eq!(config.name, format!("{stem}-sim"), "{}", path.display());
         let detector = Detector::load(config, &path, &device)
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        let Detector::Frustum(detector) = detector else {
-            panic!(
-                "{}: the shipped models are frustum-family models",
-                path.display()
-            );
-        };
-        assert_eq!(
-            detector.first_stage.is_some(),
-            stem.contains("refine"),
-            "{stem}"
-        );
+        match detector {
+            Detector::Frustum(detector) => assert_eq!(
+                detector.first_stage.is_some(),
+                stem.contains("refine"),
+                "{stem}"
+            ),
+            Detector::VoxelRcnn(_) => assert!(stem.starts_with("voxel-rcnn"), "{stem}"),
+            Detector::Dasanet(_) => assert!(stem.starts_with("dasanet"), "{stem}"),
+        }
         stems.push(stem);
     }
     stems.sort();
-    // The baseline and the two seeds' variants (the refinement stage is optional).
-    for needed in ["fcam-car", "fconvnet-car", "saf-car"] {
+    // The frustum baseline and the seeds' variants (the refinement stage is optional), and
+    // the second family's baseline.
+    for needed in ["fcam-car", "fconvnet-car", "saf-car", "voxel-rcnn-car"] {
         assert!(
             stems.iter().any(|s| s == needed),
             "models/{needed}.bpk is missing"
