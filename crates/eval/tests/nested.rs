@@ -52,7 +52,10 @@ fn the_detection_is_a_true_positive_where_the_devkit_scores_a_false_one() {
         let ours = report.get(ObjectClass::Car, metric, 0).unwrap();
         // The exact answer: one true positive of one.
         for d in 0..3 {
-            assert!((ours.ap11[d] - 100.0 / 11.0).abs() < 1e-3, "{name} {ours:?}");
+            assert!(
+                (ours.ap11[d] - 100.0 / 11.0).abs() < 1e-3,
+                "{name} {ours:?}"
+            );
             assert_eq!(ours.ap40[d], 0.0, "{name}");
         }
         // The devkit's: a false positive.
