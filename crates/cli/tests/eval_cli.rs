@@ -98,6 +98,38 @@ fn mixed_case_through_the_binary_matches_the_devkit() {
 }
 
 #[test]
+fn true_positive_errors_in_the_table_and_the_json() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("e.json");
+    let m = mixed();
+    let out = run(&[
+        "--label-dir",
+        s(&m.join("gt")),
+        "--result-dir",
+        s(&m.join("det")),
+        "--split",
+        s(&m.join("ids.txt")),
+        "--errors",
+        "--json",
+        s(&json),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("True-positive errors"), "{stdout}");
+    assert!(stdout.contains("distance 40m+"), "{stdout}");
+    let got: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let rows = got["errors"].as_array().unwrap();
+    // Three classes × (3 levels + 3 distance + 3 occlusion bins).
+    assert_eq!(rows.len(), 27);
+    let car_easy = &rows[0];
+    assert_eq!(car_easy["class"], "Car");
+    assert_eq!(car_easy["group"], "easy");
+    assert!(car_easy["matched"].as_u64().unwrap() > 0);
+    assert!(car_easy["depth"]["median"].as_f64().unwrap() >= 0.0);
+}
+
+#[test]
 fn a_frame_listed_twice_in_the_split_is_refused() {
     let tmp = tempfile::tempdir().unwrap();
     let split = tmp.path().join("ids.txt");

@@ -41,6 +41,7 @@ pub mod breakdown;
 mod edge_cases;
 mod engine;
 pub mod error;
+pub mod errors;
 mod evaluate;
 pub mod frames;
 pub mod load;
@@ -59,6 +60,7 @@ pub use breakdown::{
     count_lidar_points, evaluate_breakdown,
 };
 pub use error::EvalError;
+pub use errors::{ErrorRow, errors_table, true_positive_errors};
 pub use evaluate::{EvalConfig, evaluate};
 pub use frames::{FrameDet, FrameGt};
 pub use load::{LoadedFrames, evaluate_dirs, frame_ids, load_dirs, read_result_file};
@@ -70,18 +72,31 @@ use serde::Serialize;
 use std::path::Path;
 
 #[derive(Serialize)]
-struct JsonDoc {
+struct JsonDoc<'a> {
     results: Vec<report::JsonRow>,
     #[serde(skip_serializing_if = "Option::is_none")]
     breakdown: Option<Vec<breakdown::JsonBreakdownRow>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    errors: Option<&'a [ErrorRow]>,
+}
+
+/// What the JSON document holds beside the AP rows.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct JsonExtras<'a> {
+    pub breakdown: Option<&'a [BreakdownRow]>,
+    /// True-positive errors ([`true_positive_errors`]).
+    pub errors: Option<&'a [ErrorRow]>,
 }
 
 /// The JSON document: `{"results": [{"class", "metric", "min_overlap", "ap11", "ap40"}, ...]}`
-/// with AP in percent, plus a `"breakdown"` array when one is given.
-pub fn to_json(report: &EvalReport, breakdown: Option<&[BreakdownRow]>) -> String {
+/// with AP in percent, plus a `"breakdown"` array and an `"errors"` array when given.
+pub fn to_json(report: &EvalReport, extras: JsonExtras<'_>) -> String {
     let doc = JsonDoc {
         results: report.results.iter().map(Into::into).collect(),
-        breakdown: breakdown.map(|rows| rows.iter().map(Into::into).collect()),
+        breakdown: extras
+            .breakdown
+            .map(|rows| rows.iter().map(Into::into).collect()),
+        errors: extras.errors,
     };
     let mut text = serde_json::to_string_pretty(&doc).expect("plain data serialises");
     text.push('\n');
@@ -92,9 +107,9 @@ pub fn to_json(report: &EvalReport, breakdown: Option<&[BreakdownRow]>) -> Strin
 pub fn write_json(
     path: &Path,
     report: &EvalReport,
-    breakdown: Option<&[BreakdownRow]>,
+    extras: JsonExtras<'_>,
 ) -> Result<(), EvalError> {
-    fusiondet_kitti::write_atomic(path, to_json(report, breakdown).as_bytes()).map_err(|e| {
+    fusiondet_kitti::write_atomic(path, to_json(report, extras).as_bytes()).map_err(|e| {
         EvalError::Dir {
             path: path.to_path_buf(),
             message: format!("cannot write the JSON output: {e}"),

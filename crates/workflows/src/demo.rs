@@ -156,7 +156,7 @@ fn detect_and_evaluate(
         &eval_config,
     )?;
     out!("{}", report.table());
-    fusiondet_eval::write_json(json, &report, None)?;
+    fusiondet_eval::write_json(json, &report, Default::default())?;
     Ok(())
 }
 

@@ -4,8 +4,8 @@
 
 use anyhow::bail;
 use fusiondet_eval::{
-    EvalConfig, breakdown_table, count_lidar_points, evaluate, evaluate_breakdown, frame_ids,
-    load_dirs, parse_classes, write_json,
+    EvalConfig, JsonExtras, breakdown_table, count_lidar_points, errors_table, evaluate,
+    evaluate_breakdown, frame_ids, load_dirs, parse_classes, true_positive_errors, write_json,
 };
 use fusiondet_workflows::out;
 use std::path::PathBuf;
@@ -63,6 +63,11 @@ pub struct EvalArgs {
     /// Also write the results as JSON to this file (atomically).
     #[arg(long, value_name = "OUT")]
     json: Option<PathBuf>,
+    /// Also report true-positive errors: for detections within 2 m of a ground-truth centre,
+    /// median and mean error along depth, laterally, in height, in size (1 - IoU aligned) and
+    /// heading, per difficulty and per distance and occlusion bin (also in the JSON).
+    #[arg(long)]
+    errors: bool,
     /// Also report AP_R40 by distance, occlusion and LiDAR point count (needs
     /// --velodyne-dir and --calib-dir; the rule is in --help).
     #[arg(long)]
@@ -137,8 +142,18 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
+    let errors = args
+        .errors
+        .then(|| true_positive_errors(&frames.gt, &frames.det, &cfg.classes));
+    if let Some(rows) = &errors {
+        out!("{}", errors_table(rows));
+    }
     if let Some(out) = &args.json {
-        write_json(out, &report, breakdown.as_deref())?;
+        let extras = JsonExtras {
+            breakdown: breakdown.as_deref(),
+            errors: errors.as_deref(),
+        };
+        write_json(out, &report, extras)?;
         eprintln!("wrote {}", out.display());
     }
     eprintln!(
