@@ -28,22 +28,32 @@ fn copy_mixed(dir: &Path) -> (PathBuf, PathBuf) {
     (gt, det)
 }
 
+/// The mixed case's ground truth, results and split, then `extra`.
+fn mixed_args<'a>(m: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec![
+        "--label-dir",
+        s_leak(m.join("gt")),
+        "--result-dir",
+        s_leak(m.join("det")),
+        "--split",
+        s_leak(m.join("ids.txt")),
+    ];
+    args.extend_from_slice(extra);
+    args
+}
+
+/// A path as a `&str` that lives for the test process (tests are short-lived).
+fn s_leak(p: PathBuf) -> &'static str {
+    p.to_str().unwrap().to_string().leak()
+}
+
 #[test]
 fn mixed_case_through_the_binary_matches_the_devkit() {
     let tmp = tempfile::tempdir().unwrap();
     let json = tmp.path().join("out/eval.json");
     std::fs::create_dir_all(json.parent().unwrap()).unwrap();
     let m = mixed();
-    let out = run(&[
-        "--label-dir",
-        s(&m.join("gt")),
-        "--result-dir",
-        s(&m.join("det")),
-        "--split",
-        s(&m.join("ids.txt")),
-        "--json",
-        s(&json),
-    ]);
+    let out = run(&mixed_args(&m, &["--json", s(&json)]));
     assert!(out.status.success(), "{}", text(&out.stderr));
     let stdout = text(&out.stdout);
     assert!(stdout.contains("Car AP_R40@0.70, 0.70, 0.70:"), "{stdout}");
@@ -102,17 +112,7 @@ fn true_positive_errors_in_the_table_and_the_json() {
     let tmp = tempfile::tempdir().unwrap();
     let json = tmp.path().join("e.json");
     let m = mixed();
-    let out = run(&[
-        "--label-dir",
-        s(&m.join("gt")),
-        "--result-dir",
-        s(&m.join("det")),
-        "--split",
-        s(&m.join("ids.txt")),
-        "--errors",
-        "--json",
-        s(&json),
-    ]);
+    let out = run(&mixed_args(&m, &["--errors", "--json", s(&json)]));
     assert!(out.status.success(), "{}", text(&out.stderr));
     let stdout = text(&out.stdout);
     assert!(stdout.contains("True-positive errors"), "{stdout}");
@@ -156,19 +156,7 @@ fn a_reader_that_left_does_not_stop_the_json_being_written() {
     let tmp = tempfile::tempdir().unwrap();
     let json = tmp.path().join("eval.json");
     let m = mixed();
-    let out = common::run_into_closed_pipe(
-        "eval",
-        &[
-            "--label-dir",
-            s(&m.join("gt")),
-            "--result-dir",
-            s(&m.join("det")),
-            "--split",
-            s(&m.join("ids.txt")),
-            "--json",
-            s(&json),
-        ],
-    );
+    let out = common::run_into_closed_pipe("eval", &mixed_args(&m, &["--json", s(&json)]));
     common::assert_quiet_on_closed_pipe(&out);
     let got: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
