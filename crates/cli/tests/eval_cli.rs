@@ -187,13 +187,23 @@ fn breakdown_on_the_bundled_kitti_frames() {
         s(&sample.join("velodyne")),
         "--calib-dir",
         s(&sample.join("calib")),
+        "--errors",
         "--json",
         s(&json),
     ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert!(text(&out.stdout).contains("lidar_points"));
+
     let got: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    // With the scans, the true-positive errors are also split by LiDAR points.
+    let errors = got["errors"].as_array().unwrap();
+    assert!(
+        errors
+            .iter()
+            .any(|r| r["class"] == "Car" && r["group"] == "lidar_points <100"),
+        "{errors:?}"
+    );
     assert_eq!(got["results"].as_array().unwrap().len(), 24);
     let rows = got["breakdown"].as_array().unwrap();
     // 3 classes × 2 settings × (bev, 3d) × 9 bins.

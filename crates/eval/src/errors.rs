@@ -5,17 +5,24 @@
 //! (a training problem).
 //!
 //! Per class, per difficulty (the ground truth of that level: KITTI's height, occlusion and
-//! truncation limits) and per distance and occlusion bin of the hard level.
+//! truncation limits) and per distance, occlusion and (given the scans) LiDAR-points bin of the
+//! hard level.
 
-use crate::breakdown::{box_centre_range, distance_bin};
+use crate::breakdown::{FramePoints, box_centre_range, distance_bin, points_bin};
 use crate::frames::{FrameDet, FrameGt};
 use crate::protocol::Difficulty;
 use fusiondet_kitti::{Box3d, Object, ObjectClass};
 use serde::Serialize;
+use std::collections::HashMap;
 use std::fmt::Write as _;
 
-/// A breakdown axis of the hard level: its name, a ground-truth box's bin, the bin labels.
-type BinAxis = (&'static str, fn(&Object) -> usize, [&'static str; 3]);
+/// A breakdown axis of the hard level: its name, a ground-truth box's bin (`None`: not
+/// counted), the bin labels.
+type BinAxis<'a> = (
+    &'static str,
+    Box<dyn Fn(&Object) -> Option<usize> + 'a>,
+    [&'static str; 3],
+);
 
 /// Bird's-eye centre distance below which a detection matches a ground-truth box (metres).
 pub const MATCH_DISTANCE: f64 = 2.0;
@@ -119,16 +126,48 @@ fn match_frame<'a>(gts: &[&'a Object], dets: &[&'a Object]) -> Vec<(&'a Object, 
 }
 
 /// The error rows of `classes`: per difficulty, then per distance and occlusion bin of the
-/// hard level.
+/// hard level, and per LiDAR-points bin when `points` (from
+/// [`crate::breakdown::count_lidar_points`], frame by frame) is given.
 pub fn true_positive_errors(
     gt: &[FrameGt],
     det: &[FrameDet],
     classes: &[ObjectClass],
+    points: Option<&[FramePoints]>,
 ) -> Vec<ErrorRow> {
+    // The LiDAR points of each ground-truth box, by the box's address: the pairs below hold
+    // references into `gt`, which stays borrowed, unmoved, for the whole call.
+    let points_of: HashMap<*const Object, usize> = points
+        .map(|frames| {
+            gt.iter()
+                .zip(frames)
+                .flat_map(|(g, p)| g.objects.iter().zip(&p.gt))
+                .map(|(o, &n)| (o as *const Object, n))
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut axes: Vec<BinAxis> = vec![
+        (
+            "distance",
+            Box::new(|o: &Object| Some(distance_bin(box_centre_range(&o.box3d)))),
+            ["0-20m", "20-40m", "40m+"],
+        ),
+        (
+            "occlusion",
+            Box::new(|o: &Object| Some(o.occlusion.clamp(0, 2) as usize)),
+            ["0", "1", "2"],
+        ),
+    ];
+    if points.is_some() {
+        axes.push((
+            "lidar_points",
+            Box::new(|o: &Object| points_of.get(&(o as *const Object)).map(|&n| points_bin(n))),
+            ["<100", "100-200", ">200"],
+        ));
+    }
     let mut rows = Vec::new();
     for &class in classes {
-        // Per level: (ground truth counted, pairs) over all frames.
-        let mut levels: Vec<(usize, Vec<(&Object, &Object)>)> = Vec::new();
+        // Per level: the pairs over all frames.
+        let mut hard_pairs = Vec::new();
         for d in Difficulty::ALL {
             let mut counted = 0;
             let mut pairs = Vec::new();
@@ -143,32 +182,19 @@ pub fn true_positive_errors(
                 pairs.extend(match_frame(&gts, &dets));
             }
             rows.push(row(class, d.as_str().to_string(), counted, &pairs));
-            levels.push((counted, pairs));
+            hard_pairs = pairs;
         }
         let hard_gt: Vec<&Object> = gt
             .iter()
             .flat_map(|g| &g.objects)
             .filter(|o| o.class == class && at_level(o, Difficulty::Hard))
             .collect();
-        let hard_pairs = &levels[Difficulty::Hard.index()].1;
-        let bins: [BinAxis; 2] = [
-            (
-                "distance",
-                |o| distance_bin(box_centre_range(&o.box3d)),
-                ["0-20m", "20-40m", "40m+"],
-            ),
-            (
-                "occlusion",
-                |o| o.occlusion.clamp(0, 2) as usize,
-                ["0", "1", "2"],
-            ),
-        ];
-        for (axis, bin_of, labels) in bins {
+        for (axis, bin_of, labels) in &axes {
             for (b, label) in labels.iter().enumerate() {
-                let counted = hard_gt.iter().filter(|o| bin_of(o) == b).count();
+                let counted = hard_gt.iter().filter(|o| bin_of(o) == Some(b)).count();
                 let pairs: Vec<(&Object, &Object)> = hard_pairs
                     .iter()
-                    .filter(|(_, g)| bin_of(g) == b)
+                    .filter(|(_, g)| bin_of(g) == Some(b))
                     .copied()
                     .collect();
                 rows.push(row(class, format!("{axis} {label}"), counted, &pairs));
@@ -286,7 +312,7 @@ mod tests {
             "0",
             vec![car(off, Some(0.9), 0), car(at(-3.0, 10.0), Some(0.95), 0)],
         )];
-        let rows = true_positive_errors(&gt, &det, &[ObjectClass::Car]);
+        let rows = true_positive_errors(&gt, &det, &[ObjectClass::Car], None);
         let easy = &rows[0];
         assert_eq!(
             (easy.group.as_str(), easy.ground_truth, easy.matched),
@@ -305,6 +331,23 @@ mod tests {
         assert!(occluded.depth.median.is_nan());
         let far = rows.iter().find(|r| r.group == "distance 20-40m").unwrap();
         assert_eq!(far.ground_truth, 1);
+        assert!(!rows.iter().any(|r| r.group.starts_with("lidar_points")));
+        // With point counts: the matched car has 150 points, the missed one 40.
+        let points = [FramePoints {
+            gt: vec![150, 40],
+            det: vec![0, 0],
+        }];
+        let rows = true_positive_errors(&gt, &det, &[ObjectClass::Car], Some(&points));
+        let mid = rows
+            .iter()
+            .find(|r| r.group == "lidar_points 100-200")
+            .unwrap();
+        assert_eq!((mid.ground_truth, mid.matched), (1, 1));
+        let few = rows
+            .iter()
+            .find(|r| r.group == "lidar_points <100")
+            .unwrap();
+        assert_eq!((few.ground_truth, few.matched), (1, 0));
     }
 
     #[test]
@@ -318,7 +361,7 @@ mod tests {
             "0",
             vec![car(flipped, Some(0.8), 0), car(turned, Some(0.3), 0)],
         )];
-        let rows = true_positive_errors(&gt, &det, &[ObjectClass::Car]);
+        let rows = true_positive_errors(&gt, &det, &[ObjectClass::Car], None);
         // The 0.8 detection matches although the 0.3 one is nearer.
         assert!((rows[0].lateral.median - 0.5).abs() < 1e-12);
         assert!((rows[0].heading.median - (180.0 - 0.1f64.to_degrees())).abs() < 1e-9);

@@ -65,7 +65,8 @@ pub struct EvalArgs {
     json: Option<PathBuf>,
     /// Also report true-positive errors: for detections within 2 m of a ground-truth centre,
     /// median and mean error along depth, laterally, in height, in size (1 - IoU aligned) and
-    /// heading, per difficulty and per distance and occlusion bin (also in the JSON).
+    /// heading, per difficulty and per distance and occlusion bin, and LiDAR-points bin with
+    /// --breakdown (also in the JSON).
     #[arg(long)]
     errors: bool,
     /// Also report AP_R40 by distance, occlusion and LiDAR point count (needs
@@ -133,10 +134,18 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let report = evaluate(&frames.gt, &frames.det, &cfg)?;
     out!("{}", report.table());
 
-    let breakdown = match lidar {
-        Some((velodyne_dir, calib_dir)) => {
-            let points = count_lidar_points(&frames.gt, &frames.det, &velodyne_dir, &calib_dir)?;
-            let rows = evaluate_breakdown(&frames.gt, &frames.det, &cfg, Some(&points))?;
+    let points = match &lidar {
+        Some((velodyne_dir, calib_dir)) => Some(count_lidar_points(
+            &frames.gt,
+            &frames.det,
+            velodyne_dir,
+            calib_dir,
+        )?),
+        None => None,
+    };
+    let breakdown = match &points {
+        Some(points) => {
+            let rows = evaluate_breakdown(&frames.gt, &frames.det, &cfg, Some(points))?;
             out!("{}", breakdown_table(&rows));
             Some(rows)
         }
@@ -144,7 +153,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     };
     let errors = args
         .errors
-        .then(|| true_positive_errors(&frames.gt, &frames.det, &cfg.classes));
+        .then(|| true_positive_errors(&frames.gt, &frames.det, &cfg.classes, points.as_deref()));
     if let Some(rows) = &errors {
         out!("{}", errors_table(rows));
     }
