@@ -248,39 +248,6 @@ fn train_then_detect_from_the_command_line() {
         "two runs with one seed wrote different checkpoints"
     );
     let results = dir.path().join("results");
-    let o = fusiondet(&[
-        "detect",
-        "--checkpoint",
-        run.join("model.bpk").to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--split",
-        "val",
-        "--out",
-        results.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", text(&o));
-    let ids = std::fs::read_to_string(data.join("ImageSets/val.txt")).unwrap();
-    for id in ids.lines() {
-        assert!(
-            results.join(format!("{id}.txt")).is_file(),
-            "no result for {id}"
-        );
-    }
-    let o = fusiondet(&[
-        "eval",
-        "--label-dir",
-        data.join("training/label_2").to_str().unwrap(),
-        "--result-dir",
-        results.to_str().unwrap(),
-        "--split",
-        data.join("ImageSets/val.txt").to_str().unwrap(),
-        "--classes",
-        "Car",
-    ]);
-    assert!(o.status.success(), "{}", text(&o));
-
-    // What detect writes is its own; nothing else is overwritten.
     let detect_into = |out: &Path, force: bool| {
         let mut args = vec![
             "detect",
@@ -299,6 +266,32 @@ fn train_then_detect_from_the_command_line() {
         fusiondet(&args)
     };
     let labels = data.join("training/label_2");
+    let eval_results = || {
+        fusiondet(&[
+            "eval",
+            "--label-dir",
+            labels.to_str().unwrap(),
+            "--result-dir",
+            results.to_str().unwrap(),
+            "--split",
+            data.join("ImageSets/val.txt").to_str().unwrap(),
+            "--classes",
+            "Car",
+        ])
+    };
+    let o = detect_into(&results, false);
+    assert!(o.status.success(), "{}", text(&o));
+    let ids = std::fs::read_to_string(data.join("ImageSets/val.txt")).unwrap();
+    for id in ids.lines() {
+        assert!(
+            results.join(format!("{id}.txt")).is_file(),
+            "no result for {id}"
+        );
+    }
+    let o = eval_results();
+    assert!(o.status.success(), "{}", text(&o));
+
+    // What detect writes is its own; nothing else is overwritten.
     let before = std::fs::read(labels.join(format!("{}.txt", ids.lines().next().unwrap())));
     let o = detect_into(&labels, true);
     assert!(!o.status.success());
@@ -322,17 +315,6 @@ fn train_then_detect_from_the_command_line() {
     assert!(o.status.success(), "{}", text(&o));
 
     // An interrupted detect, or a result it lists gone missing, is not scored.
-    let eval_results = || {
-        fusiondet(&[
-            "eval",
-            "--label-dir",
-            labels.to_str().unwrap(),
-            "--result-dir",
-            results.to_str().unwrap(),
-            "--split",
-            data.join("ImageSets/val.txt").to_str().unwrap(),
-        ])
-    };
     let manifest = results.join(".fusiondet-results");
     let complete = std::fs::read_to_string(&manifest).unwrap();
     std::fs::write(&manifest, complete.replace("complete: yes", "complete: no")).unwrap();
