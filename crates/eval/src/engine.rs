@@ -131,7 +131,9 @@ fn detection_height_px(o: &Object) -> i32 {
     (o.bbox.y1 - o.bbox.y2).abs() as i32
 }
 
-fn gt_ignored(o: &Object, d: Difficulty) -> bool {
+/// Whether a ground-truth object falls outside level `d` (KITTI's height, occlusion and
+/// truncation limits).
+pub(crate) fn gt_ignored(o: &Object, d: Difficulty) -> bool {
     let height = o.bbox.y2 - o.bbox.y1;
     o.occlusion > d.max_occlusion() || o.truncation > d.max_truncation() || height <= d.min_height()
 }

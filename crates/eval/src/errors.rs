@@ -9,6 +9,7 @@
 //! hard level.
 
 use crate::breakdown::{FramePoints, box_centre_range, distance_bin, points_bin};
+use crate::engine::gt_ignored;
 use crate::frames::{FrameDet, FrameGt};
 use crate::protocol::Difficulty;
 use fusiondet_kitti::{Box3d, Object, ObjectClass};
@@ -95,13 +96,6 @@ fn pair_errors(det: &Box3d, gt: &Box3d) -> [f64; 5] {
     ]
 }
 
-/// Whether a ground-truth object counts at level `d` (KITTI's limits).
-fn at_level(o: &Object, d: Difficulty) -> bool {
-    o.occlusion <= d.max_occlusion()
-        && o.truncation <= d.max_truncation()
-        && o.bbox.y2 - o.bbox.y1 > d.min_height()
-}
-
 /// The pairs of one frame: detections of `class` by descending score, each matched to the
 /// nearest unmatched ground truth in `gts` within [`MATCH_DISTANCE`].
 fn match_frame<'a>(gts: &[&'a Object], dets: &[&'a Object]) -> Vec<(&'a Object, &'a Object)> {
@@ -175,7 +169,7 @@ pub fn true_positive_errors(
                 let gts: Vec<&Object> = g
                     .objects
                     .iter()
-                    .filter(|o| o.class == class && at_level(o, d))
+                    .filter(|o| o.class == class && !gt_ignored(o, d))
                     .collect();
                 let dets: Vec<&Object> = p.objects.iter().filter(|o| o.class == class).collect();
                 counted += gts.len();
@@ -187,7 +181,7 @@ pub fn true_positive_errors(
         let hard_gt: Vec<&Object> = gt
             .iter()
             .flat_map(|g| &g.objects)
-            .filter(|o| o.class == class && at_level(o, Difficulty::Hard))
+            .filter(|o| o.class == class && !gt_ignored(o, Difficulty::Hard))
             .collect();
         for (axis, bin_of, labels) in &axes {
             for (b, label) in labels.iter().enumerate() {
