@@ -48,14 +48,9 @@ pub(crate) fn write_tagged<M: ModuleSnapshot>(
     // `valid()` first folds the batch-norm running statistics that training threads hold
     // apart (burn keeps them per thread until synchronised) into the stored values.
     let model = model.valid();
-    let mut store = BurnpackStore::from_file(path)
-        .auto_extension(false)
-        .overwrite(true)
-        .metadata(KIND_KEY, kind.checkpoint_tag())
-        .metadata(CONFIG_KEY, config_json)
-        .metadata(CHECKSUM_KEY, format!("{:08x}", tensor_checksum(&model)))
-        .with_to_adapter(NameIds);
-    if let Some(name) = first_non_finite_parameter(&model) {
+    // One read of every tensor gives both the checksum and the NaN check.
+    let scan = scan_tensors(&model);
+    if let Some(name) = scan.non_finite {
         return Err(ckpt_err(
             path,
             format!(
@@ -64,25 +59,67 @@ pub(crate) fn write_tagged<M: ModuleSnapshot>(
             ),
         ));
     }
+    let mut store = BurnpackStore::from_file(path)
+        .auto_extension(false)
+        .overwrite(true)
+        .metadata(KIND_KEY, kind.checkpoint_tag())
+        .metadata(CONFIG_KEY, config_json)
+        .metadata(CHECKSUM_KEY, format!("{:08x}", scan.crc32))
+        .with_to_adapter(NameIds);
     model
         .save_into(&mut store)
         .map_err(|e| ckpt_err(path, format!("cannot write: {e}")))
 }
 
-/// CRC-32 of the values of every float parameter and batch-norm statistic of `module`, in
-/// the module's own order (little-endian f32).
-pub fn tensor_checksum<M: Module>(module: &M) -> u32 {
-    struct Hasher(crc32fast::Hasher);
-    impl ModuleVisitor for Hasher {
+/// What one pass over a module's float tensors (parameters and batch-norm statistics, in the
+/// module's own order) finds.
+struct TensorScan {
+    /// CRC-32 of all values (little-endian f32).
+    crc32: u32,
+    /// The path of the first tensor holding a NaN or an infinity.
+    non_finite: Option<String>,
+}
+
+fn scan_tensors<M: Module>(module: &M) -> TensorScan {
+    struct Scanner {
+        path: Vec<String>,
+        hasher: crc32fast::Hasher,
+        non_finite: Option<String>,
+    }
+    impl ModuleVisitor for Scanner {
+        fn enter_module(&mut self, name: &str, _container_type: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _name: &str, _container_type: &str) {
+            self.path.pop();
+        }
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let mut finite = true;
             for v in param.val().into_data().iter::<f32>() {
-                self.0.update(&v.to_le_bytes());
+                finite &= v.is_finite();
+                self.hasher.update(&v.to_le_bytes());
+            }
+            if !finite && self.non_finite.is_none() {
+                self.non_finite = Some(self.path.join("."));
             }
         }
     }
-    let mut hasher = Hasher(crc32fast::Hasher::new());
-    module.visit(&mut hasher);
-    hasher.0.finalize()
+    let mut scanner = Scanner {
+        path: Vec::new(),
+        hasher: crc32fast::Hasher::new(),
+        non_finite: None,
+    };
+    module.visit(&mut scanner);
+    TensorScan {
+        crc32: scanner.hasher.finalize(),
+        non_finite: scanner.non_finite,
+    }
+}
+
+/// CRC-32 of the values of every float parameter and batch-norm statistic of `module`, in
+/// the module's own order (little-endian f32).
+pub fn tensor_checksum<M: Module>(module: &M) -> u32 {
+    scan_tensors(module).crc32
 }
 
 /// Gives every tensor the id of its name: 64-bit FNV-1a, a fixed, documented hash (std's
@@ -133,29 +170,7 @@ pub fn deterministic_param_ids<M: Module>(mut module: M) -> M {
 /// The path of the first float parameter (or batch-norm statistic) of `module` that holds
 /// a NaN or an infinity: such weights detect nothing and must never reach a checkpoint.
 pub fn first_non_finite_parameter<M: Module>(module: &M) -> Option<String> {
-    struct Finder {
-        path: Vec<String>,
-        found: Option<String>,
-    }
-    impl ModuleVisitor for Finder {
-        fn enter_module(&mut self, name: &str, _container_type: &str) {
-            self.path.push(name.to_string());
-        }
-        fn exit_module(&mut self, _name: &str, _container_type: &str) {
-            self.path.pop();
-        }
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            if self.found.is_none() && !param.val().into_data().iter::<f32>().all(f32::is_finite) {
-                self.found = Some(self.path.join("."));
-            }
-        }
-    }
-    let mut finder = Finder {
-        path: Vec::new(),
-        found: None,
-    };
-    module.visit(&mut finder);
-    finder.found
+    scan_tensors(module).non_finite
 }
 
 /// The configuration (JSON) stored in a checkpoint of family `kind`; refuses other families.
