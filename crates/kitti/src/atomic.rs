@@ -5,7 +5,8 @@
 //! The temporary file is created exclusively under an unpredictable name (tempfile's
 //! `O_EXCL` creation), so a link planted at a guessable name cannot redirect the write
 //! outside the target directory. One left by a killed process is named
-//! `.<file name>.<random>.tmp`; [`is_temp_of`] recognises it for cleanup.
+//! `.<file name>.<random>.tmp`; [`temp_target`] recognises it (and burn-pack's scratch
+//! files) for [`remove_temp_files`].
 
 use crate::error::{FormatError, Result};
 use std::io::Write;
@@ -34,28 +35,41 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     result.map_err(|e| FormatError::io(path, e))
 }
 
-/// Whether `name` is a temporary file that a write of `target` (a file name) left behind:
-/// ours (`.<target>.<random>.tmp`) or burn-pack's checkpoint scratch file
-/// (`<target>.<pid>-<n>.tmp`).
+/// The file (name) whose write left the temporary file `name`: ours
+/// (`.<target>.<random>.tmp`) or burn-pack's checkpoint scratch file
+/// (`<target>.<pid>-<n>.tmp`); `None` for any other name.
+pub fn temp_target(name: &str) -> Option<&str> {
+    let (head, tail) = name.strip_suffix(".tmp")?.rsplit_once('.')?;
+    if tail.is_empty() {
+        return None;
+    }
+    if let Some(target) = head.strip_prefix('.') {
+        return (!target.is_empty()).then_some(target);
+    }
+    let digits = |p: &str| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit());
+    let burn_pack = tail
+        .split_once('-')
+        .is_some_and(|(pid, n)| digits(pid) && digits(n));
+    (burn_pack && !head.is_empty()).then_some(head)
+}
+
+/// Whether `name` is a temporary file that a write of `target` (a file name) left behind.
 pub fn is_temp_of(name: &str, target: &str) -> bool {
-    let Some(stem) = name.strip_suffix(".tmp") else {
-        return false;
+    temp_target(name) == Some(target)
+}
+
+/// Removes the temporary files in `dir` that killed writes of the files `ours` accepts (by
+/// name) left behind; nothing else. Only for a directory no writer of those files is using.
+pub fn remove_temp_files(dir: &Path, ours: impl Fn(&str) -> bool) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
     };
-    let ours = stem
-        .strip_prefix('.')
-        .and_then(|s| s.strip_prefix(target))
-        .and_then(|s| s.strip_prefix('.'))
-        .is_some_and(|random| !random.is_empty());
-    let burn_pack = stem
-        .strip_prefix(target)
-        .and_then(|s| s.strip_prefix('.'))
-        .and_then(|s| s.split_once('-'))
-        .is_some_and(|(pid, n)| {
-            [pid, n]
-                .iter()
-                .all(|p| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()))
-        });
-    ours || burn_pack
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        if name.to_str().and_then(temp_target).is_some_and(&ours) {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
 }
 
 #[cfg(test)]
@@ -103,5 +117,26 @@ mod tests {
         assert!(!is_temp_of("model.bpk.x-2.tmp", "model.bpk"));
         assert!(!is_temp_of("notes.txt.tmp", "model.bpk"));
         assert!(!is_temp_of(".other.json.Ab3.tmp", "state.json"));
+        assert_eq!(temp_target(".000001.txt.k3Jx9a.tmp"), Some("000001.txt"));
+        assert_eq!(
+            temp_target("epoch-0003.optim.bpk.4242-1.tmp"),
+            Some("epoch-0003.optim.bpk")
+        );
+        assert_eq!(temp_target("notes.tmp"), None);
+    }
+
+    #[test]
+    fn only_temporary_files_of_accepted_targets_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in [".a.txt.Xk3.tmp", ".b.txt.Xk3.tmp", "a.txt", "c.tmp"] {
+            std::fs::write(dir.path().join(name), b"x").unwrap();
+        }
+        remove_temp_files(dir.path(), |t| t == "a.txt");
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        left.sort();
+        assert_eq!(left, [".b.txt.Xk3.tmp", "a.txt", "c.tmp"]);
     }
 }

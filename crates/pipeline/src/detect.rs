@@ -506,7 +506,8 @@ impl ResultWriter {
         check_result_dir(out_dir, replace)?;
         std::fs::create_dir_all(out_dir)
             .map_err(|e| out_err(out_dir, format!("cannot create the result directory: {e}")))?;
-        remove_stale_temp_files(out_dir);
+        // Temporary files that killed writes of detect's own files left behind.
+        fusiondet_kitti::atomic::remove_temp_files(out_dir, is_result_file);
         if let Some(old) = read_manifest(out_dir)? {
             // Marked incomplete first: a kill while removing leaves a directory eval refuses.
             write_manifest(
@@ -554,32 +555,13 @@ impl ResultWriter {
     }
 }
 
-/// Removes the temporary files that killed writes of detect's own files (a frame's result,
-/// the manifest) left in `out_dir`.
-fn remove_stale_temp_files(out_dir: &Path) {
-    let Ok(entries) = std::fs::read_dir(out_dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let name = entry.file_name();
-        let Some(name) = name.to_str() else {
-            continue;
-        };
-        // `.<target>.<random>.tmp`, the target a frame's result or the manifest.
-        let target = name
-            .strip_prefix('.')
-            .and_then(|rest| rest.rsplitn(3, '.').nth(2));
-        let ours = target.is_some_and(|t| {
-            let frame_file = t
-                .strip_suffix(".txt")
-                .is_some_and(|id| id.len() == 6 && id.bytes().all(|b| b.is_ascii_digit()));
-            (frame_file || t == fusiondet_kitti::results::MANIFEST_FILE)
-                && fusiondet_kitti::atomic::is_temp_of(name, t)
-        });
-        if ours {
-            let _ = std::fs::remove_file(entry.path());
-        }
-    }
+/// Whether `name` is one of detect's own files in a result directory: a frame's result
+/// (`NNNNNN.txt`) or the manifest.
+fn is_result_file(name: &str) -> bool {
+    let frame = name
+        .strip_suffix(".txt")
+        .is_some_and(|id| id.len() == 6 && id.bytes().all(|b| b.is_ascii_digit()));
+    frame || name == fusiondet_kitti::results::MANIFEST_FILE
 }
 
 /// Writes `OUT/<id>.txt` for every frame of `results` through a [`ResultWriter`].

@@ -17,7 +17,7 @@
 //! older epochs' checkpoints, and temporary files a killed write left behind.
 
 use crate::error::{PipelineError, Result};
-use fusiondet_kitti::atomic::is_temp_of;
+use fusiondet_kitti::atomic::remove_temp_files;
 use fusiondet_kitti::write_atomic;
 use serde::{Deserialize, Serialize};
 use std::fs::{File, TryLockError};
@@ -57,16 +57,11 @@ fn is_epoch_checkpoint(name: &str) -> bool {
     digits.is_some_and(|d| d.len() >= 4 && d.bytes().all(|b| b.is_ascii_digit()))
 }
 
-/// Whether `name` is a temporary file left by a write of one of the run's own files.
-fn is_run_temp(name: &str) -> bool {
-    ["config.toml", "state.json", "metrics.jsonl", "model.bpk"]
-        .iter()
-        .any(|target| is_temp_of(name, target))
-        || name
-            .strip_suffix(".tmp")
-            .and_then(|stem| stem.strip_prefix('.').or(Some(stem)))
-            .and_then(|stem| stem.find(".bpk.").map(|i| &stem[..i + 4]))
-            .is_some_and(|target| is_epoch_checkpoint(target) && is_temp_of(name, target))
+/// Whether `name` is one of the run's own files (those a killed write may leave a
+/// temporary file of).
+fn is_run_file(name: &str) -> bool {
+    ["config.toml", "state.json", "metrics.jsonl", "model.bpk"].contains(&name)
+        || is_epoch_checkpoint(name)
 }
 
 impl RunDir {
@@ -200,14 +195,7 @@ impl RunDir {
     /// under the lock: no writer of this run is running).
     fn remove_stale_temp_files(&self) {
         for dir in [self.root.clone(), self.checkpoints()] {
-            let Ok(entries) = std::fs::read_dir(&dir) else {
-                continue;
-            };
-            for entry in entries.flatten() {
-                if entry.file_name().to_str().is_some_and(is_run_temp) {
-                    let _ = std::fs::remove_file(entry.path());
-                }
-            }
+            remove_temp_files(&dir, is_run_file);
         }
     }
 

@@ -95,20 +95,23 @@ const LOCK_FILE: &str = ".fusiondet-sim.lock";
 /// Is `name` one of the files this simulator writes into `dir` (a subfolder name), for a
 /// run of `frames` frames?
 fn is_ours(dir: &str, name: &str, frames: usize) -> bool {
+    // A temporary file of one of ours (a killed write's) is ours too.
+    if let Some(target) = fusiondet_kitti::atomic::temp_target(name) {
+        return is_ours(dir, target, frames);
+    }
     let (stem, ext) = name.rsplit_once('.').unwrap_or((name, ""));
     let frame = stem.len() == 6
         && stem.bytes().all(|b| b.is_ascii_digit())
         && stem.parse::<usize>().is_ok_and(|i| i < frames);
-    let temp = name.starts_with('.') && name.ends_with(".tmp");
     match dir {
-        "velodyne" => temp || (frame && ext == "bin"),
-        "calib" | "label_2" => temp || (frame && ext == "txt"),
-        "image_2" | "depth_2" => temp || (frame && ext == "png"),
-        "ImageSets" => temp || matches!(name, "train.txt" | "val.txt" | "trainval.txt"),
+        "velodyne" => frame && ext == "bin",
+        "calib" | "label_2" => frame && ext == "txt",
+        "image_2" | "depth_2" => frame && ext == "png",
+        "ImageSets" => matches!(name, "train.txt" | "val.txt" | "trainval.txt"),
         "rgb_detections" => {
-            temp || matches!(name, "rgb_detection_train.txt" | "rgb_detection_val.txt")
+            matches!(name, "rgb_detection_train.txt" | "rgb_detection_val.txt")
         }
-        _ => temp || name == STATS_FILE,
+        _ => name == STATS_FILE,
     }
 }
 
