@@ -213,9 +213,12 @@ impl Detector {
         max_frames: usize,
         side: SideInputs,
     ) -> Result<SplitInputs> {
-        let side = self.read_side(data_dir, split, side)?;
+        let SplitSide {
+            detections,
+            depth_dir,
+        } = self.read_side(data_dir, split, side)?;
         let ids = fusiondet_dataset::split_ids(data_dir, split, max_frames)?;
-        self.load_frames(data_dir, &ids, &side, side.detections.clone())
+        self.load_frames(data_dir, &ids, detections, depth_dir.as_deref())
     }
 
     /// What this family reads beside the frames, read once for a split; refuses what the
@@ -249,13 +252,14 @@ impl Detector {
     }
 
     /// The frames `ids` in this family's form, with `detections` (the frustum family's 2D
-    /// boxes for these frames) and the rest of `side`.
+    /// boxes for these frames) and `depth_dir` (DASANet's completed maps), as
+    /// [`Detector::read_side`] read them.
     pub fn load_frames(
         &self,
         data_dir: &Path,
         ids: &[String],
-        side: &SplitSide,
         detections: Vec<Detection2d>,
+        depth_dir: Option<&Path>,
     ) -> Result<SplitInputs> {
         let training = DatasetDir::new(data_dir).training();
         Ok(match self {
@@ -268,7 +272,7 @@ impl Detector {
             },
             Detector::Dasanet(_) => SplitInputs::Camera {
                 frames: fusiondet_dataset::InMemoryFrames::load(&training, ids, false)?,
-                depth_dir: side.depth_dir.clone(),
+                depth_dir: depth_dir.map(Path::to_path_buf),
             },
         })
     }
@@ -383,7 +387,10 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
     let t = Instant::now();
     let device = options.device.device();
     let detector = Detector::load(options.config.clone(), &options.checkpoint, &device)?;
-    let side = detector.read_side(
+    let SplitSide {
+        detections,
+        depth_dir,
+    } = detector.read_side(
         &options.data_dir,
         &options.split,
         SideInputs {
@@ -394,10 +401,8 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
     let ids = fusiondet_dataset::split_ids(&options.data_dir, &options.split, 0)?;
     // 2D detections of frames outside the split are counted as such once, not per chunk.
     let in_split: std::collections::HashSet<&str> = ids.iter().map(String::as_str).collect();
-    let (mut detections, outside): (Vec<Detection2d>, Vec<Detection2d>) = side
-        .detections
-        .iter()
-        .cloned()
+    let (mut detections, outside): (Vec<Detection2d>, Vec<Detection2d>) = detections
+        .into_iter()
         .partition(|d| in_split.contains(d.frame_id.as_str()));
     summary.detections_2d += outside.len();
     summary.skipped.unknown_frame += outside.len();
@@ -415,7 +420,7 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
             .into_iter()
             .partition(|d| chunk_ids.contains(d.frame_id.as_str()));
         detections = rest;
-        let inputs = detector.load_frames(&options.data_dir, chunk, &side, mine)?;
+        let inputs = detector.load_frames(&options.data_dir, chunk, mine, depth_dir.as_deref())?;
         summary.timing.load += t.elapsed();
         let results = detector.detect(&device, &inputs, &mut summary.timing)?;
         summary.frames += inputs.frames();
@@ -562,20 +567,6 @@ fn is_result_file(name: &str) -> bool {
         .strip_suffix(".txt")
         .is_some_and(|id| id.len() == 6 && id.bytes().all(|b| b.is_ascii_digit()));
     frame || name == fusiondet_kitti::results::MANIFEST_FILE
-}
-
-/// Writes `OUT/<id>.txt` for every frame of `results` through a [`ResultWriter`].
-pub fn write_results(
-    out_dir: &Path,
-    results: &BTreeMap<String, Vec<Object>>,
-    replace: bool,
-) -> Result<()> {
-    let ids: Vec<String> = results.keys().cloned().collect();
-    let mut writer = ResultWriter::begin(out_dir, &ids, replace)?;
-    for (id, objects) in results {
-        writer.write(id, objects)?;
-    }
-    writer.finish()
 }
 
 #[cfg(test)]
