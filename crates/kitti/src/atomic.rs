@@ -6,7 +6,7 @@
 //! `O_EXCL` creation), so a link planted at a guessable name cannot redirect the write
 //! outside the target directory. One left by a killed process is named
 //! `.<file name>.<random>.tmp`; [`temp_target`] recognises it (and burn-pack's scratch
-//! files) for [`remove_temp_files`].
+//! files) for [`remove_temp_files`]. [`try_lock_file`] keeps a directory to one writer.
 
 use crate::error::{FormatError, Result};
 use std::io::Write;
@@ -72,6 +72,23 @@ pub fn remove_temp_files(dir: &Path, ours: impl Fn(&str) -> bool) {
     }
 }
 
+/// An advisory lock on the file `path` (created if absent, never truncated), held until the
+/// returned file is dropped; `None` when another process holds it. Writers of one directory
+/// (a training run, a simulated data set) take it so that a second one is refused instead of
+/// mixing its files in.
+pub fn try_lock_file(path: &Path) -> std::io::Result<Option<std::fs::File>> {
+    let file = std::fs::File::options()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(path)?;
+    match file.try_lock() {
+        Ok(()) => Ok(Some(file)),
+        Err(std::fs::TryLockError::WouldBlock) => Ok(None),
+        Err(std::fs::TryLockError::Error(e)) => Err(e),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -123,6 +140,16 @@ mod tests {
             Some("epoch-0003.optim.bpk")
         );
         assert_eq!(temp_target("notes.tmp"), None);
+    }
+
+    #[test]
+    fn a_held_lock_is_refused_until_dropped() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(".lock");
+        let held = try_lock_file(&path).unwrap().expect("free");
+        assert!(try_lock_file(&path).unwrap().is_none());
+        drop(held);
+        assert!(try_lock_file(&path).unwrap().is_some());
     }
 
     #[test]

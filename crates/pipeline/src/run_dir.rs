@@ -17,10 +17,10 @@
 //! older epochs' checkpoints, and temporary files a killed write left behind.
 
 use crate::error::{PipelineError, Result};
-use fusiondet_kitti::atomic::remove_temp_files;
+use fusiondet_kitti::atomic::{remove_temp_files, try_lock_file};
 use fusiondet_kitti::write_atomic;
 use serde::{Deserialize, Serialize};
-use std::fs::{File, TryLockError};
+use std::fs::File;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -172,22 +172,14 @@ impl RunDir {
         std::fs::create_dir_all(&self.root)
             .map_err(|e| self.err(&self.root, format!("cannot create: {e}")))?;
         let path = self.root.join(LOCK_FILE);
-        let file = File::options()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(&path)
-            .map_err(|e| self.err(&path, format!("cannot open the run's lock file: {e}")))?;
-        match file.try_lock() {
-            Ok(()) => Ok(RunLock { _file: file }),
-            Err(TryLockError::WouldBlock) => Err(self.err(
+        match try_lock_file(&path) {
+            Ok(Some(file)) => Ok(RunLock { _file: file }),
+            Ok(None) => Err(self.err(
                 &self.root,
                 "another fusiondet process is training into this run directory; wait for it \
                  to finish or choose another --out",
             )),
-            Err(TryLockError::Error(e)) => {
-                Err(self.err(&path, format!("cannot lock the run directory: {e}")))
-            }
+            Err(e) => Err(self.err(&path, format!("cannot lock the run directory: {e}"))),
         }
     }
 

@@ -164,18 +164,14 @@ fn prepare_dir(opts: &DatasetOptions) -> Result<PreparedDir, SimError> {
     }
     std::fs::create_dir_all(root).map_err(io_err(root))?;
     let lock_path = root.join(LOCK_FILE);
-    let lock = std::fs::File::options()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(&lock_path)
-        .map_err(io_err(&lock_path))?;
-    if lock.try_lock().is_err() {
+    let Some(lock) =
+        fusiondet_kitti::atomic::try_lock_file(&lock_path).map_err(io_err(&lock_path))?
+    else {
         return Err(SimError::InvalidArgument(format!(
             "{}: another `fusiondet simulate` is writing into this directory",
             root.display()
         )));
-    }
+    };
     if let Some(frames) = earlier_frames {
         remove_earlier_run(root, frames)?;
     }
