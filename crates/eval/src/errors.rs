@@ -14,16 +14,37 @@ use crate::frames::{FrameDet, FrameGt};
 use crate::protocol::Difficulty;
 use fusiondet_kitti::{Box3d, Object, ObjectClass};
 use serde::Serialize;
-use std::collections::HashMap;
 use std::fmt::Write as _;
+
+/// A ground-truth box with the LiDAR points inside it, when they were counted.
+#[derive(Clone, Copy)]
+struct Truth<'a> {
+    object: &'a Object,
+    points: Option<usize>,
+}
 
 /// A breakdown axis of the hard level: its name, a ground-truth box's bin (`None`: not
 /// counted), the bin labels.
-type BinAxis<'a> = (
-    &'static str,
-    Box<dyn Fn(&Object) -> Option<usize> + 'a>,
-    [&'static str; 3],
-);
+type BinAxis = (&'static str, fn(&Truth) -> Option<usize>, [&'static str; 3]);
+
+/// The hard level's breakdown axes; LiDAR points only when they were counted.
+const AXES: [BinAxis; 3] = [
+    (
+        "distance",
+        |t| Some(distance_bin(box_centre_range(&t.object.box3d))),
+        ["0-20m", "20-40m", "40m+"],
+    ),
+    (
+        "occlusion",
+        |t| Some(t.object.occlusion.clamp(0, 2) as usize),
+        ["0", "1", "2"],
+    ),
+    (
+        "lidar_points",
+        |t| t.points.map(points_bin),
+        ["<100", "100-200", ">200"],
+    ),
+];
 
 /// Bird's-eye centre distance below which a detection matches a ground-truth box (metres).
 pub const MATCH_DISTANCE: f64 = 2.0;
@@ -98,7 +119,7 @@ fn pair_errors(det: &Box3d, gt: &Box3d) -> [f64; 5] {
 
 /// The pairs of one frame: detections of `class` by descending score, each matched to the
 /// nearest unmatched ground truth in `gts` within [`MATCH_DISTANCE`].
-fn match_frame<'a>(gts: &[&'a Object], dets: &[&'a Object]) -> Vec<(&'a Object, &'a Object)> {
+fn match_frame<'a>(gts: &[Truth<'a>], dets: &[&'a Object]) -> Vec<(&'a Object, Truth<'a>)> {
     let mut order: Vec<&Object> = dets.to_vec();
     order.sort_by(|a, b| b.score.unwrap_or(0.0).total_cmp(&a.score.unwrap_or(0.0)));
     let mut taken = vec![false; gts.len()];
@@ -108,7 +129,10 @@ fn match_frame<'a>(gts: &[&'a Object], dets: &[&'a Object]) -> Vec<(&'a Object, 
             .iter()
             .enumerate()
             .filter(|(i, _)| !taken[*i])
-            .map(|(i, g)| (i, (g.box3d.x - det.box3d.x).hypot(g.box3d.z - det.box3d.z)))
+            .map(|(i, g)| {
+                let b = &g.object.box3d;
+                (i, (b.x - det.box3d.x).hypot(b.z - det.box3d.z))
+            })
             .filter(|(_, d)| *d < MATCH_DISTANCE)
             .min_by(|a, b| a.1.total_cmp(&b.1));
         if let Some((i, _)) = nearest {
@@ -128,49 +152,33 @@ pub fn true_positive_errors(
     classes: &[ObjectClass],
     points: Option<&[FramePoints]>,
 ) -> Vec<ErrorRow> {
-    // The LiDAR points of each ground-truth box, by the box's address: the pairs below hold
-    // references into `gt`, which stays borrowed, unmoved, for the whole call.
-    let points_of: HashMap<*const Object, usize> = points
-        .map(|frames| {
-            gt.iter()
-                .zip(frames)
-                .flat_map(|(g, p)| g.objects.iter().zip(&p.gt))
-                .map(|(o, &n)| (o as *const Object, n))
-                .collect()
-        })
-        .unwrap_or_default();
-    let mut axes: Vec<BinAxis> = vec![
-        (
-            "distance",
-            Box::new(|o: &Object| Some(distance_bin(box_centre_range(&o.box3d)))),
-            ["0-20m", "20-40m", "40m+"],
-        ),
-        (
-            "occlusion",
-            Box::new(|o: &Object| Some(o.occlusion.clamp(0, 2) as usize)),
-            ["0", "1", "2"],
-        ),
-    ];
-    if points.is_some() {
-        axes.push((
-            "lidar_points",
-            Box::new(|o: &Object| points_of.get(&(o as *const Object)).map(|&n| points_bin(n))),
-            ["<100", "100-200", ">200"],
-        ));
-    }
+    // The ground truth of frame `f` of `class` at level `d`, with its point counts.
+    let truths = |f: usize, class: ObjectClass, d: Difficulty| -> Vec<Truth<'_>> {
+        let counts = points.map(|p| &p[f].gt);
+        gt[f]
+            .objects
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| o.class == class && !gt_ignored(o, d))
+            .map(|(i, object)| Truth {
+                object,
+                points: counts.map(|c| c[i]),
+            })
+            .collect()
+    };
+    let axes = if points.is_some() {
+        &AXES[..]
+    } else {
+        &AXES[..2]
+    };
     let mut rows = Vec::new();
     for &class in classes {
-        // Per level: the pairs over all frames.
         let mut hard_pairs = Vec::new();
         for d in Difficulty::ALL {
             let mut counted = 0;
             let mut pairs = Vec::new();
-            for (g, p) in gt.iter().zip(det) {
-                let gts: Vec<&Object> = g
-                    .objects
-                    .iter()
-                    .filter(|o| o.class == class && !gt_ignored(o, d))
-                    .collect();
+            for (f, p) in det.iter().enumerate().take(gt.len()) {
+                let gts = truths(f, class, d);
                 let dets: Vec<&Object> = p.objects.iter().filter(|o| o.class == class).collect();
                 counted += gts.len();
                 pairs.extend(match_frame(&gts, &dets));
@@ -178,17 +186,15 @@ pub fn true_positive_errors(
             rows.push(row(class, d.as_str().to_string(), counted, &pairs));
             hard_pairs = pairs;
         }
-        let hard_gt: Vec<&Object> = gt
-            .iter()
-            .flat_map(|g| &g.objects)
-            .filter(|o| o.class == class && !gt_ignored(o, Difficulty::Hard))
+        let hard_gt: Vec<Truth> = (0..gt.len())
+            .flat_map(|f| truths(f, class, Difficulty::Hard))
             .collect();
-        for (axis, bin_of, labels) in &axes {
+        for (axis, bin_of, labels) in axes {
             for (b, label) in labels.iter().enumerate() {
-                let counted = hard_gt.iter().filter(|o| bin_of(o) == Some(b)).count();
-                let pairs: Vec<(&Object, &Object)> = hard_pairs
+                let counted = hard_gt.iter().filter(|t| bin_of(t) == Some(b)).count();
+                let pairs: Vec<(&Object, Truth)> = hard_pairs
                     .iter()
-                    .filter(|(_, g)| bin_of(g) == Some(b))
+                    .filter(|(_, t)| bin_of(t) == Some(b))
                     .copied()
                     .collect();
                 rows.push(row(class, format!("{axis} {label}"), counted, &pairs));
@@ -202,11 +208,11 @@ fn row(
     class: ObjectClass,
     group: String,
     ground_truth: usize,
-    pairs: &[(&Object, &Object)],
+    pairs: &[(&Object, Truth)],
 ) -> ErrorRow {
     let errors: Vec<[f64; 5]> = pairs
         .iter()
-        .map(|(d, g)| pair_errors(&d.box3d, &g.box3d))
+        .map(|(d, g)| pair_errors(&d.box3d, &g.object.box3d))
         .collect();
     let column = |k: usize| Spread::of(errors.iter().map(|e| e[k]).collect());
     ErrorRow {
