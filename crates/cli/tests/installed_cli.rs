@@ -8,10 +8,12 @@ use common::{all_output, repo_root};
 use std::path::Path;
 use std::process::Command;
 
-/// Every result file of the demo (16 frames, seed 2026) with each shipped Car model, as
-/// the binary wrote them before the crates were reshaped for a second detector family
-/// (kept in `tests/data/demo-results-<model>/`). The demo must still write exactly these
-/// bytes: the same detections from the same checkpoints.
+/// Every result file of the demo (16 frames, seed 2026) with each shipped Car model (kept
+/// in `tests/data/demo-results-<model>/`). The demo must keep writing exactly these bytes:
+/// the same detections from the same checkpoints. They were pinned before the crates were
+/// reshaped for a second detector family, and written anew once, when detection's point
+/// sampling came to draw from streams named by frame (so that a split detected in chunks
+/// gives what it gives whole).
 #[test]
 fn the_demo_writes_the_same_result_files_as_before_with_every_shipped_model() {
     let dir = tempfile::tempdir().unwrap();

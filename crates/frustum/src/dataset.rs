@@ -48,7 +48,22 @@ pub struct FrustumDataset<S: FrustumFrames> {
     source: S,
     config: FrustumConfig,
     specs: Vec<FrustumSpec>,
+    /// Each spec's place among its own frame's specs (what names its stream under
+    /// [`StreamKey::Frame`]).
+    ordinal_in_frame: Vec<u64>,
     skips: SkipCounts,
+}
+
+/// What names a sample's random stream (its augmentation and point sampling).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StreamKey {
+    /// Its place among the data set's frustums: training, where the set is fixed and
+    /// every epoch draws anew.
+    Index,
+    /// Its frame's id and its place among that frame's frustums: inference, so that a
+    /// frame's boxes do not depend on which other frames the split holds, and a split
+    /// detected in chunks (or frame by frame) gives what it gives whole.
+    Frame,
 }
 
 /// Stable 64-bit FNV-1a of a frame id, so that jitter depends on the frame, not on
@@ -161,10 +176,29 @@ impl<S: FrustumFrames> FrustumDataset<S> {
             specs.extend(s);
             skips.merge(&k);
         }
+        Self::with_specs(source, config, specs, skips)
+    }
+
+    fn with_specs(
+        source: S,
+        config: FrustumConfig,
+        specs: Vec<FrustumSpec>,
+        skips: SkipCounts,
+    ) -> Self {
+        let mut seen: HashMap<usize, u64> = HashMap::new();
+        let ordinal_in_frame = specs
+            .iter()
+            .map(|spec| {
+                let n = seen.entry(spec.frame).or_default();
+                *n += 1;
+                *n - 1
+            })
+            .collect();
         FrustumDataset {
             source,
             config,
             specs,
+            ordinal_in_frame,
             skips,
         }
     }
@@ -231,12 +265,7 @@ impl<S: FrustumFrames> FrustumDataset<S> {
                 Err(reason) => skips.add(reason),
             }
         }
-        Ok(FrustumDataset {
-            source,
-            config,
-            specs,
-            skips,
-        })
+        Ok(Self::with_specs(source, config, specs, skips))
     }
 
     /// Refinement frustums around first-stage results (`proposals`: frame id → result
@@ -341,6 +370,17 @@ impl<S: FrustumFrames> FrustumDataset<S> {
     /// Sample `index` for `epoch`: its own random stream (from `seed`, `epoch` and
     /// `index` only) draws the augmentation (labelled frustums) and the point sampling.
     pub fn sample(&self, index: usize, seed: u64, epoch: u64) -> Result<FrustumSample> {
+        self.sample_keyed(index, seed, epoch, StreamKey::Index)
+    }
+
+    /// [`Self::sample`] with its stream named by `key`.
+    pub fn sample_keyed(
+        &self,
+        index: usize,
+        seed: u64,
+        epoch: u64,
+        key: StreamKey,
+    ) -> Result<FrustumSample> {
         let spec = &self.specs[index];
         let frame = self.source.frame(spec.frame)?;
         let stale = |reason| FrustumError::Stale {
@@ -365,7 +405,18 @@ impl<S: FrustumFrames> FrustumDataset<S> {
             ),
             None => None,
         };
-        let mut rng = Sampler::from_path(seed, &[domain::SAMPLE, epoch, index as u64]);
+        let mut rng = match key {
+            StreamKey::Index => Sampler::from_path(seed, &[domain::SAMPLE, epoch, index as u64]),
+            StreamKey::Frame => Sampler::from_path(
+                seed,
+                &[
+                    domain::FRAME_SAMPLE,
+                    epoch,
+                    id_hash(&frame.id),
+                    self.ordinal_in_frame[index],
+                ],
+            ),
+        };
         let augmentation = match object {
             Some(gt) => Augmentation::draw(
                 &self.config.augment,
@@ -394,10 +445,16 @@ impl<S: FrustumFrames> FrustumDataset<S> {
     }
 
     /// The samples at `indices`, prepared in parallel (rayon's current pool), in order.
-    pub fn prepare(&self, indices: &[usize], seed: u64, epoch: u64) -> Result<PreparedBatch> {
+    pub fn prepare(
+        &self,
+        indices: &[usize],
+        seed: u64,
+        epoch: u64,
+        key: StreamKey,
+    ) -> Result<PreparedBatch> {
         let samples = indices
             .par_iter()
-            .map(|&i| self.sample(i, seed, epoch))
+            .map(|&i| self.sample_keyed(i, seed, epoch, key))
             .collect::<Result<Vec<_>>>()?;
         Ok(PreparedBatch {
             batch: collate(&samples),
@@ -411,13 +468,26 @@ impl<S: FrustumFrames> FrustumDataset<S> {
     pub fn epoch(&self, seed: u64, epoch: u64, batch_size: usize) -> Batches<'_, S> {
         let mut order: Vec<usize> = (0..self.len()).collect();
         Sampler::from_path(seed, &[domain::ORDER, epoch]).shuffle(&mut order);
-        Batches::new(self, order, seed, epoch, batch_size, true)
+        Batches::new(
+            self,
+            order,
+            (seed, epoch, StreamKey::Index),
+            batch_size,
+            true,
+        )
     }
 
     /// All frustums in data-set order, in batches of `batch_size` (the last may be
-    /// smaller): for inference. Point sampling still draws from `seed`.
+    /// smaller): for inference. Point sampling still draws from `seed`, in streams named
+    /// by frame ([`StreamKey::Frame`]).
     pub fn in_order(&self, seed: u64, batch_size: usize) -> Batches<'_, S> {
-        Batches::new(self, (0..self.len()).collect(), seed, 0, batch_size, false)
+        Batches::new(
+            self,
+            (0..self.len()).collect(),
+            (seed, 0, StreamKey::Frame),
+            batch_size,
+            false,
+        )
     }
 }
 
@@ -427,6 +497,7 @@ pub struct Batches<'a, S: FrustumFrames> {
     order: Vec<usize>,
     seed: u64,
     epoch: u64,
+    key: StreamKey,
     batch_size: usize,
     next: usize,
     end: usize,
@@ -436,8 +507,7 @@ impl<'a, S: FrustumFrames> Batches<'a, S> {
     fn new(
         dataset: &'a FrustumDataset<S>,
         order: Vec<usize>,
-        seed: u64,
-        epoch: u64,
+        (seed, epoch, key): (u64, u64, StreamKey),
         batch_size: usize,
         drop_last: bool,
     ) -> Self {
@@ -452,6 +522,7 @@ impl<'a, S: FrustumFrames> Batches<'a, S> {
             order,
             seed,
             epoch,
+            key,
             batch_size,
             next: 0,
             end,
@@ -474,7 +545,10 @@ impl<S: FrustumFrames> Iterator for Batches<'_, S> {
         let stop = (self.next + self.batch_size).min(self.end);
         let indices = &self.order[self.next..stop];
         self.next = stop;
-        Some(self.dataset.prepare(indices, self.seed, self.epoch))
+        Some(
+            self.dataset
+                .prepare(indices, self.seed, self.epoch, self.key),
+        )
     }
 
     fn size_hint(&self) -> (usize, Option<usize>) {

@@ -32,7 +32,7 @@ pub use batch::{BatchScale, BatchTargets, FrustumBatch};
 pub use coder::{BoxCoder, BoxEncoding};
 pub use collate::collate;
 pub use config::{AugmentConfig, DepthShift, FrustumConfig};
-pub use dataset::{Batches, FrustumDataset, FrustumSpec, PreparedBatch, jitter_box};
+pub use dataset::{Batches, FrustumDataset, FrustumSpec, PreparedBatch, StreamKey, jitter_box};
 pub use error::{FrustumError, Result, SkipCounts, SkipReason};
 pub use frame::{
     DiskFrames, FrameSource, FrustumFrames, InMemoryFrames, ProjectedCloud, ProjectedFrame,

@@ -8,4 +8,5 @@ pub(crate) mod domain {
     pub const JITTER: u64 = 1;
     pub const SAMPLE: u64 = 2;
     pub const ORDER: u64 = 3;
+    pub const FRAME_SAMPLE: u64 = 4;
 }

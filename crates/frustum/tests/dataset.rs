@@ -520,3 +520,44 @@ fn refinement_configs_need_a_relative_depth_range_and_uniform_slicing() {
     c.depth_range = [-1.0, 70.0];
     assert!(c.validate().is_err());
 }
+
+/// Inference names each frustum's stream by its frame: the samples of a frame are the same
+/// whether the data set holds the whole split or that frame alone (so a split can be
+/// detected in chunks), while training streams follow the frustum's place in the set.
+#[test]
+fn inference_samples_of_a_frame_do_not_depend_on_the_other_frames() {
+    let val = ["000001", "000002", "000004", "000005", "000134"];
+    let dets = val_detections();
+    let whole = FrustumDataset::from_detections(frames(&val), &dets, FrustumConfig::car()).unwrap();
+    let points_of = |d: &FrustumDataset<InMemoryFrames>, frame: &str| -> Vec<Vec<[f64; 3]>> {
+        d.in_order(7, 3)
+            .flat_map(|b| b.unwrap().samples)
+            .filter(|s| s.frame_id == frame)
+            .map(|s| s.points)
+            .collect()
+    };
+    let with_frustums: Vec<&str> = val
+        .iter()
+        .copied()
+        .filter(|id| !points_of(&whole, id).is_empty())
+        .collect();
+    assert!(with_frustums.len() >= 2, "{with_frustums:?}");
+    for id in &with_frustums {
+        let alone =
+            FrustumDataset::from_detections(frames(&[id]), &dets, FrustumConfig::car()).unwrap();
+        assert_eq!(points_of(&whole, id), points_of(&alone, id), "{id}");
+    }
+    // Training samples (index-keyed) differ once the frame's place in the set moves.
+    let first_of = |d: &FrustumDataset<InMemoryFrames>, frame: &str| {
+        let i = d
+            .specs()
+            .iter()
+            .position(|s| d.source().frame_id(s.frame) == frame)
+            .unwrap();
+        d.sample(i, 7, 0).unwrap().points
+    };
+    let last = with_frustums[with_frustums.len() - 1];
+    let alone =
+        FrustumDataset::from_detections(frames(&[last]), &dets, FrustumConfig::car()).unwrap();
+    assert_ne!(first_of(&whole, last), first_of(&alone, last));
+}

@@ -107,11 +107,11 @@ pub struct SplitSide {
     pub depth_dir: Option<PathBuf>,
 }
 
-/// Frames the voxel families' detection holds in memory at once: a split is detected in
-/// chunks of this many, so memory stays flat however long the split (about 1 MB a frame;
-/// KITTI's val split whole would take 4 GB). The frustum family still reads its split at
-/// once: each frustum's point-sampling stream is keyed by its place among the split's
-/// frustums, so chunks would sample other points (and change every published result).
+/// Frames detection holds in memory at once: a split is detected in chunks of this many,
+/// so memory stays flat however long the split (about 1 MB a frame; KITTI's val split
+/// whole would take 4 GB). Every family gives the same boxes in chunks as whole: the
+/// frustum family names each frustum's point-sampling stream by its frame
+/// ([`fusiondet_frustum::StreamKey::Frame`]), the voxel families draw nothing.
 pub const DETECT_CHUNK_FRAMES: usize = 64;
 
 /// What a family reads beside the frames: 2D detections (the frustum family; `None`
@@ -377,8 +377,8 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
     detect_in_chunks(options, DETECT_CHUNK_FRAMES)
 }
 
-/// [`detect`] holding at most `chunk_frames` frames in memory at once (the voxel families;
-/// see [`DETECT_CHUNK_FRAMES`]).
+/// [`detect`] holding at most `chunk_frames` frames in memory at once (see
+/// [`DETECT_CHUNK_FRAMES`]).
 pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<DetectSummary> {
     // Before anything is loaded: a refused --out should not cost a model load.
     refuse_input_dir(&options.out_dir, &options.data_dir)?;
@@ -408,10 +408,6 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
     summary.skipped.unknown_frame += outside.len();
     summary.timing.load += t.elapsed();
 
-    let chunk_frames = match detector {
-        Detector::Frustum(_) => ids.len(),
-        Detector::VoxelRcnn(_) | Detector::Dasanet(_) => chunk_frames,
-    };
     let mut writer = ResultWriter::begin(&options.out_dir, &ids, options.replace)?;
     for chunk in ids.chunks(chunk_frames.max(1)) {
         let t = Instant::now();

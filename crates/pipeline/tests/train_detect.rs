@@ -7,7 +7,7 @@ use fusiondet_kitti::{DatasetDir, read_detections2d, read_split};
 use fusiondet_models::{ModelConfig, load_checkpoint};
 use fusiondet_pipeline::frustum::FrustumDetector;
 use fusiondet_pipeline::{
-    DetectOptions, ExperimentConfig, RefineConfig, TrainOptions, detect, train,
+    DetectOptions, ExperimentConfig, RefineConfig, TrainOptions, detect, detect_in_chunks, train,
 };
 use std::path::Path;
 use std::sync::OnceLock;
@@ -164,18 +164,24 @@ fn detect_writes_a_result_file_per_frame_that_the_evaluation_reads() {
     let run = tempfile::tempdir().unwrap();
     train_run(run.path(), 1, false);
     let out = run.path().join("results");
-    let summary = detect(&DetectOptions {
+    let options = |out: &Path| DetectOptions {
         device: Default::default(),
         config: tiny(1),
         checkpoint: run.path().join("model.bpk"),
         data_dir: dataset().to_path_buf(),
         split: "val".into(),
-        out_dir: out.clone(),
+        out_dir: out.to_path_buf(),
         detections: None,
         depth_dir: None,
         replace: false,
-    })
-    .unwrap();
+    };
+    let summary = detect(&options(&out)).unwrap();
+    // A frame's boxes do not depend on the frames detected beside it: one frame at a time
+    // (one frame in memory) writes the same bytes.
+    let one_by_one = run.path().join("one-by-one");
+    let chunked = detect_in_chunks(&options(&one_by_one), 1).unwrap();
+    assert_eq!(chunked.samples, summary.samples);
+    assert_same_files(&out, &one_by_one);
     let ids = read_split(&DatasetDir::new(dataset()).split("val")).unwrap();
     assert_eq!(summary.frames, ids.len());
     for id in &ids {
@@ -191,6 +197,32 @@ fn detect_writes_a_result_file_per_frame_that_the_evaluation_reads() {
         fusiondet_eval::evaluate_dirs(&label_dir, &out, Some(&split), &Default::default()).unwrap();
     assert!(loaded.missing_results.is_empty());
     assert_eq!(report.frames, ids.len());
+}
+
+/// Every file of `a` is in `b` with the same bytes, and `b` holds no other.
+fn assert_same_files(a: &Path, b: &Path) {
+    let names = |dir: &Path| {
+        let mut n: Vec<_> = std::fs::read_dir(dir)
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name())
+            .collect();
+        n.sort();
+        n
+    };
+    assert_eq!(names(a), names(b));
+    for name in names(a) {
+        if name == ".fusiondet-results" {
+            continue;
+        }
+        assert_eq!(
+            std::fs::read(a.join(&name)).unwrap(),
+            std::fs::read(b.join(&name)).unwrap(),
+            "{name:?} differs between {} and {}",
+            a.display(),
+            b.display()
+        );
+    }
 }
 
 #[test]
@@ -286,6 +318,23 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
     })
     .unwrap();
     assert!(refined.samples > 0, "{refined:?}");
+    let in_pairs = second.path().join("in-pairs");
+    detect_in_chunks(
+        &DetectOptions {
+            device: Default::default(),
+            config: ExperimentConfig::for_checkpoint(&run.join("model.bpk"), None).unwrap(),
+            checkpoint: run.join("model.bpk"),
+            data_dir: dataset().to_path_buf(),
+            split: "val".into(),
+            out_dir: in_pairs.clone(),
+            detections: None,
+            depth_dir: None,
+            replace: false,
+        },
+        2,
+    )
+    .unwrap();
+    assert_same_files(&out, &in_pairs);
     assert!(refined.boxes_written > 0 && refined.boxes_written <= refined.samples);
     let first_only = detect(&DetectOptions {
         device: Default::default(),
