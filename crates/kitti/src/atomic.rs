@@ -23,10 +23,14 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         .ok_or_else(|| FormatError::file(path, "not a file path"))?
         .to_string_lossy();
     let result = (|| {
-        let mut tmp = tempfile::Builder::new()
-            .prefix(&format!(".{file_name}."))
-            .suffix(".tmp")
-            .tempfile_in(dir)?;
+        let prefix = format!(".{file_name}.");
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(&prefix).suffix(".tmp");
+        // tempfile's default mode is 0600; the file a user keeps gets what any new file
+        // gets (0666 less the umask), like `File::create`.
+        #[cfg(unix)]
+        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+        let mut tmp = builder.tempfile_in(dir)?;
         tmp.write_all(bytes)?;
         tmp.as_file().sync_all()?;
         // On failure the temporary file is removed when `tmp` drops.
@@ -92,6 +96,21 @@ pub fn try_lock_file(path: &Path) -> std::io::Result<Option<std::fs::File>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A written file is as readable as one `File::create` makes (not tempfile's 0600), so
+    /// result files and pages can be shared or served.
+    #[cfg(unix)]
+    #[test]
+    fn written_files_get_the_modes_of_new_files() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let plain = dir.path().join("plain.txt");
+        std::fs::File::create(&plain).unwrap();
+        let atomic = dir.path().join("atomic.txt");
+        write_atomic(&atomic, b"x").unwrap();
+        let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode(&atomic), mode(&plain));
+    }
 
     #[test]
     fn writes_and_replaces_without_leaving_temp_files() {
