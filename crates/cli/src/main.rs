@@ -30,6 +30,8 @@ enum Command {
     Eval(commands::eval::EvalArgs),
     /// Draw a frame: image with projected 3D boxes above a bird's-eye view.
     Viz(commands::viz::VizArgs),
+    /// Interactive 3D pages of frames (self-contained HTML): points, boxes, image, toggles.
+    View(commands::view::ViewArgs),
     /// Simulate a LiDAR + camera dataset in KITTI format.
     Simulate(commands::simulate::SimulateArgs),
     /// Train and evaluate several configurations on one dataset: ablation tables and PR plots.
@@ -55,6 +57,7 @@ fn main() -> ExitCode {
         Command::Info(args) => commands::info::run(args),
         Command::Eval(args) => commands::eval::run(args),
         Command::Viz(args) => commands::viz::run(args),
+        Command::View(args) => commands::view::run(args),
         Command::Simulate(args) => commands::simulate::run(args),
         Command::Ablation(args) => commands::ablation::run(args),
         Command::OmegaStudy(args) => commands::omega_study::run(args),

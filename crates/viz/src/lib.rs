@@ -7,6 +7,8 @@
 //! ([`render_camera`], [`render_bev`], [`legend`], [`draw`], [`text`]) are public so
 //! that other figures (several frames on one sheet, curves) can reuse them.
 //!
+//! [`web`] writes the interactive pages of `fusiondet view` (three.js, self-contained).
+//!
 //! [`render_pr_curves`] / [`render_pr_difficulties`] draw precision–recall figures
 //! from the evaluation's curves, e.g. to compare the configurations of an ablation.
 
@@ -20,6 +22,7 @@ pub mod load;
 pub mod pr_plot;
 pub mod style;
 pub mod text;
+pub mod web;
 
 #[cfg(test)]
 mod testutil;

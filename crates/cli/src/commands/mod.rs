@@ -13,4 +13,5 @@ pub mod outputs;
 pub mod pseudo_points;
 pub mod simulate;
 pub mod train;
+pub mod view;
 pub mod viz;

@@ -46,7 +46,7 @@ pub struct VizArgs {
 }
 
 /// Normalises a frame id: digits only, zero-padded to KITTI's six.
-fn frame_id(id: &str) -> anyhow::Result<String> {
+pub(crate) fn frame_id(id: &str) -> anyhow::Result<String> {
     if id.is_empty() || !id.bytes().all(|b| b.is_ascii_digit()) {
         bail!("--id `{id}` is not a frame id (digits, e.g. 000001)");
     }
