@@ -439,10 +439,7 @@ fn pages_draw_points_and_boxes_in_a_real_browser() {
     view(&[&frame[..], &["--out", s(&sim)]].concat());
     let (img, probe) = shoot(&browser, &sim, "-bev", &shots.join("sim-000000-bev.png"));
     let (kinds, _) = check_drawn(&img, &probe, "simulated frame");
-    let orange = hex(&data_of(&sim)["colours"]["det"]
-        .as_str()
-        .unwrap()
-        .to_string());
+    let orange = hex(data_of(&sim)["colours"]["det"].as_str().unwrap());
     let det_edges: Vec<(f64, f64, Rgb<u8>)> = probe["boxes"]
         .as_array()
         .unwrap()
