@@ -107,8 +107,14 @@ impl Augmentation {
     }
 }
 
-/// Indices of `n` points to take from `available`: all of them plus random repeats
-/// when there are fewer, a random subset otherwise; in random order.
+/// Indices of `n` points to take from `available`: a random subset in random order when
+/// there are enough; otherwise all of them in random order, then the random repeats.
+///
+/// Distinct points come first because a prefix of the sample is what SAF's LFA keeps (its
+/// random halvings keep the first half of a shuffled set, so the 1,024 points it slices are
+/// the first quarter of its 4,096): with the repeats mixed in, a frustum of 1,000 points
+/// kept only ~655 of them. The draws are those of the earlier mixed order, and only the
+/// order changes, so models that use every sampled point see the same set.
 pub fn sample_indices(available: usize, n: usize, rng: &mut Sampler) -> Vec<usize> {
     assert!(available > 0, "cannot sample from an empty frustum");
     let mut idx: Vec<usize> = (0..available).collect();
@@ -122,6 +128,13 @@ pub fn sample_indices(available: usize, n: usize, rng: &mut Sampler) -> Vec<usiz
     } else {
         idx.extend((available..n).map(|_| rng.below(available)));
         rng.shuffle(&mut idx);
+        // Each point's first occurrence, in the shuffled order, then the repeats.
+        let mut seen = vec![false; available];
+        let (first, repeats): (Vec<usize>, Vec<usize>) = idx
+            .into_iter()
+            .partition(|&i| !std::mem::replace(&mut seen[i], true));
+        idx = first;
+        idx.extend(repeats);
     }
     idx
 }
@@ -426,6 +439,24 @@ mod tests {
             "no repeats when there are enough points"
         );
         assert!(many.iter().all(|&i| i < 5000));
+    }
+
+    /// The defect this guards against: with repeats shuffled in, the first 1,024 of 4,096
+    /// samples from a 1,000-point frustum held only ~655 distinct points.
+    #[test]
+    fn distinct_points_come_before_the_repeats() {
+        for available in [800, 1000, 1500, 2000, 4095] {
+            let mut rng = Sampler::from_path(9, &[available as u64]);
+            let idx = sample_indices(available, 4096, &mut rng);
+            assert_eq!(idx.len(), 4096);
+            let mut head: Vec<usize> = idx[..available].to_vec();
+            head.sort_unstable();
+            assert_eq!(head, (0..available).collect::<Vec<_>>(), "{available}");
+            let prefix: std::collections::HashSet<usize> = idx[..1024].iter().copied().collect();
+            assert_eq!(prefix.len(), available.min(1024), "{available}");
+            // Still in random order, not sorted.
+            assert_ne!(&idx[..8], &[0, 1, 2, 3, 4, 5, 6, 7]);
+        }
     }
 
     #[test]
