@@ -11,9 +11,9 @@ use std::process::Command;
 /// Every result file of the demo (16 frames, seed 2026) with each shipped Car model (kept
 /// in `tests/data/demo-results-<model>/`). The demo must keep writing exactly these bytes:
 /// the same detections from the same checkpoints. They were pinned before the crates were
-/// reshaped for a second detector family, and written anew once, when detection's point
-/// sampling came to draw from streams named by frame (so that a split detected in chunks
-/// gives what it gives whole).
+/// reshaped for a second detector family, and written anew when detection's point sampling
+/// came to draw from streams named by frame (so that a split detected in chunks gives what
+/// it gives whole) and to put a small frustum's distinct points before its repeats.
 #[test]
 fn the_demo_writes_the_same_result_files_as_before_with_every_shipped_model() {
     let dir = tempfile::tempdir().unwrap();
