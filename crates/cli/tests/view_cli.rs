@@ -114,40 +114,29 @@ fn bad_input_gets_a_clear_error() {
         &["--data-dir", &data, "--id", "../1", "--out", &p],
         "not a frame id",
     );
-    assert_fails_with(
-        "view",
-        &[
-            "--data-dir",
-            &data,
-            "--id",
-            "1",
-            "--out",
-            &p,
-            "--max-points",
-            "0",
-        ],
-        "--max-points",
-    );
+    // Frame 000001 into `p`, with further arguments.
+    let frame_one = |extra: &[&str], needle: &str| {
+        let args = [
+            &[
+                "--data-dir",
+                data.as_str(),
+                "--id",
+                "1",
+                "--out",
+                p.as_str(),
+            ],
+            extra,
+        ];
+        assert_fails_with("view", &args.concat(), needle);
+    };
+    frame_one(&["--max-points", "0"], "--max-points");
     assert_fails_with(
         "view",
         &["--data-dir", &data, "--split", "nosuch", "--out-dir", &p],
         "no such id list",
     );
     let empty = tempfile::tempdir().unwrap();
-    assert_fails_with(
-        "view",
-        &[
-            "--data-dir",
-            &data,
-            "--id",
-            "1",
-            "--out",
-            &p,
-            "--pseudo-dir",
-            s(empty.path()),
-        ],
-        "000001.bin",
-    );
+    frame_one(&["--pseudo-dir", s(empty.path())], "000001.bin");
     // Never over an input: the page may not replace the frame's own label file.
     let copy = tempfile::tempdir().unwrap();
     let label = copy.path().join("label_2/000001.txt");
