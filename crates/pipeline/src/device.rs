@@ -9,15 +9,24 @@ pub enum ComputeDevice {
     /// burn's flex backend on the CPU (all cores, through rayon).
     #[default]
     Cpu,
+    /// burn's wgpu backend on the default adapter (cargo feature `wgpu`: Vulkan, Metal or
+    /// DirectX; `CUBECL_WGPU_DEFAULT_DEVICE` picks another adapter).
+    #[cfg(feature = "wgpu")]
+    Wgpu,
 }
 
 impl ComputeDevice {
-    pub const NAMES: [&str; 1] = ["cpu"];
+    #[cfg(not(feature = "wgpu"))]
+    pub const NAMES: &[&str] = &["cpu"];
+    #[cfg(feature = "wgpu")]
+    pub const NAMES: &[&str] = &["cpu", "wgpu"];
 
     /// The inference device (wrap it with `.autodiff()` to train).
     pub fn device(self) -> Device {
         match self {
             ComputeDevice::Cpu => Device::flex(),
+            #[cfg(feature = "wgpu")]
+            ComputeDevice::Wgpu => Device::wgpu(burn::tensor::DeviceKind::DefaultDevice),
         }
     }
 }
@@ -27,6 +36,8 @@ impl std::str::FromStr for ComputeDevice {
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
             "cpu" => Ok(ComputeDevice::Cpu),
+            #[cfg(feature = "wgpu")]
+            "wgpu" => Ok(ComputeDevice::Wgpu),
             other => Err(format!(
                 "unknown device `{other}`: this build has {} (GPU backends are cargo features)",
                 Self::NAMES.join(", ")
