@@ -76,7 +76,7 @@ fn the_shipped_saf_lfa_first_layer_responds_mostly_to_where_a_point_is() {
     let layer = &model.lfa.as_ref().unwrap().stages[0].local[0].linear;
     let [d_in, d_out] = layer.weight.val().dims();
     assert_eq!(d_in, 10);
-    let w: Vec<f32> = layer.weight.val().into_data().to_vec().unwrap();
+    let w: Vec<f32> = layer.weight.val().into_data().try_to_vec::<f32>().unwrap();
 
     let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/kitti-sample");
     let ids: Vec<String> = ["000001", "000002", "000004", "000005", "000134"]
