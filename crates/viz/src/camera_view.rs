@@ -15,7 +15,7 @@ pub use fusiondet_geometry::NEAR_PLANE;
 
 /// The diagonals of the front face (corners 0, 1, 5, 4 lie at +l/2 along the heading):
 /// an X there shows which way the box faces.
-const FRONT_CROSS: [(usize, usize); 2] = [(0, 5), (1, 4)];
+pub const FRONT_CROSS: [(usize, usize); 2] = [(0, 5), (1, 4)];
 
 /// Projects the segment `a`–`b` (rectified camera frame) to pixels after cutting it at
 /// [`NEAR_PLANE`]; `None` if it lies wholly behind.

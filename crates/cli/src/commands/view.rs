@@ -2,15 +2,15 @@
 //! for one frame (`--id … --out`) or a browsable set (`--split … --out-dir`, with an index
 //! page and previous / next links). The pages live in `fusiondet-viz::web`.
 
-use super::viz::frame_id;
+use super::viz::{check_score_threshold, frame_id};
 use anyhow::{Context, bail};
 use fusiondet_kitti::{FrameDir, read_split, write_atomic};
 use fusiondet_viz::FrameView;
+use fusiondet_viz::load_frame;
 use fusiondet_viz::web::{
     DEFAULT_MAX_POINTS, DEFAULT_MAX_PSEUDO_POINTS, IndexEntry, Nav, PageOptions, PseudoCloud,
     render_index, render_page,
 };
-use fusiondet_viz::{load_frame, result_file};
 use fusiondet_workflows::outln;
 use std::path::{Path, PathBuf};
 
@@ -115,11 +115,7 @@ fn load(args: &ViewArgs, id: &str, in_set: bool) -> anyhow::Result<(FrameView, P
 }
 
 fn check_args(args: &ViewArgs) -> anyhow::Result<()> {
-    if let Some(t) = args.score_threshold
-        && !t.is_finite()
-    {
-        bail!("--score-threshold must be a finite number, got {t}");
-    }
+    check_score_threshold(args.score_threshold)?;
     for (flag, n) in [
         ("--max-points", args.max_points),
         ("--max-pseudo-points", args.max_pseudo_points),
@@ -253,11 +249,11 @@ fn a_set(args: &ViewArgs, split: &str) -> anyhow::Result<()> {
             id: id.clone(),
             page: page_name(id),
             ground_truth: view.boxes_gt().len(),
-            detections: args.result_dir.as_deref().map(|dir| {
-                result_file(dir, id)
-                    .and(view.detections.as_ref())
-                    .map_or(0, Vec::len)
-            }),
+            // `load_frame` left `detections` empty where the directory lacks the frame.
+            detections: args
+                .result_dir
+                .as_ref()
+                .map(|_| view.detections.as_ref().map_or(0, Vec::len)),
         });
     }
     let title = format!("{} — {} frames", args.data_dir.display(), ids.len());

@@ -53,13 +53,19 @@ pub(crate) fn frame_id(id: &str) -> anyhow::Result<String> {
     Ok(format!("{id:0>6}"))
 }
 
-pub fn run(args: VizArgs) -> anyhow::Result<()> {
-    let id = frame_id(&args.id)?;
-    if let Some(t) = args.score_threshold
+/// `--score-threshold`, where given, must be a number (`viz` and `view`).
+pub(crate) fn check_score_threshold(threshold: Option<f64>) -> anyhow::Result<()> {
+    if let Some(t) = threshold
         && !t.is_finite()
     {
         bail!("--score-threshold must be a finite number, got {t}");
     }
+    Ok(())
+}
+
+pub fn run(args: VizArgs) -> anyhow::Result<()> {
+    let id = frame_id(&args.id)?;
+    check_score_threshold(args.score_threshold)?;
     for (name, v) in [
         ("--bev-forward", args.bev_forward),
         ("--bev-side", args.bev_side),

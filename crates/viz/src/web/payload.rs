@@ -3,7 +3,7 @@
 //! projected and near-plane-clipped onto the image, the image as JPEG.
 
 use super::{PageOptions, PseudoCloud};
-use crate::camera_view::project_segment;
+use crate::camera_view::{FRONT_CROSS, project_segment};
 use crate::frame::FrameView;
 use crate::style;
 use base64::Engine;
@@ -20,10 +20,6 @@ const INT16_LIMIT_M: f64 = i16::MAX as f64 * POINT_STEP_M;
 
 /// Depth of the camera frustum's far face drawn in the 3D view, metres.
 const FRUSTUM_DEPTH_M: f64 = 40.0;
-
-/// The front face's diagonals (corners 0, 1, 5, 4 lie at +l/2 along the heading), drawn
-/// on the image as the PNG pictures do, to show which way a box faces.
-const FRONT_CROSS: [(usize, usize); 2] = [(0, 5), (1, 4)];
 
 /// Evenly spaced indices keeping at most `cap` of `n` (all when `n <= cap`): a
 /// deterministic thinning that keeps the scan's structure, unlike a random subset.
