@@ -113,8 +113,9 @@ impl Augmentation {
 /// Distinct points come first because a prefix of the sample is what SAF's LFA keeps (its
 /// random halvings keep the first half of a shuffled set, so the 1,024 points it slices are
 /// the first quarter of its 4,096): with the repeats mixed in, a frustum of 1,000 points
-/// kept only ~655 of them. The draws are those of the earlier mixed order, and only the
-/// order changes, so models that use every sampled point see the same set.
+/// kept only ~655 of them. The draws are those of the earlier mixed order and only the
+/// order changes; models that use every sampled point still see other results, because a
+/// capped sub-frustum keeps its first points.
 pub fn sample_indices(available: usize, n: usize, rng: &mut Sampler) -> Vec<usize> {
     assert!(available > 0, "cannot sample from an empty frustum");
     let mut idx: Vec<usize> = (0..available).collect();
