@@ -46,6 +46,8 @@ enum Command {
     DepthComplete(commands::depth_complete::DepthCompleteArgs),
     /// Coloured pseudo point clouds from completed depth (DASANet's second input).
     PseudoPoints(commands::pseudo_points::PseudoPointsArgs),
+    /// Check (and finish) a directory that sharded runs (`--shard i/n`) wrote into.
+    Merge(commands::merge::MergeArgs),
 }
 
 fn main() -> ExitCode {
@@ -65,6 +67,7 @@ fn main() -> ExitCode {
         Command::GtDatabase(args) => commands::gt_database::run(args),
         Command::DepthComplete(args) => commands::depth_complete::run(args),
         Command::PseudoPoints(args) => commands::pseudo_points::run(args),
+        Command::Merge(args) => commands::merge::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

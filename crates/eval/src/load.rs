@@ -85,6 +85,18 @@ pub fn load_dirs(
     // frames it holds: an interrupted one, or one missing a frame it lists, is refused
     // rather than scored as if complete.
     let manifest = fusiondet_kitti::read_manifest(result_dir).map_err(EvalError::Results)?;
+    // A sharded detect writes the manifest when its last shard finishes: without it the
+    // directory holds only some shards' results.
+    let shards = fusiondet_kitti::shard::read_records(result_dir).map_err(EvalError::Results)?;
+    if manifest.is_none() && shards.iter().any(|r| r.command == "detect") {
+        return Err(EvalError::Dir {
+            path: result_dir.to_path_buf(),
+            message: "holds a sharded `fusiondet detect` that has not finished (its manifest \
+                      is written when every shard has): `fusiondet merge --results DIR` says \
+                      which shards or frames are missing"
+                .into(),
+        });
+    }
     if let Some(m) = &manifest {
         if !m.complete {
             return Err(EvalError::Dir {

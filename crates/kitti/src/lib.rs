@@ -10,6 +10,7 @@ pub mod image;
 pub mod label;
 pub mod layout;
 pub mod results;
+pub mod shard;
 pub mod split;
 pub mod velodyne;
 
@@ -21,5 +22,6 @@ pub use error::{FormatError, Result};
 pub use label::{Box2d, Box3d, Object, ObjectClass, read_objects, write_objects};
 pub use layout::{DatasetDir, FrameDir, frame_id};
 pub use results::{ResultsManifest, read_manifest, write_manifest};
+pub use shard::Shard;
 pub use split::{read_split, write_split};
 pub use velodyne::{LidarPoint, read_velodyne, write_velodyne};

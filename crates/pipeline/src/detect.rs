@@ -11,8 +11,9 @@ use crate::voxel_rcnn::VoxelRcnnDetector;
 use burn::prelude::*;
 use fusiondet_dataset::SensorFrame;
 use fusiondet_frustum::{FrameSource, InMemoryFrames, SkipCounts};
+use fusiondet_kitti::shard::{self, ShardRecord};
 use fusiondet_kitti::{
-    DatasetDir, Detection2d, Object, ResultsManifest, read_detections2d, read_manifest,
+    DatasetDir, Detection2d, Object, ResultsManifest, Shard, read_detections2d, read_manifest,
     write_manifest, write_objects,
 };
 use fusiondet_models::DetectorKind;
@@ -38,6 +39,9 @@ pub struct DetectOptions {
     /// Replace the results an earlier detect left in `out_dir` (without it such a
     /// directory is refused).
     pub replace: bool,
+    /// Detect only this shard's frames of the split (see [`fusiondet_kitti::shard`]);
+    /// `None` runs the whole split.
+    pub shard: Option<Shard>,
 }
 
 /// What a detection run did, with its time per stage.
@@ -50,6 +54,8 @@ pub struct DetectSummary {
     pub skipped: SkipCounts,
     pub boxes_written: usize,
     pub timing: StageTimes,
+    /// For a sharded run: how far all the run's shards have got once this one finished.
+    pub shards: Option<shard::ShardProgress>,
 }
 
 /// Wall time per stage of detection, the stages named by the family (in the order they
@@ -382,7 +388,9 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
 pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<DetectSummary> {
     // Before anything is loaded: a refused --out should not cost a model load.
     refuse_input_dir(&options.out_dir, &options.data_dir)?;
-    check_result_dir(&options.out_dir, options.replace)?;
+    if options.shard.is_none() {
+        check_result_dir(&options.out_dir, options.replace)?;
+    }
     let mut summary = DetectSummary::default();
     let t = Instant::now();
     let device = options.device.device();
@@ -398,17 +406,40 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
             depth_dir: options.depth_dir.as_deref(),
         },
     )?;
-    let ids = fusiondet_dataset::split_ids(&options.data_dir, &options.split, 0)?;
+    let split_ids = fusiondet_dataset::split_ids(&options.data_dir, &options.split, 0)?;
     // 2D detections of frames outside the split are counted as such once, not per chunk.
-    let in_split: std::collections::HashSet<&str> = ids.iter().map(String::as_str).collect();
-    let (mut detections, outside): (Vec<Detection2d>, Vec<Detection2d>) = detections
+    let in_split: std::collections::HashSet<&str> = split_ids.iter().map(String::as_str).collect();
+    let (detections, outside): (Vec<Detection2d>, Vec<Detection2d>) = detections
         .into_iter()
         .partition(|d| in_split.contains(d.frame_id.as_str()));
     summary.detections_2d += outside.len();
     summary.skipped.unknown_frame += outside.len();
+    let mut writer = match options.shard {
+        None => FrameWriter::Whole(ResultWriter::begin(
+            &options.out_dir,
+            &split_ids,
+            options.replace,
+        )?),
+        Some(shard) => {
+            let run = run_fingerprint(options, &split_ids, &detections, shard)?;
+            FrameWriter::Shard(ShardWriter::begin(
+                &options.out_dir,
+                shard,
+                run,
+                shard.select(&split_ids),
+                options.replace,
+            )?)
+        }
+    };
+    let ids = writer.frames().to_vec();
+    // Another shard's frames are not this run's to count.
+    let mine: std::collections::HashSet<&str> = ids.iter().map(String::as_str).collect();
+    let mut detections: Vec<Detection2d> = detections
+        .into_iter()
+        .filter(|d| mine.contains(d.frame_id.as_str()))
+        .collect();
     summary.timing.load += t.elapsed();
 
-    let mut writer = ResultWriter::begin(&options.out_dir, &ids, options.replace)?;
     for chunk in ids.chunks(chunk_frames.max(1)) {
         let t = Instant::now();
         let chunk_ids: std::collections::HashSet<&str> = chunk.iter().map(String::as_str).collect();
@@ -429,8 +460,65 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
             writer.write(id, objects)?;
         }
     }
-    writer.finish()?;
+    summary.shards = writer.finish()?;
     Ok(summary)
+}
+
+/// What defines a sharded detect run, so that shards of different runs never share a
+/// result directory: the weights, the configuration, the split and its 2D detections,
+/// the completed depth maps' folder and the shard count.
+fn run_fingerprint(
+    options: &DetectOptions,
+    split_ids: &[String],
+    detections: &[Detection2d],
+    shard: Shard,
+) -> Result<String> {
+    let weights = std::fs::read(&options.checkpoint)
+        .map_err(|e| fusiondet_kitti::FormatError::io(&options.checkpoint, e))?;
+    let depth_dir = options
+        .depth_dir
+        .as_ref()
+        .map(|d| d.canonicalize().unwrap_or_else(|_| d.clone()))
+        .map(|d| d.display().to_string())
+        .unwrap_or_default();
+    Ok(shard::fingerprint(&[
+        &weights,
+        options.config.to_toml_string().as_bytes(),
+        split_ids.join("\n").as_bytes(),
+        format!("{detections:?}").as_bytes(),
+        depth_dir.as_bytes(),
+        shard.count.to_string().as_bytes(),
+    ]))
+}
+
+/// Where a detect run's frames go: the whole split under the directory's manifest, or one
+/// shard's frames under its shard record.
+enum FrameWriter {
+    Whole(ResultWriter),
+    Shard(ShardWriter),
+}
+
+impl FrameWriter {
+    fn frames(&self) -> &[String] {
+        match self {
+            FrameWriter::Whole(w) => &w.manifest.frames,
+            FrameWriter::Shard(w) => &w.record.frames,
+        }
+    }
+
+    fn write(&mut self, id: &str, objects: &[Object]) -> Result<()> {
+        match self {
+            FrameWriter::Whole(w) => w.write(id, objects),
+            FrameWriter::Shard(w) => w.write(id, objects),
+        }
+    }
+
+    fn finish(self) -> Result<Option<shard::ShardProgress>> {
+        match self {
+            FrameWriter::Whole(w) => w.finish().map(|()| None),
+            FrameWriter::Shard(w) => w.finish().map(Some),
+        }
+    }
 }
 
 fn out_err(path: &Path, message: impl Into<String>) -> PipelineError {
@@ -475,10 +563,23 @@ pub fn check_result_dir(out_dir: &Path, replace: bool) -> Result<()> {
             Ok(())
         };
     };
-    if entries.flatten().next().is_none() {
+    let sharded = shard::read_records(out_dir)?
+        .iter()
+        .any(|r| r.command == DETECT);
+    // The records folder alone is what a shard starting here makes first.
+    let others = entries
+        .flatten()
+        .any(|e| e.file_name() != shard::SHARDS_DIR);
+    if !others && !sharded {
         return Ok(());
     }
     match read_manifest(out_dir)? {
+        None if sharded && !replace => Err(out_err(
+            out_dir,
+            "holds a sharded detect's results (its shards may still be running; `fusiondet \
+             merge` tells); pass --force to replace them, or choose another --out",
+        )),
+        None if sharded => Ok(()),
         None => Err(out_err(
             out_dir,
             "holds files that `fusiondet detect` did not write; choose a new or empty --out",
@@ -489,6 +590,47 @@ pub fn check_result_dir(out_dir: &Path, replace: bool) -> Result<()> {
              another --out",
         )),
         Some(_) => Ok(()),
+    }
+}
+
+/// Removes an earlier detect's files from `out_dir`: the frames its manifest and its shard
+/// records list, then the records and the manifest (nothing else). The manifest is first
+/// marked unfinished, so a kill while removing leaves a directory eval refuses.
+fn remove_earlier_results(out_dir: &Path) -> Result<()> {
+    let manifest = read_manifest(out_dir)?;
+    let records = shard::read_records(out_dir)?;
+    if let Some(old) = &manifest {
+        write_manifest(
+            out_dir,
+            &ResultsManifest {
+                complete: false,
+                ..old.clone()
+            },
+        )?;
+    }
+    let listed = manifest
+        .iter()
+        .flat_map(|m| m.frames.iter())
+        .chain(records.iter().flat_map(|r| r.frames.iter()));
+    for id in listed {
+        remove_if_present(&out_dir.join(format!("{id}.txt")))?;
+    }
+    for r in &records {
+        remove_if_present(&shard::record_path(out_dir, &r.command, r.shard))?;
+    }
+    if manifest.is_some() {
+        remove_if_present(&fusiondet_kitti::results::manifest_path(out_dir))?;
+    }
+    Ok(())
+}
+
+fn remove_if_present(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(out_err(
+            path,
+            format!("cannot remove the earlier result: {e}"),
+        )),
+        _ => Ok(()),
     }
 }
 
@@ -509,28 +651,7 @@ impl ResultWriter {
             .map_err(|e| out_err(out_dir, format!("cannot create the result directory: {e}")))?;
         // Temporary files that killed writes of detect's own files left behind.
         fusiondet_kitti::atomic::remove_temp_files(out_dir, is_result_file);
-        if let Some(old) = read_manifest(out_dir)? {
-            // Marked incomplete first: a kill while removing leaves a directory eval refuses.
-            write_manifest(
-                out_dir,
-                &ResultsManifest {
-                    complete: false,
-                    ..old.clone()
-                },
-            )?;
-            for id in &old.frames {
-                let path = out_dir.join(format!("{id}.txt"));
-                match std::fs::remove_file(&path) {
-                    Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                        return Err(out_err(
-                            &path,
-                            format!("cannot remove the earlier result: {e}"),
-                        ));
-                    }
-                    _ => {}
-                }
-            }
-        }
+        remove_earlier_results(out_dir)?;
         let manifest = ResultsManifest {
             complete: false,
             frames: ids.to_vec(),
@@ -556,6 +677,111 @@ impl ResultWriter {
     }
 }
 
+/// The command name in a result directory's shard records.
+const DETECT: &str = "detect";
+
+/// Writes one shard's frames of a result directory under its shard record; the shard that
+/// finds every shard finished writes the directory's manifest, as an unsharded run's end
+/// does, so the directory is then the same as one detect over the whole split would leave.
+pub struct ShardWriter {
+    out_dir: PathBuf,
+    record: ShardRecord,
+}
+
+impl ShardWriter {
+    /// Opens `out_dir` for shard `shard` of run `run`, writing `frames`. The directory may
+    /// be new, empty, or hold other shards of the same run (also a re-run of this shard);
+    /// anything else of detect's is replaced only with `replace`, anything not detect's
+    /// never.
+    pub fn begin(
+        out_dir: &Path,
+        shard: Shard,
+        run: String,
+        frames: Vec<String>,
+        replace: bool,
+    ) -> Result<ShardWriter> {
+        std::fs::create_dir_all(out_dir)
+            .map_err(|e| out_err(out_dir, format!("cannot create the result directory: {e}")))?;
+        // Shards starting together take turns to look at and prepare the directory.
+        let _lock = shard::lock_records(out_dir)?;
+        let earlier = shard::run_records(out_dir, DETECT);
+        let same_run = matches!(&earlier, Ok(Some(records)) if records[0].run == run);
+        if !same_run {
+            match earlier {
+                Err(e) if !replace => return Err(e.into()),
+                Ok(Some(_)) if !replace => {
+                    return Err(out_err(
+                        out_dir,
+                        "holds the shards of another detect run (another model, \
+                         configuration, split or shard count); pass --force to replace them, \
+                         or choose another --out",
+                    ));
+                }
+                _ => {}
+            }
+            check_result_dir(out_dir, replace)?;
+            fusiondet_kitti::atomic::remove_temp_files(out_dir, is_result_file);
+            remove_earlier_results(out_dir)?;
+        }
+        let record = ShardRecord {
+            command: DETECT.to_string(),
+            shard,
+            run,
+            complete: false,
+            frames,
+        };
+        shard::write_record(out_dir, &record)?;
+        Ok(ShardWriter {
+            out_dir: out_dir.to_path_buf(),
+            record,
+        })
+    }
+
+    /// Writes frame `id`'s results.
+    pub fn write(&mut self, id: &str, objects: &[Object]) -> Result<()> {
+        write_objects(&self.out_dir.join(format!("{id}.txt")), objects)?;
+        Ok(())
+    }
+
+    /// Marks this shard finished; if every shard now is, writes the directory's manifest.
+    pub fn finish(mut self) -> Result<shard::ShardProgress> {
+        self.record.complete = true;
+        shard::write_record(&self.out_dir, &self.record)?;
+        let _lock = shard::lock_records(&self.out_dir)?;
+        complete_sharded_results(&self.out_dir)
+    }
+}
+
+/// Checks a sharded detect's result directory and, when every shard finished and every
+/// listed frame's file is there, writes its manifest (complete, the split's frames in
+/// order). Returns how far the shards have got. `fusiondet merge` runs this too.
+pub fn complete_sharded_results(out_dir: &Path) -> Result<shard::ShardProgress> {
+    let Some(records) = shard::run_records(out_dir, DETECT)? else {
+        return Err(out_err(
+            out_dir,
+            "holds no shard records of `fusiondet detect --shard`",
+        ));
+    };
+    let progress = shard::progress(out_dir, &records, &|id| PathBuf::from(format!("{id}.txt")));
+    if progress.is_whole() {
+        let frames = shard::interleave(&records).ok_or_else(|| {
+            out_err(
+                out_dir,
+                "its shard records do not split one list (a record was edited?); run the \
+                 shards again with --force",
+            )
+        })?;
+        let manifest = ResultsManifest {
+            complete: true,
+            frames,
+        };
+        if read_manifest(out_dir)?.as_ref() != Some(&manifest) {
+            write_manifest(out_dir, &manifest)?;
+        }
+    }
+    Ok(progress)
+}
+
 /// Whether `name` is one of detect's own files in a result directory: a frame's result
 /// (`NNNNNN.txt`) or the manifest.
 fn is_result_file(name: &str) -> bool {
@@ -571,6 +797,62 @@ mod tests {
 
     fn ids(v: &[&str]) -> Vec<String> {
         v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn shards_share_a_directory_only_with_their_own_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("results");
+        let split = ids(&["000001", "000002", "000003"]);
+        let shard = |i| Shard { index: i, count: 2 };
+        let mut w = ShardWriter::begin(
+            &out,
+            shard(0),
+            "run-a".into(),
+            shard(0).select(&split),
+            false,
+        )
+        .unwrap();
+        w.write("000001", &[]).unwrap();
+        w.write("000003", &[]).unwrap();
+        let p = w.finish().unwrap();
+        assert_eq!(p.missing_shards, vec![1]);
+        assert!(
+            read_manifest(&out).unwrap().is_none(),
+            "no manifest before the last shard"
+        );
+        // Another run's shard, or an unsharded detect, is refused without --force ...
+        let err = ShardWriter::begin(&out, shard(1), "run-b".into(), vec![], false)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("shards of another detect run"), "{err}");
+        let err = ResultWriter::begin(&out, &split, false)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("sharded detect"), "{err}");
+        // ... the run's own second shard completes the directory ...
+        let mut w = ShardWriter::begin(
+            &out,
+            shard(1),
+            "run-a".into(),
+            shard(1).select(&split),
+            false,
+        )
+        .unwrap();
+        w.write("000002", &[]).unwrap();
+        assert!(w.finish().unwrap().is_whole());
+        let manifest = read_manifest(&out).unwrap().unwrap();
+        assert!(manifest.complete);
+        assert_eq!(manifest.frames, split);
+        // ... and --force replaces all of it: files, records and manifest.
+        let mut w =
+            ShardWriter::begin(&out, Shard::ALL, "run-b".into(), ids(&["000009"]), true).unwrap();
+        assert!(!out.join("000001.txt").exists() && read_manifest(&out).unwrap().is_none());
+        assert_eq!(shard::read_records(&out).unwrap().len(), 1);
+        w.write("000009", &[]).unwrap();
+        assert!(w.finish().unwrap().is_whole());
     }
 
     #[test]

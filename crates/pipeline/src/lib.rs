@@ -23,8 +23,8 @@ pub use config::{
 };
 pub use detect::{
     DETECT_CHUNK_FRAMES, DetectOptions, DetectSummary, Detector, FrameResults, ResultWriter,
-    SideInputs, SplitInputs, SplitSide, StageTimes, detect, detect_in_chunks,
-    inference_multiply_adds, trained_parameters,
+    ShardWriter, SideInputs, SplitInputs, SplitSide, StageTimes, complete_sharded_results, detect,
+    detect_in_chunks, inference_multiply_adds, trained_parameters,
 };
 pub use device::ComputeDevice;
 pub use error::{PipelineError, Result};

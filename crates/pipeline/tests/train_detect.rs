@@ -174,6 +174,7 @@ fn detect_writes_a_result_file_per_frame_that_the_evaluation_reads() {
         detections: None,
         depth_dir: None,
         replace: false,
+        shard: None,
     };
     let summary = detect(&options(&out)).unwrap();
     // A frame's boxes do not depend on the frames detected beside it: one frame at a time
@@ -242,6 +243,7 @@ fn a_checkpoint_from_another_config_is_refused() {
         detections: None,
         depth_dir: None,
         replace: false,
+        shard: None,
     })
     .unwrap_err()
     .to_string();
@@ -315,6 +317,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
         detections: None,
         depth_dir: None,
         replace: false,
+        shard: None,
     })
     .unwrap();
     assert!(refined.samples > 0, "{refined:?}");
@@ -330,6 +333,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
             detections: None,
             depth_dir: None,
             replace: false,
+            shard: None,
         },
         2,
     )
@@ -346,6 +350,7 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
         detections: None,
         depth_dir: None,
         replace: false,
+        shard: None,
     })
     .unwrap();
     // Every first-stage box became a refinement frustum or was skipped (the summary's
@@ -401,6 +406,7 @@ fn another_heading_bin_count_trains_and_detects() {
         detections: None,
         depth_dir: None,
         replace: false,
+        shard: None,
     })
     .unwrap();
     assert!(detected.boxes_written > 0, "{detected:?}");

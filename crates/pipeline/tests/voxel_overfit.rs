@@ -52,6 +52,7 @@ fn the_tiny_configuration_overfits_four_frames() {
         detections: None,
         depth_dir: None,
         replace: false,
+        shard: None,
         device: Default::default(),
     };
     detect(&options(&results)).unwrap();

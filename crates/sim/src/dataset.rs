@@ -5,9 +5,9 @@
 
 use crate::stats::{DatasetStats, FrameStats};
 use crate::{SimConfig, Split, simulate_frame};
+use fusiondet_kitti::detections2d::format_detections2d;
 use fusiondet_kitti::{
-    DatasetDir, Detection2d, FormatError, write_calib, write_detections2d, write_objects,
-    write_split, write_velodyne,
+    DatasetDir, FormatError, write_calib, write_objects, write_split, write_velodyne,
 };
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -57,7 +57,7 @@ pub struct DatasetOptions {
     pub config: SimConfig,
 }
 
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SimError + '_ {
+pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SimError + '_ {
     move |cause| SimError::Io {
         path: path.to_path_buf(),
         cause,
@@ -111,6 +111,7 @@ fn is_ours(dir: &str, name: &str, frames: usize) -> bool {
         "rgb_detections" => {
             matches!(name, "rgb_detection_train.txt" | "rgb_detection_val.txt")
         }
+        "shards" => name.starts_with(crate::sharded::SIMULATE),
         _ => name == STATS_FILE,
     }
 }
@@ -175,11 +176,30 @@ fn prepare_dir(opts: &DatasetOptions) -> Result<PreparedDir, SimError> {
     if let Some(frames) = earlier_frames {
         remove_earlier_run(root, frames)?;
     }
-    // Written before any frame, so that a killed run can still be replaced with --force.
+    write_marker(root, opts.frames)?;
+    Ok(PreparedDir {
+        ds: create_layout(root)?,
+        _lock: lock,
+    })
+}
+
+/// Writes the marker of a run of `frames` frames (before any frame, so that a killed run
+/// can still be replaced with --force).
+pub(crate) fn write_marker(root: &Path, frames: usize) -> Result<(), SimError> {
     fusiondet_kitti::write_atomic(
-        &marker,
-        format!("fusiondet simulate\nframes: {}\n", opts.frames).as_bytes(),
+        &root.join(MARKER_FILE),
+        format!("fusiondet simulate\nframes: {frames}\n").as_bytes(),
     )?;
+    Ok(())
+}
+
+/// The frame count recorded in `root`'s marker, if it is a data set the simulator wrote.
+pub(crate) fn read_marker(root: &Path) -> Option<usize> {
+    marked_frames(&std::fs::read_to_string(root.join(MARKER_FILE)).ok()?)
+}
+
+/// Creates the data set's folders under `root`.
+pub(crate) fn create_layout(root: &Path) -> Result<DatasetDir, SimError> {
     let ds = DatasetDir::new(root);
     let training = ds.training();
     for sub in ["velodyne", "calib", "label_2", "image_2", "depth_2"] {
@@ -189,11 +209,12 @@ fn prepare_dir(opts: &DatasetOptions) -> Result<PreparedDir, SimError> {
     for dir in [root.join("ImageSets"), root.join("rgb_detections")] {
         std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
     }
-    Ok(PreparedDir { ds, _lock: lock })
+    Ok(ds)
 }
 
-/// Removes the files an earlier run of `frames` frames wrote under `root`.
-fn remove_earlier_run(root: &Path, frames: usize) -> Result<(), SimError> {
+/// Removes the files an earlier run of `frames` frames wrote under `root` (a sharded run's
+/// records and per-shard data included).
+pub(crate) fn remove_earlier_run(root: &Path, frames: usize) -> Result<(), SimError> {
     let dirs = [
         ("training/velodyne", "velodyne"),
         ("training/calib", "calib"),
@@ -202,6 +223,7 @@ fn remove_earlier_run(root: &Path, frames: usize) -> Result<(), SimError> {
         ("training/depth_2", "depth_2"),
         ("ImageSets", "ImageSets"),
         ("rgb_detections", "rgb_detections"),
+        (fusiondet_kitti::shard::SHARDS_DIR, "shards"),
         ("", ""),
     ];
     for (sub, kind) in dirs {
@@ -244,22 +266,43 @@ const WRITERS: usize = 4;
 
 /// Simulates and writes a dataset; `progress(done, total)` is called after each frame
 /// is on disk. Returns the realism statistics (also written to `sim_stats.json`).
-///
-/// Frames are simulated in parallel (rayon) and handed to a few writer threads, so
-/// that waiting for the disk (every file is written atomically and fsynced) overlaps
-/// with simulating the next frames.
 pub fn write_dataset(
     opts: &DatasetOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<DatasetStats, SimError> {
     validate(opts)?;
     let prepared = prepare_dir(opts)?;
-    let ds = &prepared.ds;
+    let indices: Vec<usize> = (0..opts.frames).collect();
+    let summaries = simulate_frames(opts, &prepared.ds, &indices, progress)?;
+    write_index_files(&prepared.ds, &opts.out, summaries)
+}
+
+/// What the index files and statistics need of one written frame.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub(crate) struct FrameSummary {
+    pub id: String,
+    pub val: bool,
+    /// The frame's lines of the 2D detection file.
+    pub detections: String,
+    pub stats: FrameStats,
+}
+
+/// Simulates the frames `indices` and writes them into `ds`, returning their summaries in
+/// the order of `indices`.
+///
+/// Frames are simulated in parallel (rayon) and handed to a few writer threads, so
+/// that waiting for the disk (every file is written atomically and fsynced) overlaps
+/// with simulating the next frames.
+pub(crate) fn simulate_frames(
+    opts: &DatasetOptions,
+    ds: &DatasetDir,
+    indices: &[usize],
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<FrameSummary>, SimError> {
     let done = AtomicUsize::new(0);
     let failed = std::sync::atomic::AtomicBool::new(false);
     let (tx, rx) = std::sync::mpsc::sync_channel::<crate::SimFrame>(QUEUE);
     let rx = std::sync::Mutex::new(rx);
-    type Summary = (FrameStats, Vec<Detection2d>, Split, String);
     let (summaries, write_result) = std::thread::scope(|scope| {
         let writers: Vec<_> = (0..WRITERS)
             .map(|_| {
@@ -280,24 +323,24 @@ pub fn write_dataset(
                             result = Err(e);
                             continue;
                         }
-                        progress(done.fetch_add(1, Ordering::Relaxed) + 1, opts.frames);
+                        progress(done.fetch_add(1, Ordering::Relaxed) + 1, indices.len());
                     }
                 })
             })
             .collect();
-        let summaries: Vec<Option<Summary>> = (0..opts.frames)
-            .into_par_iter()
-            .map_with(tx, |tx, i| {
+        let summaries: Vec<Option<FrameSummary>> = indices
+            .par_iter()
+            .map_with(tx, |tx, &i| {
                 if failed.load(Ordering::Relaxed) {
                     return None;
                 }
                 let f = simulate_frame(opts.seed, i, &opts.config);
-                let summary = (
-                    FrameStats::from_frame(&f),
-                    f.detections.clone(),
-                    f.split,
-                    f.id.clone(),
-                );
+                let summary = FrameSummary {
+                    id: f.id.clone(),
+                    val: f.split == Split::Val,
+                    detections: format_detections2d(&f.detections, IMAGE_PREFIX),
+                    stats: FrameStats::from_frame(&f),
+                };
                 tx.send(f).ok()?;
                 Some(summary)
             })
@@ -313,32 +356,41 @@ pub fn write_dataset(
         (summaries, result)
     });
     write_result?;
-    let results: Vec<Summary> = summaries
+    summaries
         .into_iter()
         .collect::<Option<Vec<_>>>()
-        .ok_or_else(|| SimError::InvalidArgument("writing frames failed".to_string()))?;
-    // Index files last: they only ever list frames that are complete on disk.
-    let ids = |split: Option<Split>| -> Vec<String> {
-        results
+        .ok_or_else(|| SimError::InvalidArgument("writing frames failed".to_string()))
+}
+
+/// Writes the split lists, the 2D detection files and the statistics of the frames
+/// `summaries` (in frame order), once those frames are on disk: index files only ever list
+/// frames that are complete.
+pub(crate) fn write_index_files(
+    ds: &DatasetDir,
+    out: &Path,
+    summaries: Vec<FrameSummary>,
+) -> Result<DatasetStats, SimError> {
+    let ids = |split: Option<bool>| -> Vec<String> {
+        summaries
             .iter()
-            .filter(|r| split.is_none_or(|s| r.2 == s))
-            .map(|r| r.3.clone())
+            .filter(|r| split.is_none_or(|val| r.val == val))
+            .map(|r| r.id.clone())
             .collect()
     };
-    write_split(&ds.split("train"), &ids(Some(Split::Train)))?;
-    write_split(&ds.split("val"), &ids(Some(Split::Val)))?;
+    write_split(&ds.split("train"), &ids(Some(false)))?;
+    write_split(&ds.split("val"), &ids(Some(true)))?;
     write_split(&ds.split("trainval"), &ids(None))?;
-    for (split, name) in [(Split::Train, "train"), (Split::Val, "val")] {
-        let dets: Vec<Detection2d> = results
+    for (val, name) in [(false, "train"), (true, "val")] {
+        let lines: String = summaries
             .iter()
-            .filter(|r| r.2 == split)
-            .flat_map(|r| r.1.iter().cloned())
+            .filter(|r| r.val == val)
+            .map(|r| r.detections.as_str())
             .collect();
-        write_detections2d(&ds.rgb_detections(name), &dets, IMAGE_PREFIX)?;
+        fusiondet_kitti::write_atomic(&ds.rgb_detections(name), lines.as_bytes())?;
     }
-    let frame_stats: Vec<FrameStats> = results.into_iter().map(|r| r.0).collect();
+    let frame_stats: Vec<FrameStats> = summaries.into_iter().map(|r| r.stats).collect();
     let stats = DatasetStats::from_frames(&frame_stats);
-    fusiondet_kitti::write_atomic(&opts.out.join(STATS_FILE), stats.to_json().as_bytes())?;
+    fusiondet_kitti::write_atomic(&out.join(STATS_FILE), stats.to_json().as_bytes())?;
     Ok(stats)
 }
 

@@ -58,6 +58,7 @@ pub mod primitive;
 pub mod rng;
 pub mod scene;
 pub mod sensors;
+pub mod sharded;
 pub mod stats;
 pub mod viewgrid;
 
@@ -69,6 +70,7 @@ pub use layout::{LayoutConfig, LayoutInfo, SceneKind};
 pub use lidar::{LidarScan, PointInfo};
 pub use scene::Scene;
 pub use sensors::LidarSpec;
+pub use sharded::{ShardOutcome, complete_sharded_dataset, write_dataset_shard};
 pub use stats::{DatasetStats, FrameStats};
 
 use fusiondet_geometry::{CameraModel, points_in_box};

@@ -13,7 +13,7 @@ use crate::SimFrame;
 use crate::math::{exp, ln};
 use fusiondet_geometry::{Normalization, iou_2d, overlap_2d};
 use fusiondet_kitti::{Object, ObjectClass};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
@@ -57,7 +57,7 @@ pub fn difficulty(o: &Object) -> Option<&'static str> {
 }
 
 /// One labelled object.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ObjectRecord {
     pub class: String,
     pub depth: f64,
@@ -66,14 +66,14 @@ pub struct ObjectRecord {
     pub truncation: f64,
     pub height_px: f64,
     pub points: usize,
-    pub difficulty: Option<&'static str>,
+    pub difficulty: Option<String>,
     /// Best IoU of a same-class detection (0 if none).
     pub detection_iou: f64,
     pub detection_score: f64,
 }
 
 /// One detection, judged against the labels.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DetectionRecord {
     pub class: String,
     pub score: f64,
@@ -83,8 +83,9 @@ pub struct DetectionRecord {
     pub in_dontcare: bool,
 }
 
-/// Per-frame numbers the dataset statistics are built from.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// Per-frame numbers the dataset statistics are built from (also kept by a sharded run's
+/// shards until the last one writes the statistics; the JSON round trip is exact).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FrameStats {
     pub index: usize,
     pub kind: String,
@@ -117,7 +118,7 @@ impl FrameStats {
                 truncation: o.truncation,
                 height_px: o.bbox.y2 - o.bbox.y1,
                 points: v.points_in_box,
-                difficulty: difficulty(o),
+                difficulty: difficulty(o).map(str::to_string),
                 detection_iou: best_iou,
                 detection_score: best_score,
             });
@@ -277,7 +278,7 @@ impl DatasetStats {
             *difficulty
                 .entry(o.class.clone())
                 .or_default()
-                .entry(o.difficulty.unwrap_or("ignored").to_string())
+                .entry(o.difficulty.as_deref().unwrap_or("ignored").to_string())
                 .or_insert(0) += 1;
         }
         let points_per_car = DEPTH_BINS
@@ -447,7 +448,7 @@ fn detector_stats(frames: &[FrameStats]) -> DetectorStats {
     let mut counts: BTreeMap<(String, String), (usize, usize)> = BTreeMap::new();
     let mut ious = Vec::new();
     for o in frames.iter().flat_map(|f| &f.objects) {
-        let Some(diff) = o.difficulty else {
+        let Some(diff) = o.difficulty.as_deref() else {
             continue;
         };
         if !matches!(o.class.as_str(), "Car" | "Pedestrian" | "Cyclist") {

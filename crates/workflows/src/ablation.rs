@@ -288,6 +288,7 @@ fn run_one(
         detections: None,
         depth_dir: None,
         replace: true,
+        shard: None,
     })?;
     let frames_per_second = frames_per_second(summary.frames, &summary.timing);
     let eval_config = EvalConfig {

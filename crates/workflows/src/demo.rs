@@ -135,6 +135,7 @@ fn detect_and_evaluate(
         depth_dir: None,
         // The demo's own directory (it refuses directories it did not write).
         replace: true,
+        shard: None,
     })?;
     outln!(
         "\n== {title}: {} frames, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",

@@ -78,6 +78,10 @@ pub struct DepthCompleteArgs {
     pub max_depth: f32,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// With --data-dir and --out-dir: complete only the frames at positions k of the frame
+    /// list with k mod N = I (`fusiondet merge --dir OUT_DIR` checks that all shards ran).
+    #[arg(long, value_name = "I/N", requires = "out_dir")]
+    pub shard: Option<fusiondet_kitti::Shard>,
 }
 
 pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
@@ -141,9 +145,26 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
         bail!("give --sparse FILE --out FILE, or --sparse-dir / --data-dir with --out-dir DIR");
     };
     let summary = match (&args.sparse_dir, &args.data_dir) {
+        (Some(_), None) if args.shard.is_some() => {
+            bail!("--shard splits the frames of --data-dir; complete a --sparse-dir unsharded")
+        }
         (Some(dir), None) => fusiondet_depth::complete_dir(dir, out_dir, &completer)?,
         (None, Some(dir)) => {
-            fusiondet_depth::complete_frames(&FrameDir::new(dir), &args.ids, out_dir, &completer)?
+            let frames = FrameDir::new(dir);
+            let ids = fusiondet_depth::frame_ids(&frames, &args.ids)?;
+            let run = format!("{:?} {}", completer, super::shards::canonical(dir));
+            super::shards::run_frames(
+                "depth-complete",
+                out_dir,
+                args.shard,
+                &[run.as_bytes()],
+                ids,
+                |ids| {
+                    Ok(fusiondet_depth::complete_frames(
+                        &frames, ids, out_dir, &completer,
+                    )?)
+                },
+            )?
         }
         _ => bail!("give --sparse-dir or --data-dir (one of them) with --out-dir"),
     };

@@ -61,6 +61,12 @@ pub struct DetectArgs {
     /// Replace the results an earlier detect left in --out.
     #[arg(long)]
     pub force: bool,
+    /// Detect only the frames at positions k of the split with k mod N = I. The shards of
+    /// one run share --out; the last to finish writes its manifest (`fusiondet merge`
+    /// checks and finishes it too), after which it equals one unsharded run's.
+    /// With --force, another run's results there are replaced.
+    #[arg(long, value_name = "I/N")]
+    pub shard: Option<fusiondet_kitti::Shard>,
 }
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
@@ -77,6 +83,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         depth_dir: input.depth_dir,
         device: input.device,
         replace: args.force,
+        shard: args.shard,
     })?;
     let skipped = s.skipped;
     match kind {
@@ -111,6 +118,9 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
             s.boxes_written,
             args.out.display()
         ),
+    }
+    if let (Some(shard), Some(progress)) = (args.shard, &s.shards) {
+        super::shards::report(shard, &args.out, progress);
     }
     let t = &s.timing;
     let stages: Vec<String> = t

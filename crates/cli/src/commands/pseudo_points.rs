@@ -30,19 +30,44 @@ pub struct PseudoPointsArgs {
     /// SFD's near-range thinning: where x < 13 m keep only pixels with odd u and v.
     #[arg(long)]
     pub thin: bool,
+    /// Write only the frames at positions k of the frame list with k mod N = I
+    /// (`fusiondet merge --dir OUT_DIR` checks that all shards ran).
+    #[arg(long, value_name = "I/N")]
+    pub shard: Option<fusiondet_kitti::Shard>,
 }
 
 pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
-    let summary = fusiondet_depth::pseudo_frames(
-        &FrameDir::new(&args.data_dir),
-        &args.ids,
-        args.depth_dir.as_deref(),
+    let frames = FrameDir::new(&args.data_dir);
+    let ids = fusiondet_depth::frame_ids(&frames, &args.ids)?;
+    let completer = IpBasic {
+        extrapolate: false,
+        ..IpBasic::measured_best()
+    };
+    let thinning = args.thin.then(Thinning::default);
+    let run = format!(
+        "{completer:?} {thinning:?} {} {}",
+        super::shards::canonical(&args.data_dir),
+        args.depth_dir
+            .as_deref()
+            .map(super::shards::canonical)
+            .unwrap_or_default()
+    );
+    let summary = super::shards::run_frames(
+        "pseudo-points",
         &args.out_dir,
-        &IpBasic {
-            extrapolate: false,
-            ..IpBasic::measured_best()
+        args.shard,
+        &[run.as_bytes()],
+        ids,
+        |ids| {
+            Ok(fusiondet_depth::pseudo_frames(
+                &frames,
+                ids,
+                args.depth_dir.as_deref(),
+                &args.out_dir,
+                &completer,
+                thinning,
+            )?)
         },
-        args.thin.then(Thinning::default),
     )?;
     outln!(
         "{} frames: {} pseudo points ({:.0} per frame) -> {}",

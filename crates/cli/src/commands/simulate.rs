@@ -3,7 +3,7 @@
 //! `fusiondet-sim`.
 
 use anyhow::Context;
-use fusiondet_sim::{DatasetOptions, SimConfig, write_dataset};
+use fusiondet_sim::{DatasetOptions, SimConfig, write_dataset, write_dataset_shard};
 use fusiondet_workflows::{out, outln};
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
@@ -51,6 +51,12 @@ pub struct SimulateArgs {
     /// denser streets and more occluded objects (ablations of occlusion-aware models).
     #[arg(long, value_name = "F", default_value_t = 1.0)]
     traffic_scale: f64,
+    /// Simulate only the frames k with k mod N = I, into the same --out as the other shards
+    /// (same --frames, --seed and options). The last shard to finish writes the split lists,
+    /// 2D detections and statistics; the data set is then byte-identical to an unsharded
+    /// run's. `fusiondet merge --dir OUT` checks it.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<fusiondet_kitti::Shard>,
 }
 
 pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
@@ -83,20 +89,33 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
             let _ = std::io::stderr().flush();
         }
     };
-    let stats = write_dataset(&opts, &progress)
-        .with_context(|| format!("cannot simulate a dataset into {}", args.out.display()))?;
+    let context = || format!("cannot simulate a dataset into {}", args.out.display());
+    let (frames, stats) = match args.shard {
+        None => (
+            args.frames,
+            Some(write_dataset(&opts, &progress).with_context(context)?),
+        ),
+        Some(shard) => {
+            let outcome = write_dataset_shard(&opts, shard, &progress).with_context(context)?;
+            super::shards::report(shard, &args.out, &outcome.progress);
+            (outcome.frames, outcome.stats)
+        }
+    };
     let secs = start.elapsed().as_secs_f64();
     if interactive {
         eprintln!();
     }
     outln!(
         "wrote {} frames to {} in {:.1} s ({:.1} frames/s, seed {})",
-        args.frames,
+        frames,
         args.out.display(),
         secs,
-        args.frames as f64 / secs.max(1e-9),
+        frames as f64 / secs.max(1e-9),
         args.seed
     );
+    let Some(stats) = stats else {
+        return Ok(());
+    };
     if args.stats {
         out!("{}", stats.report());
         outln!(

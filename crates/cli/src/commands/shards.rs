@@ -1,0 +1,101 @@
+//! `--shard i/n` for the per-frame commands with nothing to finish at the end
+//! (`depth-complete`, `pseudo-points`): the shard's frames and its record before and after
+//! (see `fusiondet_kitti::shard`). `detect` and `simulate` keep theirs in their crates,
+//! since their last shard writes what spans all frames.
+
+use anyhow::bail;
+use fusiondet_kitti::Shard;
+use fusiondet_kitti::shard::{self, ShardProgress, ShardRecord};
+use fusiondet_workflows::outln;
+use std::path::{Path, PathBuf};
+
+/// The file each command writes per frame, by the command's name in shard records.
+pub fn frame_file(command: &str, id: &str) -> Option<PathBuf> {
+    let name = match command {
+        "detect" => format!("{id}.txt"),
+        "depth-complete" => format!("{id}.png"),
+        "pseudo-points" => format!("{id}.bin"),
+        "simulate" => format!("training/label_2/{id}.txt"),
+        _ => return None,
+    };
+    Some(PathBuf::from(name))
+}
+
+/// Runs `work` on shard `shard` of `ids` (all of them without a shard), recording the
+/// shard in `out_dir` before and after; `run` lists what defines the run (options, inputs),
+/// so that another run's shards are never mixed into the same directory.
+pub fn run_frames<T>(
+    command: &str,
+    out_dir: &Path,
+    shard: Option<Shard>,
+    run: &[&[u8]],
+    ids: Vec<String>,
+    work: impl FnOnce(&[String]) -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
+    let Some(shard) = shard else {
+        return work(&ids);
+    };
+    let fingerprint = {
+        let count = shard.count.to_string();
+        let list = ids.join("\n");
+        let mut parts = run.to_vec();
+        parts.extend([command.as_bytes(), list.as_bytes(), count.as_bytes()]);
+        shard::fingerprint(&parts)
+    };
+    let mine = shard.select(&ids);
+    std::fs::create_dir_all(out_dir)?;
+    let mut record = ShardRecord {
+        command: command.to_string(),
+        shard,
+        run: fingerprint,
+        complete: false,
+        frames: mine.clone(),
+    };
+    {
+        let _lock = shard::lock_records(out_dir)?;
+        if let Some(earlier) = shard::run_records(out_dir, command)?
+            && earlier[0].run != record.run
+        {
+            bail!(
+                "{}: holds the shards of another `{command}` run (other inputs, options or \
+                 shard count); choose another output directory",
+                out_dir.display()
+            );
+        }
+        shard::write_record(out_dir, &record)?;
+    }
+    let result = work(&mine)?;
+    record.complete = true;
+    shard::write_record(out_dir, &record)?;
+    let records = shard::run_records(out_dir, command)?.unwrap_or_default();
+    let progress = shard::progress(out_dir, &records, &|id| {
+        frame_file(command, id).unwrap_or_default()
+    });
+    report(shard, out_dir, &progress);
+    Ok(result)
+}
+
+/// A path as one string for a run's fingerprint, links resolved where it exists.
+pub fn canonical(path: &Path) -> String {
+    path.canonicalize()
+        .unwrap_or_else(|_| path.to_path_buf())
+        .display()
+        .to_string()
+}
+
+/// The line a finished shard prints.
+pub fn report(shard: Shard, out_dir: &Path, progress: &ShardProgress) {
+    if progress.is_whole() {
+        outln!(
+            "shard {shard} done: every shard has finished; {} is complete",
+            out_dir.display()
+        );
+    } else {
+        outln!(
+            "shard {shard} done; the run is not complete yet ({}); `fusiondet merge --dir {}` \
+             checks it",
+            progress.describe(),
+            out_dir.display()
+        );
+    }
+}
