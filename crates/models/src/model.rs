@@ -48,6 +48,24 @@ impl FConvNet {
         })
     }
 
+    /// For inference: folds every point-wise MLP layer's batch norm into its linear layer
+    /// (LFA and the per-scale PointNets, where the norms run over every point or pair;
+    /// see [`MlpLayer::fold_norm`](fusiondet_nn::MlpLayer::fold_norm)). The FCN's norms
+    /// run over a few hundred positions per frustum and stay as they are.
+    pub fn fold_norms(&mut self) {
+        let lfa_layers = self
+            .lfa
+            .iter_mut()
+            .flat_map(|l| l.stages.iter_mut())
+            .flat_map(|s| s.local.iter_mut().chain(s.point.iter_mut()));
+        let encoder_layers = self.encoders.iter_mut().flat_map(|e| match e {
+            SliceEncoder::PointNet(p) => p.layers.iter_mut(),
+        });
+        for layer in lfa_layers.chain(encoder_layers) {
+            layer.fold_norm();
+        }
+    }
+
     pub fn config(&self) -> &ModelConfig {
         &self.config
     }

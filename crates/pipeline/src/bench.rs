@@ -68,6 +68,11 @@ impl DetectBench {
     pub fn frames_per_second(&self) -> f64 {
         self.frames as f64 / self.median_total().as_secs_f64().max(1e-9)
     }
+
+    /// Network inputs (frustums, for the frustum family) per second of the median run.
+    pub fn inputs_per_second(&self) -> f64 {
+        self.samples as f64 / self.median_total().as_secs_f64().max(1e-9)
+    }
 }
 
 impl fmt::Display for DetectBench {
@@ -92,9 +97,10 @@ impl fmt::Display for DetectBench {
         }
         write!(
             f,
-            "  total {:.1} ms per frame: {:.2} frames/s",
+            "  total {:.1} ms per frame: {:.2} frames/s, {:.1} network inputs/s",
             1e3 * total / self.frames.max(1) as f64,
-            self.frames_per_second()
+            self.frames_per_second(),
+            self.inputs_per_second()
         )
     }
 }

@@ -32,7 +32,10 @@ impl FrustumDetector {
     /// Loads the checkpoint trained with `config` onto `device`, and for a refinement
     /// configuration its first stage (`refine.first_stage`).
     pub fn load(config: ExperimentConfig, checkpoint: &Path, device: &Device) -> Result<Self> {
-        let model = fusiondet_models::load_checkpoint(&config.model, checkpoint, device)?;
+        let mut model = fusiondet_models::load_checkpoint(&config.model, checkpoint, device)?;
+        if !device.is_autodiff() {
+            model.fold_norms();
+        }
         let first_stage = match &config.refine {
             Some(r) => {
                 let first = ExperimentConfig::for_checkpoint(&r.first_stage, None)?;
