@@ -44,6 +44,7 @@ pub mod error;
 pub mod errors;
 mod evaluate;
 pub mod frames;
+pub mod indoor;
 pub mod load;
 pub mod protocol;
 #[cfg(test)]
