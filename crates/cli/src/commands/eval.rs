@@ -1,8 +1,12 @@
 //! `fusiondet eval`: the official KITTI object evaluation on a label directory and a
 //! result directory, printed as the familiar devkit/OpenPCDet table and optionally
-//! written as JSON. The work lives in `fusiondet-eval`.
+//! written as JSON; with `--dataset sunrgbd`, the indoor evaluation of SUN RGB-D (VoteNet's
+//! protocol with an exact IoU). The work lives in `fusiondet-eval`.
 
 use anyhow::bail;
+use fusiondet_eval::indoor::{
+    IOU_THRESHOLDS, evaluate_indoor, load_indoor_dirs, write_indoor_json,
+};
 use fusiondet_eval::{
     EvalConfig, JsonExtras, breakdown_table, count_lidar_points, errors_table, evaluate,
     evaluate_breakdown, frame_ids, load_dirs, parse_classes, true_positive_errors, write_json,
@@ -41,15 +45,44 @@ ground-truth box (class or neighbour class) it overlaps most in the measure eval
 LiDAR points inside it for lidar_points, and to every bin for occlusion (detections have
 no occlusion level). In other bins it is not counted. Thus every ground-truth box and
 every false positive belongs to exactly one bin (false positives overlapping nothing:
-every occlusion bin).";
+every occlusion bin).
+
+--dataset sunrgbd: SUN RGB-D's indoor evaluation, on label and result files of the prepared
+layout (<id>.txt, one box a line: class cx cy cz dx dy dz yaw x1 y1 x2 y2, results with the
+score appended; upright depth, yaw about +z). For each of the 10 classes (bed, table, sofa,
+chair, toilet, desk, dresser, night_stand, bookshelf, bathtub; other names are ignored) all
+its detections over all scenes, highest score first (equal scores in split, then file
+order), each take the box of the class in their scene with the largest rotated 3D IoU; a
+true positive if that IoU is above the threshold and the box not yet taken. AP = area under
+the precision envelope (all points), at IoU 0.25 and 0.5, and the mean over the classes with
+ground truth (a class without is `-`, null in JSON). VoteNet's eval_det.py, except that the
+IoU is exact. --json OUT writes {\"results\": [{\"class\", \"iou\", \"ap\"}, ...], \"map\":
+{\"0.25\": m, \"0.5\": m}}, AP in percent.";
+
+/// `--classes`' default: the classes the KITTI benchmark evaluates.
+const KITTI_CLASSES: &str = "Car,Pedestrian,Cyclist";
+
+/// Which data set's files and protocol `eval` uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum Dataset {
+    /// KITTI's object benchmark (label_2 files, the official devkit).
+    Kitti,
+    /// SUN RGB-D's indoor 3D detection (VoteNet's protocol, exact IoU).
+    Sunrgbd,
+}
 
 #[derive(clap::Args)]
 #[command(after_long_help = AFTER_HELP)]
 pub struct EvalArgs {
-    /// Ground-truth directory in KITTI label_2 format (NNNNNN.txt).
+    /// The data set's format and protocol: kitti, or sunrgbd (see --help).
+    #[arg(long, value_enum, default_value_t = Dataset::Kitti)]
+    dataset: Dataset,
+    /// Ground-truth directory in KITTI label_2 format (NNNNNN.txt), or SUN RGB-D label files
+    /// with --dataset sunrgbd.
     #[arg(long, value_name = "DIR")]
     label_dir: PathBuf,
-    /// Detection results: NNNNNN.txt per frame, label format plus a 16th column (score).
+    /// Detection results: NNNNNN.txt per frame, label format plus a 16th column (score; SUN
+    /// RGB-D: a 13th).
     /// A missing file is a frame without detections (the count is reported).
     #[arg(long, value_name = "DIR")]
     result_dir: PathBuf,
@@ -58,7 +91,7 @@ pub struct EvalArgs {
     #[arg(long, value_name = "IDS_FILE")]
     split: Option<PathBuf>,
     /// Classes to evaluate, comma-separated, KITTI spelling.
-    #[arg(long, value_name = "LIST", default_value = "Car,Pedestrian,Cyclist")]
+    #[arg(long, value_name = "LIST", default_value = KITTI_CLASSES)]
     classes: String,
     /// Also write the results as JSON to this file (atomically).
     #[arg(long, value_name = "OUT")]
@@ -82,6 +115,9 @@ pub struct EvalArgs {
 }
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    if args.dataset == Dataset::Sunrgbd {
+        return run_sunrgbd(args);
+    }
     let classes = parse_classes(&args.classes).map_err(|m| anyhow::anyhow!("--classes: {m}"))?;
     let cfg = EvalConfig {
         classes,
@@ -168,6 +204,64 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     eprintln!(
         "evaluated {} frames in {:.3} s",
         report.frames,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// `--dataset sunrgbd`: the indoor evaluation of every scene of the split (default: every
+/// label file), printed as the papers' table and optionally written as JSON.
+fn run_sunrgbd(args: EvalArgs) -> anyhow::Result<()> {
+    let kitti_only = [
+        ("--breakdown", args.breakdown),
+        ("--errors", args.errors),
+        ("--velodyne-dir", args.velodyne_dir.is_some()),
+        ("--calib-dir", args.calib_dir.is_some()),
+        ("--classes", args.classes != KITTI_CLASSES),
+    ];
+    if let Some((flag, _)) = kitti_only.iter().find(|(_, given)| *given) {
+        bail!(
+            "{flag} is for --dataset kitti; the SUN RGB-D evaluation always reports its 10 classes"
+        );
+    }
+    if let Some(out) = &args.json {
+        super::outputs::refuse_output_in_inputs(
+            "--json",
+            out,
+            &[
+                ("--label-dir", Some(args.label_dir.as_path())),
+                ("--result-dir", Some(args.result_dir.as_path())),
+            ],
+        )?;
+    }
+    let start = Instant::now();
+    let ids = frame_ids(&args.label_dir, args.split.as_deref())?;
+    let loaded = load_indoor_dirs(&args.label_dir, &args.result_dir, &ids)?;
+    let missing = &loaded.missing_results;
+    if !missing.is_empty() {
+        let shown: Vec<&str> = missing.iter().take(5).map(String::as_str).collect();
+        eprintln!(
+            "warning: {} of {} scenes have no result file in {} (evaluated as scenes without detections): {}{}",
+            missing.len(),
+            ids.len(),
+            args.result_dir.display(),
+            shown.join(", "),
+            if missing.len() > shown.len() {
+                ", ..."
+            } else {
+                ""
+            }
+        );
+    }
+    let report = evaluate_indoor(&loaded.scenes, &IOU_THRESHOLDS)?;
+    out!("{}", report.table());
+    if let Some(out) = &args.json {
+        write_indoor_json(out, &report)?;
+        eprintln!("wrote {}", out.display());
+    }
+    eprintln!(
+        "evaluated {} scenes in {:.3} s",
+        report.scenes,
         start.elapsed().as_secs_f64()
     );
     Ok(())
