@@ -38,6 +38,11 @@ impl SunRgbdDir {
         self.label_dir().join(format!("{id}.txt"))
     }
 
+    /// A 2D detector's boxes for a scene ([`crate::detections2d`]).
+    pub fn detections_2d(&self, id: &str) -> PathBuf {
+        self.root.join("det_2d").join(format!("{id}.txt"))
+    }
+
     /// `splits/<name>.txt` (`train`, `val`).
     pub fn split(&self, name: &str) -> PathBuf {
         self.root.join("splits").join(format!("{name}.txt"))

@@ -12,6 +12,7 @@
 //!   image/<id>.jpg    the colour image the points were made from
 //!   calib/<id>.txt    the 3×3 depth-to-image matrix M: [u·w, v·w, w] = M · [x, y, z]
 //!   label/<id>.txt    ground truth, one box per line
+//!   det_2d/<id>.txt   a 2D detector's boxes, `class x1 y1 x2 y2 score` ([`detections2d`])
 //!   splits/train.txt  scene ids, one per line (also val.txt)
 //! ```
 //!
@@ -42,6 +43,7 @@
 
 pub mod calib;
 pub mod depth;
+pub mod detections2d;
 mod io;
 pub mod label;
 pub mod layout;
@@ -49,6 +51,7 @@ pub mod points;
 
 pub use calib::{Calib, Mat33, read_calib, write_calib};
 pub use depth::{DepthToPoints, PixelOrigin, RawDepth, depth_to_points, read_depth_png};
+pub use detections2d::{Detection2d, read_detections_2d, write_detections_2d};
 pub use fusiondet_kitti::{FormatError, Result};
 pub use label::{Object, SunClass, UprightBox, read_labels, read_results, write_objects};
 pub use layout::{Scene, SunRgbdDir, read_image};
