@@ -2,6 +2,55 @@
 //! sizes. A data format's own spelling of its classes (KITTI's `Car`, `Van`, …,
 //! `DontCare`) is that format's detail; a detector learns the classes of a set.
 
+use fusiondet_kitti::ObjectClass;
+use fusiondet_sunrgbd::SunClass;
+
+/// A class as a data format spells it: KITTI's enum or SUN RGB-D's ten. The frustum
+/// family carries this (not a format's own type) so one code path serves both formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Class {
+    Kitti(ObjectClass),
+    SunRgbd(SunClass),
+}
+
+impl Class {
+    /// The name as the format's files spell it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Class::Kitti(c) => c.as_str(),
+            Class::SunRgbd(c) => c.as_str(),
+        }
+    }
+
+    /// The class a name means in either format (KITTI spells its classes capitalised,
+    /// SUN RGB-D in lower case: no name is both).
+    pub fn parse(name: &str) -> Option<Class> {
+        ObjectClass::parse(name)
+            .map(Class::Kitti)
+            .or_else(|| SunClass::parse(name).map(Class::SunRgbd))
+    }
+
+    /// KITTI's class, if this is one.
+    pub fn kitti(self) -> Option<ObjectClass> {
+        match self {
+            Class::Kitti(c) => Some(c),
+            Class::SunRgbd(_) => None,
+        }
+    }
+}
+
+impl From<ObjectClass> for Class {
+    fn from(c: ObjectClass) -> Class {
+        Class::Kitti(c)
+    }
+}
+
+impl std::fmt::Display for Class {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// One class of a set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ClassInfo {
@@ -37,6 +86,37 @@ impl ClassSet {
                 class("Pedestrian", [0.84422524, 0.66068622, 1.76255119]),
                 class("Cyclist", [1.76282397, 0.59706367, 1.73698127]),
             ],
+        }
+    }
+
+    /// SUN RGB-D's ten classes in VoteNet's order with VoteNet's mean sizes
+    /// (`sunrgbd_utils.py` `type_mean_size`). VoteNet lists them as (l, w, h) with l
+    /// along the heading: the label's (dx, dy, dz), and `Box3d`'s (l, w, h) after
+    /// [`crate::indoor::camera_box`] (l = dx, w = dy, h = dz).
+    #[allow(clippy::excessive_precision)]
+    pub fn sun_rgbd() -> ClassSet {
+        let sizes: [[f64; 3]; 10] = [
+            [2.114256, 1.620300, 0.927272],
+            [0.791118, 1.279516, 0.718182],
+            [0.923508, 1.867419, 0.845495],
+            [0.591958, 0.552978, 0.827272],
+            [0.699104, 0.454178, 0.756250],
+            [0.528526, 1.002642, 0.872194],
+            [0.500618, 0.632163, 0.683424],
+            [0.404671, 0.500010, 0.632214],
+            [0.404153, 1.071108, 1.688889],
+            [0.765840, 1.398258, 0.472728],
+        ];
+        ClassSet {
+            name: "SUN RGB-D".into(),
+            classes: SunClass::ALL
+                .iter()
+                .zip(sizes)
+                .map(|(c, mean_size)| ClassInfo {
+                    name: c.as_str().into(),
+                    mean_size,
+                })
+                .collect(),
         }
     }
 
@@ -79,5 +159,36 @@ mod tests {
         assert_eq!(k.index_of("Cyclist"), Some(2));
         assert_eq!(k.index_of("Van"), None);
         assert!(k.mean_sizes()[0][0] > 3.8 && k.mean_sizes()[1][2] > 1.7);
+    }
+
+    #[test]
+    fn sun_rgbd_slots_follow_votenet_with_l_along_the_heading() {
+        let s = ClassSet::sun_rgbd();
+        assert_eq!(s.len(), 10);
+        for (k, c) in SunClass::ALL.iter().enumerate() {
+            assert_eq!(s.index_of(c.as_str()), Some(c.index()));
+            assert_eq!(k, c.index());
+        }
+        // A bed is longer (dx, along its heading) than wide and wide than high; a
+        // bookshelf is its tallest extent; a night stand's dx is its depth (0.40 m).
+        let bed = s.mean_sizes()[0];
+        assert!(bed[0] > bed[1] && bed[1] > bed[2], "{bed:?}");
+        assert_eq!(bed, [2.114256, 1.620300, 0.927272]);
+        let shelf = s.mean_sizes()[8];
+        assert!(shelf[2] > shelf[1] && shelf[1] > shelf[0], "{shelf:?}");
+        assert_eq!(s.mean_sizes()[7], [0.404671, 0.500010, 0.632214]);
+    }
+
+    #[test]
+    fn class_names_parse_in_either_format() {
+        assert_eq!(Class::parse("Car"), Some(Class::Kitti(ObjectClass::Car)));
+        assert_eq!(
+            Class::parse("night_stand"),
+            Some(Class::SunRgbd(SunClass::NightStand))
+        );
+        assert_eq!(Class::parse("car"), None);
+        assert_eq!(Class::parse("Bed"), None);
+        assert_eq!(Class::SunRgbd(SunClass::Bed).to_string(), "bed");
+        assert_eq!(Class::SunRgbd(SunClass::Bed).kitti(), None);
     }
 }

@@ -1,5 +1,6 @@
 //! One frame as the sensors saw it, and where frames come from.
 
+use crate::classes::Class;
 use crate::error::{DataError, Result};
 use fusiondet_geometry::CameraModel;
 use fusiondet_kitti::{
@@ -27,6 +28,10 @@ pub struct SensorFrame {
     pub image_path: Option<PathBuf>,
     /// Ground truth (empty for detection-only frames).
     pub objects: Vec<Object>,
+    /// The class of each of `objects`, as its format spells it: KITTI's own for KITTI
+    /// frames; for SUN RGB-D frames (whose `objects` are KITTI lines with class `Misc`,
+    /// which KITTI's code does not evaluate) the SUN RGB-D class.
+    pub classes: Vec<Class>,
 }
 
 impl SensorFrame {
@@ -49,6 +54,7 @@ impl SensorFrame {
             lidar,
             image_size,
             image_path: None,
+            classes: objects.iter().map(|o| Class::Kitti(o.class)).collect(),
             objects,
         })
     }

@@ -9,14 +9,17 @@
 //! - [`load_split`] / [`split_ids`]: the frames an `ImageSets/<split>.txt` lists.
 //! - [`ClassSet`]: a detector's class vocabulary (names in one-hot order, mean sizes).
 //! - [`rng`]: the one seeded generator of the project.
+//! - [`indoor`]: SUN RGB-D scenes as frames (upright depth → the rectified camera
+//!   convention of `geometry::Box3d`, and back).
 
 pub mod classes;
 pub mod error;
 pub mod frame;
+pub mod indoor;
 pub mod rng;
 pub mod split;
 
-pub use classes::{ClassInfo, ClassSet};
+pub use classes::{Class, ClassInfo, ClassSet};
 pub use error::{DataError, Result};
 pub use frame::{
     DEFAULT_IMAGE_SIZE, DerivedFrame, DiskFrames, FrameSource, InMemoryFrames, SensorFrame,
