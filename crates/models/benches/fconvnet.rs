@@ -1,15 +1,23 @@
 //! F-ConvNet Car benchmarks on the flex CPU backend:
-//! inference for one frame (8 frustums) and its parts, and a training step for batch 32.
+//! inference for one frame (8 frustums) and its parts, a training step for batch 32, and the
+//! backend's matrix-multiply rate, the yardstick the step's rate is read against. Throughput
+//! is in FLOPs (2 per multiply-add; a training step counted as 3 forward passes: the forward,
+//! and the backward's input and weight gradients), so criterion's `thrpt` reads as FLOP/s.
 //!
 //! `cargo bench -p fusiondet-models --bench fconvnet`
 
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use fusiondet_models::synthetic::{SyntheticSpec, synthetic_batch};
 use fusiondet_models::*;
 use std::hint::black_box;
 use std::time::Duration;
+
+/// The binary's allocator (`crates/cli/src/main.rs`), so the figures are the binary's: with
+/// glibc's, the step spends a fifth of its time in the kernel mapping and zeroing pages.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 /// Reads a tensor back so lazily executed work is finished inside the timing.
 fn sync<const D: usize>(t: &Tensor<D>) -> f32 {
@@ -63,8 +71,20 @@ fn train_step(c: &mut Criterion) {
     let targets = LossTargets::new(&batch, &config.model, &config.loss, &device).unwrap();
     let mut optim = AdamConfig::new().init();
 
+    let macs = forward_macs(&config.model, &batch).unwrap();
+    let step_flops = 3 * 2 * macs.total();
+    eprintln!(
+        "forward multiply-adds, batch 32: pointnets {:?}, fcn {}, heads {} (total {:.2} G); \
+         training step ≈ {:.2} GFLOP",
+        macs.pointnets,
+        macs.fcn,
+        macs.heads,
+        macs.total() as f64 * 1e-9,
+        step_flops as f64 * 1e-9
+    );
     let mut g = c.benchmark_group("car_train_b32");
     g.sample_size(10).measurement_time(Duration::from_secs(30));
+    g.throughput(Throughput::Elements(step_flops));
     g.bench_function("train_step (forward + loss + backward + adam)", |b| {
         b.iter(|| {
             let m = model.take().unwrap();
@@ -86,5 +106,25 @@ fn train_step(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, inference, train_step);
+/// The backend's f32 matrix product on all threads: a square one and the shape of the
+/// scale-4 PointNet's widest layer over a frame (about 8,000 (point, sub-frustum) pairs × 256 → 512).
+fn matmul_rate(c: &mut Criterion) {
+    let device = Device::flex();
+    let mut g = c.benchmark_group("flex_matmul");
+    g.sample_size(10).measurement_time(Duration::from_secs(10));
+    for (name, [m, k, n]) in [
+        ("1024x1024x1024", [1024, 1024, 1024]),
+        ("pointnet 8192x256x512", [8192, 256, 512]),
+    ] {
+        let a = Tensor::<2>::random([m, k], burn::tensor::Distribution::Default, &device);
+        let b = Tensor::<2>::random([k, n], burn::tensor::Distribution::Default, &device);
+        g.throughput(Throughput::Elements(2 * (m * k * n) as u64));
+        g.bench_function(name, |bench| {
+            bench.iter(|| sync(&a.clone().matmul(b.clone())))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, inference, train_step, matmul_rate);
 criterion_main!(benches);

@@ -130,3 +130,132 @@ pub fn render_info(config: &FConvNetConfig) -> Result<String, ModelError> {
         m.regression_channels(),
     ))
 }
+
+/// Multiply-adds of one F-ConvNet forward pass over a batch, by part. Counted from the layer
+/// shapes and the batch's real (point, sub-frustum) pairs, as the ragged PointNets run them:
+/// a `Linear` is in × out per row, a convolution in × out × kernel per output position, a
+/// transposed one in × out × stride per input position. Batch norm, ReLU, pooling and
+/// concatenation are left out (they are not multiply-adds); so are SAF's LFA and FCAM's
+/// attention blocks, which `counted_all` then reports as false.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ForwardMacs {
+    pub pointnets: [u64; 4],
+    pub fcn: u64,
+    pub heads: u64,
+    /// False when the network has blocks this count leaves out (LFA, attention).
+    pub counted_all: bool,
+}
+
+impl ForwardMacs {
+    pub fn total(&self) -> u64 {
+        self.pointnets.iter().sum::<u64>() + self.fcn + self.heads
+    }
+}
+
+/// [`ForwardMacs`] of `config`'s network on `batch`.
+pub fn forward_macs(
+    config: &crate::config::ModelConfig,
+    batch: &fusiondet_frustum::FrustumBatch,
+) -> Result<ForwardMacs, ModelError> {
+    if batch.scales.len() != 4 || config.pointnet_widths.len() != 4 {
+        return Err(ModelError::Batch(
+            "multiply-adds are counted for four scales".into(),
+        ));
+    }
+    let b = batch.batch_size as u64;
+    let mut pointnets = [0u64; 4];
+    for (k, scale) in batch.scales.iter().enumerate() {
+        let mut c_in = config.pointnet_input_channels() as u64;
+        let mut per_row = 0;
+        for &w in &config.pointnet_widths[k] {
+            per_row += c_in * w as u64;
+            c_in = w as u64;
+        }
+        pointnets[k] = per_row * scale.pair_point.len() as u64;
+    }
+    let c: Vec<u64> = config.fcn_channels.iter().map(|&x| x as u64).collect();
+    let s = |k: usize| config.scale_feature_channels(k) as u64;
+    let d = config.deconv_channels as u64;
+    // Output lengths: block 1 keeps scale 1's slices, each down block halves (rounding up).
+    let l1 = batch.scales[0].slices_per_frustum as u64;
+    let l2 = l1.div_ceil(2);
+    let l3 = l2.div_ceil(2);
+    let l4 = l3.div_ceil(2);
+    let down = |c_in: u64, c_out: u64, s_next: u64, l: u64| {
+        l * (c_in * c_out * 3 + c_out * c_out * 3 + (c_out + s_next) * c_out)
+    };
+    let fcn = b
+        * (l1 * s(0) * c[0] * 3
+            + down(c[0], c[1], s(1), l2)
+            + down(c[1], c[2], s(2), l3)
+            + down(c[2], c[3], s(3), l4)
+            + l2 * c[1] * d
+            + l3 * c[2] * d * 2
+            + l4 * c[3] * d * 4);
+    let heads = b * l2 * config.head_channels() as u64 * (2 + config.regression_channels() as u64);
+    Ok(ForwardMacs {
+        pointnets,
+        fcn,
+        heads,
+        counted_all: config.lfa.is_none() && !config.slice_encoder.uses_attention(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::{SyntheticSpec, synthetic_batch};
+
+    /// The count's arithmetic against the shapes of the network burn builds: every weight
+    /// element is one multiply-add per output position (per input position for the
+    /// transposed convolutions, whose weights hold stride taps each).
+    #[test]
+    fn forward_macs_match_the_built_layers() {
+        let config = crate::config::ModelConfig::car();
+        let batch = synthetic_batch(&SyntheticSpec::car(2), 3);
+        let macs = forward_macs(&config, &batch).unwrap();
+        assert!(macs.counted_all);
+        let model = FConvNet::new(&config, &Device::flex()).unwrap();
+        let elems = |t: &Tensor<3>| t.dims().iter().product::<usize>() as u64;
+        let f = &model.fcn;
+        let lens: Vec<u64> = batch
+            .scales
+            .iter()
+            .map(|s| s.slices_per_frustum as u64)
+            .collect();
+        let down = |blk: &crate::fcn::DownBlock, l: u64| {
+            (elems(&blk.down.conv.weight.val())
+                + elems(&blk.conv.conv.weight.val())
+                + elems(&blk.merge.conv.weight.val()))
+                * l
+        };
+        let fcn = 2
+            * (elems(&f.block1.conv.weight.val()) * lens[0]
+                + down(&f.block2, lens[1])
+                + down(&f.block3, lens[2])
+                + down(&f.block4, lens[3])
+                + elems(&f.deconv2.deconv.weight.val()) * lens[1]
+                + elems(&f.deconv3.deconv.weight.val()) * lens[2]
+                + elems(&f.deconv4.deconv.weight.val()) * lens[3]);
+        assert_eq!(macs.fcn, fcn);
+        let heads = (trainable_params(&model.heads.cls) + trainable_params(&model.heads.reg)
+            - 2
+            - config.regression_channels()) as u64;
+        assert_eq!(macs.heads, 2 * lens[1] * heads);
+        for (k, enc) in model.encoders.iter().enumerate() {
+            let crate::pointnet::SliceEncoder::PointNet(p) = enc;
+            let weights: u64 = p
+                .layers
+                .iter()
+                .map(|l| l.linear.weight.val().dims().iter().product::<usize>() as u64)
+                .sum();
+            assert_eq!(
+                macs.pointnets[k],
+                weights * batch.scales[k].pair_point.len() as u64
+            );
+        }
+        let mut saf = config.clone();
+        saf.lfa = Some(crate::config::LfaConfig::default());
+        assert!(!forward_macs(&saf, &batch).unwrap().counted_all);
+    }
+}
