@@ -68,7 +68,7 @@ impl Default for DetectorSpec {
     }
 }
 
-fn sigmoid(x: f64) -> f64 {
+pub(crate) fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + exp(-x))
 }
 
@@ -82,7 +82,7 @@ fn class_index(c: ObjectClass) -> usize {
 
 /// Jitters a box (relative deviation `sigma` of its size per side), rounds to whole
 /// pixels as F-PointNet's files do, and clips it to the image.
-fn jitter(s: &mut Sampler, b: &Box2d, sigma: f64, w: f64, h: f64) -> Option<Box2d> {
+pub(crate) fn jitter(s: &mut Sampler, b: &Box2d, sigma: f64, w: f64, h: f64) -> Option<Box2d> {
     let (bw, bh) = (b.x2 - b.x1, b.y2 - b.y1);
     let j = Box2d {
         x1: (b.x1 + sigma * bw * s.normal()).round(),

@@ -8,6 +8,9 @@
 //! hit. Labels (truncation, z-buffer occlusion, DontCare) and a simulated
 //! F-PointNet-style 2D detector complete the frame.
 //!
+//! The indoor simulator ([`indoor`]: furnished rooms seen by an RGB-D camera, written as a
+//! prepared SUN RGB-D data set) shares the primitives, BVH, materials and seeding.
+//!
 //! # Using it
 //! * [`simulate_frame`]`(seed, index, &SimConfig)` builds one frame in memory
 //!   ([`SimFrame`]: points, image, calibration, `label_2` objects, 2D detections, and
@@ -48,6 +51,7 @@ pub mod bvh;
 pub mod camera;
 pub mod dataset;
 pub mod detector;
+pub mod indoor;
 pub mod label;
 pub mod layout;
 pub mod lidar;

@@ -35,6 +35,9 @@ pub enum Surface {
     Object,
     /// An unlabelled movable thing: a parked bicycle, a bin, a bench.
     Clutter,
+    /// A room's floor and ceiling (the indoor simulator).
+    Floor,
+    Ceiling,
 }
 
 /// Owner value of primitives that belong to no labelled object.
