@@ -24,7 +24,7 @@ fn bench(c: &mut Criterion) {
         .filter(|d| d.frame_id == id)
         .collect();
     let config = FrustumConfig {
-        classes: vec![fusiondet_kitti::ObjectClass::Pedestrian],
+        classes: vec![fusiondet_kitti::ObjectClass::Pedestrian.into()],
         ..FrustumConfig::pedestrian_cyclist()
     };
     let image_size = [1242.0, 375.0];
@@ -58,7 +58,7 @@ fn bench(c: &mut Criterion) {
     c.bench_function("build one sample (sample 1024, slice 4 scales)", |b| {
         let source = SampleSource {
             frame_id: &frame.id,
-            class: fusiondet_kitti::ObjectClass::Pedestrian,
+            class: fusiondet_kitti::ObjectClass::Pedestrian.into(),
             score: Some(1.0),
             focal_v: frame.camera.fv(),
             p2: frame.camera.p2_rows(),
@@ -85,7 +85,7 @@ fn bench(c: &mut Criterion) {
                 let fp = extract_frustum(frame, &d.bbox, config.depth_range, 5.0).ok()?;
                 let source = SampleSource {
                     frame_id: &frame.id,
-                    class: d.class,
+                    class: d.class.into(),
                     score: Some(d.score),
                     focal_v: frame.camera.fv(),
                     p2: frame.camera.p2_rows(),

@@ -6,6 +6,7 @@ use crate::coder::BoxCoder;
 use crate::error::{FrustumError, Result};
 use crate::proposal::ProposalCrop;
 use crate::slicing::{DepthGuidedSlicing, SliceStrategy, Slicing, UniformSlicing};
+use fusiondet_dataset::Class;
 use fusiondet_kitti::ObjectClass;
 use serde::{Deserialize, Serialize};
 
@@ -22,11 +23,11 @@ pub const MAX_COPIES: usize = 1000;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FrustumConfig {
-    /// Classes that become frustums, as KITTI spells them (`["Car"]`,
-    /// `["Pedestrian", "Cyclist"]`). Only Car, Pedestrian and Cyclist have a one-hot
-    /// slot and a size cluster.
+    /// Classes that become frustums, as their format spells them (KITTI: `["Car"]`,
+    /// `["Pedestrian", "Cyclist"]`; SUN RGB-D: `["bed", "table", ...]`). Only the
+    /// classes of the coder's class set have a one-hot slot and a size cluster.
     #[serde(with = "class_names")]
-    pub classes: Vec<ObjectClass>,
+    pub classes: Vec<Class>,
     /// Points sampled per frustum (with repetition when the frustum has fewer).
     pub points_per_frustum: usize,
     /// Sub-frustums are cut from the first this many sampled points (0 = all). SAF's LFA
@@ -125,7 +126,7 @@ impl FrustumConfig {
     /// at most 32/64/64/128 points each, output at the second scale.
     pub fn car() -> Self {
         FrustumConfig {
-            classes: vec![ObjectClass::Car],
+            classes: vec![ObjectClass::Car.into()],
             points_per_frustum: 1024,
             sliced_points: 0,
             depth_range: [0.0, 70.0],
@@ -164,12 +165,35 @@ impl FrustumConfig {
     /// `depth_range` to cover farther people with more sub-frustums per scale.
     pub fn pedestrian_cyclist() -> Self {
         FrustumConfig {
-            classes: vec![ObjectClass::Pedestrian, ObjectClass::Cyclist],
+            classes: vec![ObjectClass::Pedestrian.into(), ObjectClass::Cyclist.into()],
             depth_range: [0.0, 28.0],
             slicing: Slicing::Uniform(UniformSlicing::with_double_lengths(
                 &[0.1, 0.2, 0.4, 0.8],
                 &[32, 64, 64, 128],
             )),
+            ..FrustumConfig::car()
+        }
+    }
+
+    /// SUN RGB-D's ten classes (F-ConvNet and FCAM's indoor row): 1024 points over
+    /// 0–8 m (rooms; the depth sensors see little beyond), F-ConvNet's
+    /// Pedestrian/Cyclist strides 0.1/0.2/0.4/0.8 m (indoor objects are 0.4–2.1 m, the
+    /// size of people rather than cars) with lengths twice the stride, hence
+    /// 80/40/20/10 sub-frustums, at most 32/64/64/128 points each, output at the second
+    /// scale (0.2 m apart); one-hot and size clusters over [`ClassSet::sun_rgbd`]'s ten
+    /// classes (12 heading bins, as for KITTI).
+    ///
+    /// [`ClassSet::sun_rgbd`]: fusiondet_dataset::ClassSet::sun_rgbd
+    pub fn sun_rgbd() -> Self {
+        FrustumConfig {
+            classes: fusiondet_sunrgbd_classes(),
+            depth_range: [0.0, 8.0],
+            slicing: Slicing::Uniform(UniformSlicing::with_double_lengths(
+                &[0.1, 0.2, 0.4, 0.8],
+                &[32, 64, 64, 128],
+            )),
+            coder: BoxCoder::new(12, fusiondet_dataset::ClassSet::sun_rgbd())
+                .expect("12 heading bins"),
             ..FrustumConfig::car()
         }
     }
@@ -200,6 +224,17 @@ impl FrustumConfig {
                     self.coder.classes().names().join(", ")
                 ));
             }
+        }
+        if let Slicing::DepthGuided(d) = &self.slicing
+            && let Some(c) = self
+                .classes
+                .iter()
+                .find(|c| d.mean_heights.of(**c).is_none())
+        {
+            return bad(format!(
+                "`slicing.kind = \"depth_guided\"` has no mean height for {c} (SAF's are \
+                 Car, Pedestrian and Cyclist); use `kind = \"uniform\"`"
+            ));
         }
         if !(1..=MAX_POINTS_PER_FRUSTUM).contains(&self.points_per_frustum) {
             return bad(format!(
@@ -300,24 +335,41 @@ impl FrustumConfig {
     }
 
     /// Whether frustums of this class are made.
-    pub fn wants(&self, class: ObjectClass) -> bool {
+    pub fn wants(&self, class: Class) -> bool {
         self.classes.contains(&class)
+    }
+
+    /// The KITTI classes among `classes` (what KITTI's evaluation is asked about).
+    pub fn kitti_classes(&self) -> Vec<ObjectClass> {
+        self.classes.iter().filter_map(|c| c.kitti()).collect()
     }
 }
 
-/// `Vec<ObjectClass>` as a list of KITTI class names.
+/// SUN RGB-D's ten classes in one-hot order.
+fn fusiondet_sunrgbd_classes() -> Vec<Class> {
+    fusiondet_dataset::ClassSet::sun_rgbd()
+        .names()
+        .iter()
+        .map(|n| Class::parse(n).expect("SUN RGB-D's class names parse"))
+        .collect()
+}
+
+/// `Vec<Class>` as a list of class names (KITTI's or SUN RGB-D's spelling).
 mod class_names {
-    use fusiondet_kitti::ObjectClass;
+    use fusiondet_dataset::Class;
     use serde::{Deserialize, Deserializer, Serializer, de::Error as _};
 
-    pub fn serialize<S: Serializer>(classes: &[ObjectClass], s: S) -> Result<S::Ok, S::Error> {
+    pub fn serialize<S: Serializer>(classes: &[Class], s: S) -> Result<S::Ok, S::Error> {
         s.collect_seq(classes.iter().map(|c| c.as_str()))
     }
 
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<ObjectClass>, D::Error> {
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Class>, D::Error> {
         Vec::<String>::deserialize(d)?
             .iter()
-            .map(|name| name.parse::<ObjectClass>().map_err(D::Error::custom))
+            .map(|name| {
+                Class::parse(name)
+                    .ok_or_else(|| D::Error::custom(format!("unknown class `{name}`")))
+            })
             .collect()
     }
 }
@@ -358,7 +410,10 @@ depth_shift = { sigma = 0.1, max = 0.3 }
 "#;
         let c: FrustumConfig = toml::from_str(text).unwrap();
         c.validate().unwrap();
-        assert_eq!(c.classes, [ObjectClass::Pedestrian, ObjectClass::Cyclist]);
+        assert_eq!(
+            c.classes,
+            [ObjectClass::Pedestrian.into(), ObjectClass::Cyclist.into()]
+        );
         assert_eq!(c.points_per_frustum, 1024);
         assert_eq!(c.augment.copies, 2);
         assert!(c.augment.flip);
@@ -479,7 +534,7 @@ mean_heights = { car = 1.56, pedestrian = 1.76, cyclist = 1.74 }
             .to_string();
         assert!(err.contains("unknown field"), "{err}");
         let c = FrustumConfig {
-            classes: vec![ObjectClass::Van],
+            classes: vec![ObjectClass::Van.into()],
             ..FrustumConfig::car()
         };
         assert!(c.validate().unwrap_err().to_string().contains("Van"));

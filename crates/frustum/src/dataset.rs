@@ -10,8 +10,9 @@ use crate::frustum::extract_frustum;
 use crate::proposal::{extract_proposal_frustum, match_proposal};
 use crate::rng::{Sampler, domain};
 use crate::sample::{Augmentation, FrustumSample, SampleSource, build_sample};
+use fusiondet_dataset::Class;
 use fusiondet_geometry::count_points_in_box;
-use fusiondet_kitti::{Box2d, Box3d, Detection2d, Object, ObjectClass};
+use fusiondet_kitti::{Box2d, Box3d, Detection2d, Object};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
 
@@ -20,7 +21,7 @@ use std::collections::{BTreeMap, HashMap};
 pub struct FrustumSpec {
     /// Index of the frame in the data set's [`FrameSource`].
     pub frame: usize,
-    pub class: ObjectClass,
+    pub class: Class,
     /// The 2D box as made (label box after jitter, or detection box), before clipping.
     pub box2d: Box2d,
     /// The detection score (detection frustums).
@@ -66,6 +67,55 @@ pub enum StreamKey {
     Frame,
 }
 
+/// A 2D detection of any format, as frustum extraction reads it.
+pub trait BoxDetection: Sync {
+    /// The frame (scene) it was detected in.
+    fn frame_id(&self) -> &str;
+    fn class(&self) -> Class;
+    fn bbox(&self) -> Box2d;
+    fn score(&self) -> f64;
+}
+
+impl BoxDetection for Detection2d {
+    fn frame_id(&self) -> &str {
+        &self.frame_id
+    }
+    fn class(&self) -> Class {
+        Class::Kitti(self.class)
+    }
+    fn bbox(&self) -> Box2d {
+        self.bbox
+    }
+    fn score(&self) -> f64 {
+        self.score
+    }
+}
+
+/// A 2D detection with its frame and a class of any format (SUN RGB-D keeps a file of
+/// them per scene, so the frame comes from the file name).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameDetection {
+    pub frame_id: String,
+    pub class: Class,
+    pub bbox: Box2d,
+    pub score: f64,
+}
+
+impl BoxDetection for FrameDetection {
+    fn frame_id(&self) -> &str {
+        &self.frame_id
+    }
+    fn class(&self) -> Class {
+        self.class
+    }
+    fn bbox(&self) -> Box2d {
+        self.bbox
+    }
+    fn score(&self) -> f64 {
+        self.score
+    }
+}
+
 /// Stable 64-bit FNV-1a of a frame id, so that jitter depends on the frame, not on
 /// its position in a split.
 fn id_hash(id: &str) -> u64 {
@@ -103,8 +153,8 @@ fn label_specs(
 ) -> (Vec<FrustumSpec>, SkipCounts) {
     let mut specs = Vec::new();
     let mut skips = SkipCounts::default();
-    for (oi, obj) in frame.objects.iter().enumerate() {
-        if !config.wants(obj.class) {
+    for (oi, (obj, &class)) in frame.objects.iter().zip(&frame.classes).enumerate() {
+        if !config.wants(class) {
             continue;
         }
         for copy in 0..config.augment.copies {
@@ -130,7 +180,7 @@ fn label_specs(
             }
             specs.push(FrustumSpec {
                 frame: frame_index,
-                class: obj.class,
+                class,
                 box2d: b,
                 score: None,
                 object: Some(oi),
@@ -206,9 +256,9 @@ impl<S: FrustumFrames> FrustumDataset<S> {
     /// Frustums from 2D detections of the configured classes, in file order. Boxes
     /// outside the image, shorter than `min_box_height_test`, without points, or in a
     /// frame the source does not hold are counted in [`Self::skips`] and left out.
-    pub fn from_detections(
+    pub fn from_detections<D: BoxDetection>(
         source: S,
-        detections: &[Detection2d],
+        detections: &[D],
         config: FrustumConfig,
     ) -> Result<Self> {
         config.validate()?;
@@ -217,10 +267,10 @@ impl<S: FrustumFrames> FrustumDataset<S> {
         let mut skips = SkipCounts::default();
         let mut by_frame: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
         for (di, d) in detections.iter().enumerate() {
-            if !config.wants(d.class) {
+            if !config.wants(d.class()) {
                 continue;
             }
-            match index.get(d.frame_id.as_str()) {
+            match index.get(d.frame_id()) {
                 Some(&fi) => by_frame.entry(fi).or_default().push(di),
                 None => skips.add(SkipReason::UnknownFrame),
             }
@@ -236,7 +286,7 @@ impl<S: FrustumFrames> FrustumDataset<S> {
                         let d = &detections[di];
                         let r = extract_frustum(
                             &frame,
-                            &d.bbox,
+                            &d.bbox(),
                             config.depth_range,
                             config.min_box_height_test,
                         );
@@ -244,9 +294,9 @@ impl<S: FrustumFrames> FrustumDataset<S> {
                             di,
                             r.map(|_| FrustumSpec {
                                 frame: *fi,
-                                class: d.class,
-                                box2d: d.bbox,
-                                score: Some(d.score),
+                                class: d.class(),
+                                box2d: d.bbox(),
+                                score: Some(d.score()),
                                 object: None,
                                 copy: 0,
                                 proposal: None,
@@ -296,7 +346,7 @@ impl<S: FrustumFrames> FrustumDataset<S> {
                 Some(&fi) => groups.push((fi, objects)),
                 None => objects
                     .iter()
-                    .filter(|o| config.wants(o.class))
+                    .filter(|o| config.wants(o.class.into()))
                     .for_each(|_| skips.add(SkipReason::UnknownFrame)),
             }
         }
@@ -306,7 +356,7 @@ impl<S: FrustumFrames> FrustumDataset<S> {
                 let frame = source.frame(fi)?;
                 let mut specs = Vec::new();
                 let mut skips = SkipCounts::default();
-                for p in objects.iter().filter(|o| config.wants(o.class)) {
+                for p in objects.iter().filter(|o| config.wants(o.class.into())) {
                     let object = if train {
                         match match_proposal(p, &frame.objects, crop.match_iou) {
                             Some(o) => Some(o),
@@ -327,7 +377,7 @@ impl<S: FrustumFrames> FrustumDataset<S> {
                     ) {
                         Ok(_) => specs.push(FrustumSpec {
                             frame: fi,
-                            class: p.class,
+                            class: p.class.into(),
                             box2d: p.bbox,
                             score: p.score,
                             object,

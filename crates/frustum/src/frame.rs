@@ -3,7 +3,7 @@
 //! the frame is only a filter over these arrays.
 
 use crate::error::Result;
-use fusiondet_dataset::{DerivedFrame, SensorFrame};
+use fusiondet_dataset::{Class, DerivedFrame, SensorFrame};
 use fusiondet_geometry::CameraModel;
 use fusiondet_kitti::{Calib, FrameDir, LidarPoint, Object};
 
@@ -74,6 +74,8 @@ pub struct ProjectedFrame {
     pub cloud: ProjectedCloud,
     /// Ground truth (empty for detection-only frames).
     pub objects: Vec<Object>,
+    /// The class of each of `objects` (see [`SensorFrame::classes`]).
+    pub classes: Vec<Class>,
 }
 
 impl ProjectedFrame {
@@ -102,6 +104,7 @@ impl ProjectedFrame {
             image_size: frame.image_size,
             cloud,
             objects: frame.objects,
+            classes: frame.classes,
         }
     }
 }

@@ -32,13 +32,17 @@ pub use batch::{BatchScale, BatchTargets, FrustumBatch};
 pub use coder::{BoxCoder, BoxEncoding};
 pub use collate::collate;
 pub use config::{AugmentConfig, DepthShift, FrustumConfig};
-pub use dataset::{Batches, FrustumDataset, FrustumSpec, PreparedBatch, StreamKey, jitter_box};
+pub use dataset::{
+    Batches, BoxDetection, FrameDetection, FrustumDataset, FrustumSpec, PreparedBatch, StreamKey,
+    jitter_box,
+};
 pub use error::{FrustumError, Result, SkipCounts, SkipReason};
 pub use frame::{
     DiskFrames, FrameSource, FrustumFrames, InMemoryFrames, ProjectedCloud, ProjectedFrame,
     load_split,
 };
 pub use frustum::{FrustumFrame, FrustumPoints, clip_box, extract_frustum};
+pub use fusiondet_dataset::Class;
 pub use omega_study::{
     DEFAULT_OMEGAS, MAX_OBJECT_LOSS, OmegaRow, OmegaStudy, omega_study, omega_study_from_labels,
 };

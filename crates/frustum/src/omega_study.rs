@@ -40,8 +40,9 @@ use crate::error::{FrustumError, Result, SkipCounts, SkipReason};
 use crate::frame::FrustumFrames;
 use crate::frustum::extract_frustum;
 use crate::slicing::{DepthGuidedSlicing, MAX_NEAR_FRACTION, SliceContext, SliceStrategy, Slicing};
+use fusiondet_dataset::Class;
 use fusiondet_geometry::points_in_box;
-use fusiondet_kitti::{Box2d, ObjectClass};
+use fusiondet_kitti::Box2d;
 use rayon::prelude::*;
 use std::fmt;
 
@@ -57,7 +58,7 @@ pub const DEFAULT_OMEGAS: [f64; 20] = [
 /// What the study needs of one labelled frustum.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StudyFrustum {
-    pub class: ObjectClass,
+    pub class: Class,
     /// The frustum's (clipped) 2D box.
     pub box2d: Box2d,
     /// Vertical focal length of P2 in pixels.
@@ -288,7 +289,7 @@ pub fn omega_study_from_labels<S: FrustumFrames>(
 /// One frustum's object and clutter depths from its points (frustum frame) and
 /// which of them lie inside the ground truth; `None` when none does.
 pub fn study_frustum(
-    class: ObjectClass,
+    class: Class,
     box2d: Box2d,
     focal_v: f64,
     depth_range: [f64; 2],
@@ -386,7 +387,7 @@ mod tests {
     use crate::frame::{InMemoryFrames, ProjectedCloud, ProjectedFrame};
     use crate::frustum::FrustumFrame;
     use crate::test_data::sample_camera;
-    use fusiondet_kitti::{Box3d, Object};
+    use fusiondet_kitti::{Box3d, Object, ObjectClass};
 
     /// One car whose 2D box makes L_depth exactly 20 m, 100 points on it at depths
     /// 19.355 + 0.01·k, 10 clutter points at 3–4 m, 50 occluder points at
@@ -442,6 +443,7 @@ mod tests {
             camera,
             image_size: [1242.0, 375.0],
             cloud: ProjectedCloud { rect, uv },
+            classes: vec![ObjectClass::Car.into()],
             objects: vec![Object {
                 class: ObjectClass::Car,
                 truncation: 0.0,
@@ -499,7 +501,7 @@ mod tests {
         let gt = fp.frame.box_to_frustum(&frame.objects[0].box3d);
         let inside = points_in_box(&gt, &fp.points);
         let sf = study_frustum(
-            ObjectClass::Car,
+            ObjectClass::Car.into(),
             fp.box2d,
             frame.camera.fv(),
             c.depth_range,

@@ -8,6 +8,7 @@ use crate::frustum::{FrustumFrame, FrustumPoints};
 use crate::rng::Sampler;
 use crate::slicing::{SliceContext, SliceInterval, SliceStrategy, depth_order, slice_pairs};
 use crate::targets::position_labels;
+use fusiondet_dataset::Class;
 use fusiondet_geometry::{alpha_from_ry, corners};
 use fusiondet_kitti::{Box2d, Box3d, Object, ObjectClass};
 
@@ -47,7 +48,7 @@ pub struct SampleTarget {
 pub struct FrustumSample {
     pub frame_id: String,
     /// The class of the 2D box (ground truth or detection).
-    pub class: ObjectClass,
+    pub class: Class,
     /// The class's one-hot slot (= size cluster) in the coder's class set, and the
     /// set's size (the one-hot's length).
     pub class_slot: usize,
@@ -144,7 +145,7 @@ pub fn sample_indices(available: usize, n: usize, rng: &mut Sampler) -> Vec<usiz
 #[derive(Debug, Clone)]
 pub struct SampleSource<'a> {
     pub frame_id: &'a str,
-    pub class: ObjectClass,
+    pub class: Class,
     pub score: Option<f64>,
     /// Vertical focal length of P2 (for slicing strategies that use it).
     pub focal_v: f64,
@@ -258,10 +259,11 @@ impl FrustumSample {
 
     /// A KITTI result line for a camera-frame box decoded from this sample (see
     /// [`crate::decode_box`]): the frustum's class and (clipped) 2D box, alpha from the
-    /// box, truncation and occlusion −1 (results carry none), and `score`.
+    /// box, truncation and occlusion −1 (results carry none), and `score`. A class of
+    /// another format becomes `Misc` (its writer reads [`FrustumSample::class`]).
     pub fn to_kitti_object(&self, box3d: Box3d, score: f64) -> Object {
         Object {
-            class: self.class,
+            class: self.class.kitti().unwrap_or(ObjectClass::Misc),
             truncation: -1.0,
             occlusion: -1,
             alpha: alpha_from_ry(box3d.ry, box3d.x, box3d.z),
@@ -327,7 +329,7 @@ mod tests {
         let fp = extract_frustum(&frame, &obj.bbox, config.depth_range, 25.0).unwrap();
         let source = SampleSource {
             frame_id: &frame.id,
-            class: obj.class,
+            class: frame.classes[0],
             score: None,
             focal_v: frame.camera.fv(),
             p2: frame.camera.p2_rows(),

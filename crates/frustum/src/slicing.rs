@@ -11,6 +11,7 @@
 //! same number of sub-frustums per scale (the batch arrays need fixed counts).
 
 use crate::error::{FrustumError, Result};
+use fusiondet_dataset::Class;
 use fusiondet_kitti::{Box2d, ObjectClass};
 use serde::{Deserialize, Serialize};
 
@@ -61,7 +62,7 @@ pub struct SliceContext<'a> {
     /// [min, max] depth of the frustum in metres.
     pub depth_range: [f64; 2],
     /// The class of the frustum's 2D box.
-    pub class: ObjectClass,
+    pub class: Class,
     /// The frustum's (clipped) 2D box in pixels.
     pub box2d: &'a Box2d,
     /// Vertical focal length of P2 in pixels.
@@ -246,11 +247,11 @@ impl Default for MeanHeights {
 impl MeanHeights {
     /// The mean height of a class; `None` for classes without one (the frustum
     /// config only admits Car, Pedestrian and Cyclist).
-    pub fn of(&self, class: ObjectClass) -> Option<f64> {
+    pub fn of(&self, class: Class) -> Option<f64> {
         match class {
-            ObjectClass::Car => Some(self.car),
-            ObjectClass::Pedestrian => Some(self.pedestrian),
-            ObjectClass::Cyclist => Some(self.cyclist),
+            Class::Kitti(ObjectClass::Car) => Some(self.car),
+            Class::Kitti(ObjectClass::Pedestrian) => Some(self.pedestrian),
+            Class::Kitti(ObjectClass::Cyclist) => Some(self.cyclist),
             _ => None,
         }
     }
@@ -503,7 +504,7 @@ mod tests {
     fn ctx(b: &Box2d) -> SliceContext<'_> {
         SliceContext {
             depth_range: [0.0, 70.0],
-            class: ObjectClass::Car,
+            class: ObjectClass::Car.into(),
             box2d: b,
             focal_v: 721.0,
         }
@@ -589,6 +590,7 @@ mod tests {
     }
 
     fn saf_ctx(b: &Box2d, class: ObjectClass, range: [f64; 2]) -> SliceContext<'_> {
+        let class = Class::Kitti(class);
         SliceContext {
             depth_range: range,
             class,

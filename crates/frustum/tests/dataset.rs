@@ -50,7 +50,7 @@ fn car_training_set_counts_objects_copies_and_skips() {
     assert!(
         d.specs()
             .iter()
-            .all(|s| s.class == ObjectClass::Car && s.object.is_some() && s.score.is_none())
+            .all(|s| s.class == ObjectClass::Car.into() && s.object.is_some() && s.score.is_none())
     );
     // Each object's copies have different boxes.
     let copies: Vec<_> = d
@@ -347,7 +347,7 @@ fn people_config_and_disk_frames() {
     // One-hot and size cluster follow the class.
     let t = b.batch.targets.as_ref().unwrap();
     for (i, s) in b.samples.iter().enumerate() {
-        let slot = if s.class == ObjectClass::Pedestrian {
+        let slot = if s.class == ObjectClass::Pedestrian.into() {
             1
         } else {
             2

@@ -10,7 +10,7 @@ use crate::dasanet::DasanetSection;
 use crate::error::{PipelineError, Result};
 use crate::schedule::{OneCycle, StepDecay};
 use crate::voxel_rcnn::VoxelRcnnSection;
-use fusiondet_dataset::ClassSet;
+use fusiondet_dataset::{Class, ClassSet};
 use fusiondet_frustum::{BoxCoder, FrustumConfig};
 use fusiondet_kitti::ObjectClass;
 use fusiondet_models::{DetectorKind, FConvNetConfig, LossConfig, ModelConfig};
@@ -63,6 +63,10 @@ pub enum DatasetFormat {
     /// `ImageSets/`), which the simulator also writes.
     #[default]
     Kitti,
+    /// The prepared SUN RGB-D layout (`points/`, `calib/`, `label/`, `det_2d/`,
+    /// `splits/`; see `fusiondet_sunrgbd`), which `simulate --indoor` also writes. Frustum
+    /// detectors only; results are SUN RGB-D result files in upright depth.
+    SunRgbd,
 }
 
 impl DatasetFormat {
@@ -71,6 +75,22 @@ impl DatasetFormat {
     pub fn class_set(self) -> ClassSet {
         match self {
             DatasetFormat::Kitti => ClassSet::kitti(),
+            DatasetFormat::SunRgbd => ClassSet::sun_rgbd(),
+        }
+    }
+
+    /// A class name as this format spells it.
+    pub fn parse_class(self, name: &str) -> std::result::Result<Class, String> {
+        match self {
+            DatasetFormat::Kitti => name.parse::<ObjectClass>().map(Class::Kitti),
+            DatasetFormat::SunRgbd => fusiondet_sunrgbd::SunClass::parse(name)
+                .map(Class::SunRgbd)
+                .ok_or_else(|| {
+                    format!(
+                        "unknown class `{name}` (SUN RGB-D's are {})",
+                        ClassSet::sun_rgbd().names().join(", ")
+                    )
+                }),
         }
     }
 }
@@ -312,7 +332,7 @@ impl ExperimentConfig {
             .dataset
             .classes
             .iter()
-            .map(|name| name.parse::<ObjectClass>())
+            .map(|name| config.dataset.format.parse_class(name))
             .collect::<std::result::Result<_, _>>()
             .map_err(|m| config_err(format!("[dataset] classes: {m}")))?;
         // One box coder for targets, loss and decoding: the network's heading bins and
@@ -322,6 +342,18 @@ impl ExperimentConfig {
             config.dataset.format.class_set(),
         )
         .map_err(|m| config_err(format!("[model] num_heading_bins: {m}")))?;
+        // Another format's network takes its one-hot length and size clusters from the
+        // class set unless the file gives them (KITTI's defaults are F-ConvNet's own).
+        if config.dataset.format != DatasetFormat::Kitti {
+            let model = raw.get("model").and_then(|m| m.as_table());
+            let given = |key: &str| model.is_some_and(|m| m.contains_key(key));
+            if !given("num_classes") {
+                config.model.num_classes = config.frustum.coder.num_clusters();
+            }
+            if !given("size_clusters") {
+                config.model.size_clusters = config.frustum.coder.mean_sizes_f32();
+            }
+        }
         if let Some(r) = &mut config.refine
             && r.first_stage.is_relative()
         {
@@ -504,6 +536,21 @@ impl ExperimentConfig {
                 ));
             }
         }
+        if self.dataset.format == DatasetFormat::SunRgbd {
+            if self.kind() != DetectorKind::Frustum {
+                return bad(format!(
+                    "[dataset] format = \"sun_rgbd\" is read by frustum detectors only, not {}",
+                    self.kind()
+                ));
+            }
+            if self.refine.is_some() {
+                return bad(
+                    "[refine]: a refinement stage is KITTI-only for now; SUN RGB-D models are \
+                     one stage"
+                        .into(),
+                );
+            }
+        }
         if self.train.lr.base_lr.is_nan() || self.train.lr.base_lr <= 0.0 {
             return bad("train.lr.base_lr must be positive".into());
         }
@@ -678,7 +725,7 @@ mod tests {
         .unwrap();
         assert_eq!(
             c.frustum.classes,
-            [ObjectClass::Pedestrian, ObjectClass::Cyclist]
+            [ObjectClass::Pedestrian.into(), ObjectClass::Cyclist.into()]
         );
         let err = ExperimentConfig::from_toml_str(
             &with_kind("[dataset]\nclasses = [\"Bus\"]\n"),
@@ -943,6 +990,7 @@ mod shipped_configs {
                 let variant = stem
                     .strip_suffix("-car")
                     .or_else(|| stem.strip_suffix("-people"))
+                    .or_else(|| stem.strip_suffix("-sunrgbd"))
                     .unwrap_or(stem);
                 let parts: Vec<&str> = variant.split('-').collect();
                 let saf = parts[0] == "saf";
@@ -971,9 +1019,23 @@ mod shipped_configs {
                 let refine = parts.contains(&"refine");
                 assert_eq!(c.refine.is_some(), refine, "{stem}: refine");
                 assert_eq!(c.frustum.proposal_crop.is_some(), refine, "{stem}: crop");
+                let indoor = stem.ends_with("sunrgbd");
+                assert_eq!(
+                    c.dataset.format == DatasetFormat::SunRgbd,
+                    indoor,
+                    "{stem}: format"
+                );
+                if indoor {
+                    assert_eq!(c.frustum.classes.len(), 10, "{stem}");
+                    assert_eq!(c.frustum.depth_range, [0.0, 8.0], "{stem}");
+                }
                 if stem.ends_with("-people") {
                     use fusiondet_kitti::ObjectClass::{Cyclist, Pedestrian};
-                    assert_eq!(c.frustum.classes, [Pedestrian, Cyclist], "{stem}");
+                    assert_eq!(
+                        c.frustum.classes,
+                        [Pedestrian.into(), Cyclist.into()],
+                        "{stem}"
+                    );
                 }
                 names.push(file_stem);
             }

@@ -386,6 +386,9 @@ pub fn detect(options: &DetectOptions) -> Result<DetectSummary> {
 /// [`detect`] holding at most `chunk_frames` frames in memory at once (see
 /// [`DETECT_CHUNK_FRAMES`]).
 pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<DetectSummary> {
+    if options.config.dataset.format == crate::config::DatasetFormat::SunRgbd {
+        return crate::frustum::indoor::detect_scenes(options, chunk_frames);
+    }
     // Before anything is loaded: a refused --out should not cost a model load.
     refuse_input_dir(&options.out_dir, &options.data_dir)?;
     if options.shard.is_none() {
@@ -530,7 +533,7 @@ fn out_err(path: &Path, message: impl Into<String>) -> PipelineError {
 
 /// Refuses a result directory inside the data set's `training/` or `testing/` folders:
 /// results written there would overwrite its labels (`--out DATA/training/label_2`).
-fn refuse_input_dir(out_dir: &Path, data_dir: &Path) -> Result<()> {
+pub(crate) fn refuse_input_dir(out_dir: &Path, data_dir: &Path) -> Result<()> {
     // The nearest existing ancestor stands for a directory not made yet.
     let existing = out_dir.ancestors().find(|a| a.exists()).unwrap_or(out_dir);
     let (Ok(out), Ok(data)) = (existing.canonicalize(), data_dir.canonicalize()) else {
@@ -666,6 +669,12 @@ impl ResultWriter {
     /// Writes frame `id`'s results.
     pub fn write(&mut self, id: &str, objects: &[Object]) -> Result<()> {
         write_objects(&self.out_dir.join(format!("{id}.txt")), objects)?;
+        Ok(())
+    }
+
+    /// Writes scene `id`'s SUN RGB-D result lines.
+    pub fn write_scene(&mut self, id: &str, objects: &[fusiondet_sunrgbd::Object]) -> Result<()> {
+        fusiondet_sunrgbd::write_objects(&self.out_dir.join(format!("{id}.txt")), objects)?;
         Ok(())
     }
 

@@ -68,12 +68,15 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
             w[0]
         );
     }
-    let classes = configs[0].1.frustum.classes.clone();
-    if let Some((p, c)) = configs.iter().find(|(_, c)| c.frustum.classes != classes) {
+    let classes = configs[0].1.frustum.kitti_classes();
+    if let Some((p, c)) = configs
+        .iter()
+        .find(|(_, c)| c.frustum.kitti_classes() != classes)
+    {
         bail!(
             "{}: detects {:?} but {} detects {:?}; an ablation compares models of the same classes",
             p.display(),
-            c.frustum.classes,
+            c.frustum.kitti_classes(),
             args.configs[0].display(),
             classes
         );
@@ -292,7 +295,7 @@ fn run_one(
     })?;
     let frames_per_second = frames_per_second(summary.frames, &summary.timing);
     let eval_config = EvalConfig {
-        classes: trained.frustum.classes.clone(),
+        classes: trained.frustum.kitti_classes(),
         ..Default::default()
     };
     let frames = load_dirs(label_dir, &results, ids)?;

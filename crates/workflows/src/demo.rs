@@ -147,7 +147,7 @@ fn detect_and_evaluate(
     );
     let dataset = DatasetDir::new(data);
     let eval_config = EvalConfig {
-        classes: config.frustum.classes.clone(),
+        classes: config.frustum.kitti_classes(),
         ..Default::default()
     };
     let (report, _) = evaluate_dirs(

@@ -7,9 +7,9 @@ use crate::config::ExperimentConfig;
 use crate::detect::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use burn::prelude::*;
-use fusiondet_frustum::{FrustumDataset, FrustumFrames, SkipCounts};
-use fusiondet_geometry::nms_3d;
-use fusiondet_kitti::{Detection2d, Object};
+use fusiondet_frustum::{BoxDetection, FrustumDataset, FrustumFrames, FrustumSample, SkipCounts};
+use fusiondet_geometry::{Box3d, nms_3d};
+use fusiondet_kitti::Detection2d;
 use fusiondet_models::{FConvNet, decode};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -19,6 +19,14 @@ use std::time::Instant;
 pub const STAGE_FRUSTUMS: &str = "frustums (extract, sample, slice)";
 pub const STAGE_NETWORK: &str = "network (tensors, forward, decode)";
 pub const STAGE_DECODE: &str = "boxes + 3D NMS";
+
+/// What detection on SUN RGB-D scenes produced: result lines by scene (upright depth),
+/// frustums left out, and frustums the network ran on.
+pub struct SceneResults {
+    pub objects: BTreeMap<String, Vec<fusiondet_sunrgbd::Object>>,
+    pub skipped: SkipCounts,
+    pub samples: usize,
+}
 
 /// A trained detector: one network, or a refinement network with the first stage whose
 /// boxes it refines.
@@ -59,6 +67,78 @@ impl FrustumDetector {
             model,
             config,
             first_stage,
+        })
+    }
+
+    /// Detection on SUN RGB-D scenes (a one-stage model): 2D detections → frustums →
+    /// network → one box per frustum → 3D NMS per scene and class (indoor classes
+    /// overlap where KITTI's do not: a chair under a table). Boxes come back in upright
+    /// depth with their class, as result lines.
+    pub fn detect_scenes<S: FrustumFrames, D: BoxDetection>(
+        &self,
+        device: &Device,
+        frames: S,
+        detections: &[D],
+        timing: &mut StageTimes,
+    ) -> Result<SceneResults> {
+        let ids: Vec<String> = (0..frames.len())
+            .map(|i| frames.frame_id(i).to_string())
+            .collect();
+        let t = Instant::now();
+        let dataset =
+            FrustumDataset::from_detections(frames, detections, self.config.detect_frustum())?;
+        timing.add(STAGE_FRUSTUMS, t.elapsed());
+        let candidates = run_network(
+            &self.model,
+            device,
+            &self.config,
+            &dataset,
+            ids,
+            timing,
+            |sample, box3d, score| (sample.class, sample.box2d, box3d, score),
+        )?;
+        let t = Instant::now();
+        let objects = candidates
+            .into_iter()
+            .map(|(id, found)| {
+                let mut keep: Vec<usize> = Vec::new();
+                let mut classes: Vec<_> = found.iter().map(|f| f.0.as_str()).collect();
+                classes.sort_unstable();
+                classes.dedup();
+                for class in classes {
+                    let mine: Vec<usize> = (0..found.len())
+                        .filter(|&i| found[i].0.as_str() == class)
+                        .collect();
+                    let boxes: Vec<Box3d> = mine.iter().map(|&i| found[i].2).collect();
+                    let scores: Vec<f64> = mine.iter().map(|&i| found[i].3).collect();
+                    keep.extend(
+                        nms_3d(&boxes, &scores, self.config.detect.nms_iou)
+                            .into_iter()
+                            .map(|k| mine[k]),
+                    );
+                }
+                // Frustum order, whatever the classes' order.
+                keep.sort_unstable();
+                let lines = keep
+                    .into_iter()
+                    .map(|i| {
+                        let (class, bbox, box3d, score) = &found[i];
+                        fusiondet_sunrgbd::Object {
+                            class: class.as_str().to_string(),
+                            box3d: fusiondet_dataset::indoor::upright_box(box3d),
+                            bbox: *bbox,
+                            score: Some(*score),
+                        }
+                    })
+                    .collect();
+                (id, lines)
+            })
+            .collect();
+        timing.add(STAGE_DECODE, t.elapsed());
+        Ok(SceneResults {
+            objects,
+            skipped: dataset.skips(),
+            samples: dataset.len(),
         })
     }
 
@@ -104,7 +184,15 @@ impl FrustumDetector {
             }
         };
         skipped.merge(&dataset.skips());
-        let candidates = run_network(&self.model, device, &self.config, &dataset, ids, timing)?;
+        let candidates = run_network(
+            &self.model,
+            device,
+            &self.config,
+            &dataset,
+            ids,
+            timing,
+            |sample, box3d, score| sample.to_kitti_object(box3d, score),
+        )?;
         let t = Instant::now();
         let objects = candidates
             .into_iter()
@@ -124,18 +212,20 @@ impl FrustumDetector {
     }
 }
 
-/// One box per frustum of `dataset`, by frame (before NMS). Score = the network's
-/// object probability + the frustum's own score (the 2D detection's, or the
-/// first-stage box's), as F-ConvNet reports it.
-fn run_network<S: FrustumFrames>(
+/// One box per frustum of `dataset`, by frame (before NMS), as `make` writes it from
+/// the sample, the camera-frame box and the score. Score = the network's object
+/// probability + the frustum's own score (the 2D detection's, or the first-stage box's),
+/// as F-ConvNet reports it.
+fn run_network<S: FrustumFrames, T>(
     model: &FConvNet,
     device: &Device,
     config: &ExperimentConfig,
     dataset: &FrustumDataset<S>,
     ids: Vec<String>,
     timing: &mut StageTimes,
-) -> Result<BTreeMap<String, Vec<Object>>> {
-    let mut candidates: BTreeMap<String, Vec<Object>> =
+    make: impl Fn(&FrustumSample, Box3d, f64) -> T,
+) -> Result<BTreeMap<String, Vec<T>>> {
+    let mut candidates: BTreeMap<String, Vec<T>> =
         ids.into_iter().map(|id| (id, Vec::new())).collect();
     let mut batches = dataset.in_order(config.detect.seed, config.detect.batch_size);
     loop {
@@ -161,7 +251,7 @@ fn run_network<S: FrustumFrames>(
             candidates
                 .entry(sample.frame_id.clone())
                 .or_default()
-                .push(sample.to_kitti_object(box3d, score));
+                .push(make(sample, box3d, score));
         }
         timing.add(STAGE_DECODE, t.elapsed());
     }

@@ -3,7 +3,8 @@
 //! ([`FrustumDetector`]).
 
 mod detector;
+pub mod indoor;
 mod task;
 
-pub use detector::{FrustumDetector, STAGE_DECODE, STAGE_FRUSTUMS, STAGE_NETWORK};
+pub use detector::{FrustumDetector, STAGE_DECODE, STAGE_FRUSTUMS, STAGE_NETWORK, SceneResults};
 pub use task::{FIRST_STAGE_FILE, FrustumTask, seeded_network, train, trained_parameters};

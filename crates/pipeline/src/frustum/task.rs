@@ -1,7 +1,7 @@
 //! Training the frustum family: frustums from the labels (or, for a refinement stage,
 //! around its first stage's boxes), F-ConvNet's loss.
 
-use crate::config::{ExperimentConfig, RefineConfig};
+use crate::config::{DatasetFormat, ExperimentConfig, RefineConfig};
 use crate::detect::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use crate::frustum::FrustumDetector;
@@ -132,12 +132,20 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         copy_first_stage(r, &opened.run)?;
     }
 
-    let frames: InMemoryFrames = fusiondet_dataset::load_split(
-        &options.data_dir,
-        &cfg.train.split,
-        cfg.train.max_frames,
-        true,
-    )?;
+    let frames: InMemoryFrames = match cfg.dataset.format {
+        DatasetFormat::Kitti => fusiondet_dataset::load_split(
+            &options.data_dir,
+            &cfg.train.split,
+            cfg.train.max_frames,
+            true,
+        )?,
+        DatasetFormat::SunRgbd => fusiondet_dataset::indoor::load_scene_split(
+            &options.data_dir,
+            &cfg.train.split,
+            cfg.train.max_frames,
+            true,
+        )?,
+    };
     let num_frames = frames.len();
     let dataset = match &cfg.refine {
         None => FrustumDataset::from_labels(frames, cfg.frustum.clone(), cfg.train.seed)?,
