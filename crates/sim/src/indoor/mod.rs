@@ -32,9 +32,8 @@
 //! * sizes: drawn around SUN RGB-D's per-class means (σ 12%), so the simulated class means
 //!   match them within 10% (beds are narrower, 1.46 vs 1.62 m, as single beds are drawn
 //!   too); the real bed (2.29 × 1.58 × 1.28 m) is taller than any simulated headboard;
-//! * measured pixels: 96% of the image (holes at dark, glass, glancing and far surfaces
-//!   only); real Kinect frames lose more, in the sensor's shadows beside depth edges, which
-//!   are not simulated;
+//! * measured pixels: 95% of the image (holes at dark, glass, glancing and far surfaces and in
+//!   the projector's shadow beside nearer things); no flying pixels at depth edges;
 //! * labels: 2.8 of the ten classes per scene; the 2D detector finds 86% of them at IoU 0.5
 //!   and 94% of its detections scored 0.5 or more are right;
 //! * what else differs: no motion blur or colour–depth misregistration, Lambertian shading
@@ -42,8 +41,9 @@
 //!   the real data's kitchens, corridors, labs or stores.
 //!
 //! # Speed
-//! 0.10 s a scene (640×480, rows cast in parallel) and 8.8 scenes/s written for 100 scenes
-//! (release build, 2 shared cores).
+//! 0.10–0.18 s a scene (640×480, rows cast in parallel, a second ray per pixel for the
+//! projector's shadow) and 4–9 scenes/s written for 100 scenes (release build, 2 cores
+//! shared with other builds, so the spread).
 
 pub mod clutter;
 pub mod detector2d;
@@ -346,8 +346,18 @@ mod tests {
                     .filter(|(_, o)| **o == v.furniture as u32)
                     .map(|(p, _)| p)
                     .collect();
+                // Depth errors move points along their rays: grow the box by 3σ of the noise
+                // and half a quantisation step at its farthest corner.
+                let fwd = rgbd::forward_axis(&f.camera);
+                let z = v
+                    .box3d
+                    .corners()
+                    .iter()
+                    .map(|c| V3::from_array(*c).dot(fwd))
+                    .fold(0.0f64, f64::max);
+                let margin = 0.01 + 3.0 * rgbd::noise_sigma(z) + z * z / 700.0;
                 let grown = fusiondet_sunrgbd::UprightBox {
-                    size: v.box3d.size.map(|s| s + 0.1),
+                    size: v.box3d.size.map(|s| s + 2.0 * margin),
                     ..v.box3d
                 };
                 let inside = own
@@ -355,7 +365,7 @@ mod tests {
                     .filter(|p| grown.contains([p[0], p[1], p[2]].map(f64::from)))
                     .count();
                 assert!(
-                    inside as f64 >= 0.97 * own.len() as f64,
+                    inside + 1 + own.len() / 100 >= own.len(),
                     "{inside}/{}",
                     own.len()
                 );

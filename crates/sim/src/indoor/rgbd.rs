@@ -14,7 +14,10 @@
 //!   so depth steps grow as z²: 3 mm at 1 m, 4.6 cm at 4 m, 14 cm at 7 m; then millimetres;
 //! * holes: glancing surfaces (cos incidence below 0.25), dark ones (albedo luminance below
 //!   0.1, the projected pattern is not seen), glass (the material's return probability),
-//!   far ones (rising from 4.5 m), a 0.5% floor; nothing nearer than 0.4 m or beyond 8 m.
+//!   far ones (rising from 4.5 m), a 0.5% floor; nothing nearer than 0.4 m or beyond 8 m;
+//! * the projector's shadow: the pattern comes from a projector [`PROJECTOR_BASELINE`] to the
+//!   camera's right, so surfaces it cannot see (beside the right edges of nearer things, as
+//!   the camera sees them) get no depth — a second ray per pixel, from the projector.
 
 use crate::math::{M3, V3, rad, v3};
 use crate::primitive::NO_OWNER;
@@ -56,6 +59,8 @@ impl Default for RgbdSpec {
     }
 }
 
+/// The projector's offset along the camera's x axis, metres (Kinect v1: 7.5 cm).
+pub const PROJECTOR_BASELINE: f64 = 0.075;
 /// Focal length × baseline of the structured-light pair, pixel·metres.
 const FOCAL_BASELINE: f64 = 580.0 * 0.075;
 /// Disparity resolution, pixels.
@@ -146,6 +151,15 @@ fn hole_probability(z: f64, cos_incidence: f64, albedo: [f64; 3], return_prob: f
     1.0 - (1.0 - glance) * (1.0 - dark) * (1.0 - glass) * (1.0 - far) * (1.0 - floor)
 }
 
+/// Whether the projector at `projector` cannot light the surface point `p`.
+fn in_projector_shadow(scene: &Scene, projector: V3, p: V3) -> bool {
+    let to_p = p - projector;
+    let dist = to_p.norm();
+    scene
+        .cast(projector, to_p / dist, 0.01, dist - 0.01)
+        .is_some()
+}
+
 /// The axial noise deviation at depth z (metres).
 pub fn noise_sigma(z: f64) -> f64 {
     0.0012 + 0.0019 * (z - 0.4) * (z - 0.4)
@@ -169,6 +183,8 @@ fn to_u8(c: f64) -> u8 {
 /// sensor's faults (per-pixel randomness keyed by `key`).
 pub fn capture(scene: &Scene, cam: &RgbdCamera, spec: &RgbdSpec, light: V3, key: u64) -> Capture {
     let (w, h) = (cam.width, cam.height);
+    let r = &cam.rtilt;
+    let projector = v3(r[0][0], r[1][0], r[2][0]) * PROJECTOR_BASELINE;
     // Per row: colours, millimetres, owners, true depths.
     type Row = (Vec<u8>, Vec<u16>, Vec<u32>, Vec<f32>);
     let rows: Vec<Row> = (0..h)
@@ -207,7 +223,10 @@ pub fn capture(scene: &Scene, cam: &RgbdCamera, spec: &RgbdSpec, light: V3, key:
                 let in_range = (spec.min_range..=spec.max_range).contains(&z);
                 truth.push(if in_range { z as f32 } else { 0.0 });
                 let p_hole = hole_probability(z, n.dot(d).abs(), sample.rgb, sample.return_prob);
-                if !in_range || hash_unit(key, pixel, 1) < p_hole {
+                if !in_range
+                    || hash_unit(key, pixel, 1) < p_hole
+                    || in_projector_shadow(scene, projector, p)
+                {
                     mm.push(0);
                     continue;
                 }
@@ -293,6 +312,44 @@ mod tests {
         }
         // Pitched down: the image centre looks below the horizon.
         assert!(forward_axis(&cam).z < -0.08);
+    }
+
+    /// A post 1.5 m ahead of a wall at 3 m casts the projector's shadow on the wall: holes on
+    /// the post's left (away from the projector, which sits to the camera's right), none on its
+    /// right, and hardly any far from it.
+    #[test]
+    fn the_projector_shadows_the_wall_beside_a_nearer_object() {
+        let mut b = SceneBuilder::new();
+        let grey = b.material(Material::solid([0.6, 0.6, 0.6], 0.5));
+        let id = Pose::IDENTITY;
+        b.add_box(
+            &id,
+            v3(-5.0, 3.0, -5.0),
+            v3(5.0, 3.2, 5.0),
+            grey,
+            Surface::Wall,
+        );
+        b.add_box(
+            &id,
+            v3(-0.1, 1.45, -2.0),
+            v3(0.1, 1.55, 2.0),
+            grey,
+            Surface::Wall,
+        );
+        let scene = b.finish(&Pose::IDENTITY, V3::Z);
+        let cam = level_camera(160, 120, 130.0);
+        let cap = capture(&scene, &cam, &RgbdSpec::default(), v3(0.0, 1.5, 1.0), 3);
+        let row = 60u32;
+        let hole = |col: u32| cap.depth.millimetres[(row * 160 + col) as usize] == 0;
+        let wall = |col: u32| (cap.true_depth[(row * 160 + col) as usize] - 3.0).abs() < 1e-4;
+        // The post spans columns around the centre; the wall beside it on each side.
+        let post: Vec<u32> = (0..160).filter(|&c| !wall(c)).collect();
+        let (first, last) = (post[0], *post.last().unwrap());
+        // Shadow width on the wall: baseline · (3 − 1.45) / 1.45 ≈ 8 cm ≈ 3.5 px at 3 m.
+        let left: usize = (first - 6..first).filter(|&c| hole(c)).count();
+        let right: usize = (last + 1..last + 7).filter(|&c| hole(c)).count();
+        assert!(left >= 2 && right == 0, "left {left}, right {right}");
+        assert!((0..40).filter(|&c| hole(c)).count() <= 2);
     }
 
     #[test]
