@@ -17,12 +17,14 @@ pub struct ModelOnSplit {
     /// `config.toml` beside the checkpoint (a run directory), else `<checkpoint>.toml`.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Dataset root with training/, ImageSets/ and rgb_detections/.
+    /// Dataset root: KITTI (training/, ImageSets/, rgb_detections/) or, for a SUN RGB-D
+    /// model, a prepared SUN RGB-D directory (points/, calib/, det_2d/, splits/).
     #[arg(long)]
     pub data: PathBuf,
     #[arg(long, default_value = "val")]
     pub split: String,
     /// 2D detections (F-PointNet format); default DATA/rgb_detections/rgb_detection_<split>.txt.
+    /// SUN RGB-D: a directory of `<id>.txt` files as in DATA/det_2d/ (the default).
     #[arg(long)]
     pub detections: Option<PathBuf>,
     /// Points sampled per frustum at test time (overrides detect.points_per_frustum:
@@ -54,7 +56,7 @@ impl ModelOnSplit {
 pub struct DetectArgs {
     #[command(flatten)]
     pub input: ModelOnSplit,
-    /// Result directory: one KITTI result file per frame (new or empty, or an earlier
+    /// Result directory: one KITTI (or SUN RGB-D) result file per frame (new or empty, or an earlier
     /// detect's with --force).
     #[arg(long)]
     pub out: PathBuf,

@@ -10,7 +10,8 @@ pub struct TrainArgs {
     /// Experiment configuration (TOML: [frustum], [model], [loss], [train], [detect]).
     #[arg(long)]
     pub config: PathBuf,
-    /// Dataset root with training/ and ImageSets/ (e.g. made by `fusiondet simulate`).
+    /// Dataset root with training/ and ImageSets/ (e.g. made by `fusiondet simulate`), or a
+    /// prepared SUN RGB-D directory for a `[dataset] format = "sun_rgbd"` config.
     #[arg(long)]
     pub data: PathBuf,
     /// Run directory: checkpoints, metrics.jsonl, model.bpk.
