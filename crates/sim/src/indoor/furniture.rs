@@ -42,14 +42,15 @@ pub struct Support {
 }
 
 /// Draws a piece's size: the class mean scaled per dimension (σ 12%, kept within
-/// −25%…+30%), beds by mattress width (single, double, queen), coffee tables low.
+/// −25%…+30%), beds by mattress width (single, double, queen, king; weighted so that their
+/// mean width is SUN RGB-D's 1.6 m).
 pub fn sample_size(class: SunClass, s: &mut Sampler) -> [f64; 3] {
     let m = MEAN_SIZE[class.index()];
     let mut size = m.map(|v| v * s.normal_clamped(1.0, 0.12, 0.75, 1.3));
     match class {
         SunClass::Bed => {
             size[1] =
-                [0.95, 1.45, 1.65, 1.85][s.weighted(&[0.3, 0.35, 0.25, 0.1])] + s.range(0.0, 0.1);
+                [0.95, 1.45, 1.65, 1.85][s.weighted(&[0.1, 0.35, 0.35, 0.2])] + s.range(0.0, 0.1);
             size[0] = s.range(1.95, 2.25);
             size[2] = size[2].max(0.8);
         }

@@ -20,21 +20,23 @@
 //! seed writes the same bytes whatever the thread count.
 //!
 //! # Realism (against the real scene 000017, 50,000 points)
-//! 100 simulated scenes (seed 1, default settings; `sim_stats.json` and the printed report
-//! hold these numbers for any run, [`stats`]):
+//! 200 simulated scenes (seed 1, default settings; the printed report and `sim_stats.json`
+//! give these numbers for any run, [`stats`]):
 //! * camera height: the real floor is at z ≈ −1.24 m (1st percentile of z); simulated heights
-//!   are drawn from 1.0–1.6 m (mean 1.28) and the floor's 1st percentile lands within 3 mm of
+//!   are drawn from 1.0–1.6 m (mean 1.29) and the floor's 1st percentile lands within 4 mm of
 //!   minus the height on average;
-//! * points per object (points inside the labelled box, of 50,000): the real bed holds 18,117
-//!   (a close-up, 1.5–3 m away, filling most of the frame), the real night stand 951;
-//!   simulated beds hold 11,500 on average (median 10,700, mean distance 2.4 m), night stands
-//!   1,270, chairs 1,390, desks 1,570, bookshelves 3,780, sofas 3,380;
-//! * sizes: drawn around SUN RGB-D's per-class means (σ 12%), so the simulated class means
-//!   match them within 10% (beds are narrower, 1.46 vs 1.62 m, as single beds are drawn
-//!   too); the real bed (2.29 × 1.58 × 1.28 m) is taller than any simulated headboard;
+//! * points per object (inside the labelled box, of 50,000): the real bed, 3.0 m away, holds
+//!   18,117, simulated beds at 3.0 ± 0.5 m 9,700 on average (12 of them) — the real bed's box
+//!   is larger (2.29 × 1.58 × 1.28 m against 2.10 × 1.58 × 0.94 on average) and the real
+//!   frame is a close-up of it; the real night stand at 3.6 m holds 951, simulated ones at
+//!   3.6 ± 0.5 m 800 (8 of them). Over all distances: beds 13,100, sofas 3,800, bookshelves
+//!   3,900, dressers 3,200, desks 1,640, tables 1,980, chairs 1,230, night stands 1,230;
+//! * sizes: drawn around SUN RGB-D's per-class means (σ 12%, beds by mattress width); the
+//!   simulated class means are within 6% of them except coffee tables making tables lower
+//!   (0.66 vs 0.72 m) and bathtubs longer (1.69 vs 1.40 m);
 //! * measured pixels: 95% of the image (holes at dark, glass, glancing and far surfaces and in
 //!   the projector's shadow beside nearer things); no flying pixels at depth edges;
-//! * labels: 2.8 of the ten classes per scene; the 2D detector finds 86% of them at IoU 0.5
+//! * labels: 3.1 of the ten classes per scene; the 2D detector finds 88% of them at IoU 0.5
 //!   and 94% of its detections scored 0.5 or more are right;
 //! * what else differs: no motion blur or colour–depth misregistration, Lambertian shading
 //!   under one ceiling light, furniture made of boxes, cylinders and ellipsoids, and none of

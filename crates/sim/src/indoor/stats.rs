@@ -15,6 +15,19 @@ use std::fmt::Write as _;
 pub const REAL_FLOOR_Z: f64 = -1.24;
 pub const REAL_BED_POINTS: usize = 18_117;
 pub const REAL_NIGHT_STAND_POINTS: usize = 951;
+/// Horizontal distances of the real bed's and night stand's box centres from the camera, m.
+pub const REAL_BED_DISTANCE: f64 = 2.99;
+pub const REAL_NIGHT_STAND_DISTANCE: f64 = 3.63;
+
+/// Simulated objects of one class at about a real object's distance (± 0.5 m).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct NearReal {
+    pub class: String,
+    pub distance: f64,
+    pub real_points: usize,
+    pub count: usize,
+    pub mean_box_points: f64,
+}
 
 /// One labelled object.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -122,6 +135,8 @@ pub struct DatasetStats {
     pub floor_offset: f64,
     pub labels_per_scene: f64,
     pub classes: Vec<ClassStats>,
+    /// Points in boxes at the real scene's objects' distances.
+    pub near_real: Vec<NearReal>,
     pub detections_per_scene: f64,
     pub recall_iou50: f64,
     pub precision_score50: f64,
@@ -166,6 +181,31 @@ impl DatasetStats {
                 }
             })
             .collect();
+        let near_real = [
+            (SunClass::Bed, REAL_BED_DISTANCE, REAL_BED_POINTS),
+            (
+                SunClass::NightStand,
+                REAL_NIGHT_STAND_DISTANCE,
+                REAL_NIGHT_STAND_POINTS,
+            ),
+        ]
+        .into_iter()
+        .map(|(c, distance, real_points)| {
+            let pts: Vec<f64> = frames
+                .iter()
+                .flat_map(|f| &f.objects)
+                .filter(|o| o.class == c.as_str() && (o.distance - distance).abs() <= 0.5)
+                .map(|o| o.box_points as f64)
+                .collect();
+            NearReal {
+                class: c.as_str().to_string(),
+                distance,
+                real_points,
+                count: pts.len(),
+                mean_box_points: mean(pts.into_iter()),
+            }
+        })
+        .collect();
         let labels: usize = frames.iter().map(|f| f.objects.len()).sum();
         let confident: usize = frames.iter().map(|f| f.confident).sum();
         DatasetStats {
@@ -181,6 +221,7 @@ impl DatasetStats {
             floor_offset: mean(frames.iter().map(|f| f.floor_z + f.camera_height)),
             labels_per_scene: labels as f64 / n,
             classes,
+            near_real,
             detections_per_scene: mean(frames.iter().map(|f| f.detections as f64)),
             recall_iou50: frames.iter().map(|f| f.found).sum::<usize>() as f64
                 / labels.max(1) as f64,
@@ -240,10 +281,13 @@ impl DatasetStats {
                 c.mean_distance
             );
         }
-        let _ = writeln!(
-            o,
-            "  real 000017: bed {REAL_BED_POINTS} points in its box, night_stand {REAL_NIGHT_STAND_POINTS}"
-        );
+        for n in &self.near_real {
+            let _ = writeln!(
+                o,
+                "  {} at {:.1}±0.5 m: {} simulated, {:.0} points in the box on average; real 000017's at {:.1} m: {}",
+                n.class, n.distance, n.count, n.mean_box_points, n.distance, n.real_points
+            );
+        }
         let _ = writeln!(
             o,
             "  2D detector: {:.1} detections per scene, recall {:.0}% (IoU 0.5, any score), precision {:.0}% (score ≥ 0.5)",
@@ -252,5 +296,59 @@ impl DatasetStats {
             100.0 * self.precision_score50
         );
         o
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn object(class: &str, box_points: usize, distance: f64) -> ObjectRecord {
+        ObjectRecord {
+            class: class.into(),
+            box_points,
+            own_points: box_points,
+            size: [2.0, 1.5, 1.0],
+            distance,
+            hidden: 0.0,
+        }
+    }
+
+    #[test]
+    fn summaries_count_what_they_say() {
+        let frame = |objects, found, confident, correct| FrameStats {
+            id: "000000".into(),
+            room: "bedroom".into(),
+            camera_height: 1.3,
+            pitch_deg: 10.0,
+            floor_z: -1.28,
+            measured_fraction: 0.9,
+            points: 50_000,
+            objects,
+            detections: 3,
+            confident,
+            confident_correct: correct,
+            found,
+        };
+        let stats = DatasetStats::from_frames(vec![
+            frame(
+                vec![object("bed", 10_000, 3.2), object("chair", 500, 2.0)],
+                2,
+                2,
+                2,
+            ),
+            frame(vec![object("bed", 2_000, 4.0)], 0, 2, 1),
+        ]);
+        assert_eq!(stats.frames, 2);
+        assert!((stats.labels_per_scene - 1.5).abs() < 1e-12);
+        assert!((stats.recall_iou50 - 2.0 / 3.0).abs() < 1e-12);
+        assert!((stats.precision_score50 - 0.75).abs() < 1e-12);
+        assert!((stats.floor_offset - 0.02).abs() < 1e-9);
+        let bed = &stats.classes[SunClass::Bed.index()];
+        assert_eq!((bed.count, bed.mean_box_points), (2, 6_000.0));
+        // Only the bed within 0.5 m of the real bed's 2.99 m is compared with it.
+        assert_eq!(stats.near_real[0].count, 1);
+        assert_eq!(stats.near_real[0].mean_box_points, 10_000.0);
+        assert!(stats.report().contains("real 000017's at 3.0 m: 18117"));
     }
 }
