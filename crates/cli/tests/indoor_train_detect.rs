@@ -132,7 +132,7 @@ fn train_detect_and_evaluate_a_sun_rgbd_directory() {
         ],
         "KITTI",
     );
-    // A KITTI model on SUN RGB-D data: its detections file is not there.
+    // A KITTI model on SUN RGB-D data.
     let kitti_model = repo_root().join("models/fconvnet-car.bpk");
     let o = common::run(
         "detect",
@@ -143,12 +143,19 @@ fn train_detect_and_evaluate_a_sun_rgbd_directory() {
             s(&data),
             "--split",
             "val",
+            "--detections",
+            s(&kitti.join("rgb_detections/rgb_detection_val.txt")),
             "--out",
             s(&tmp.path().join("k2")),
         ],
     );
     assert!(!o.status.success());
-    assert!(!text(&o.stderr).contains("panicked"), "{}", all_output(&o));
+    let out = all_output(&o);
+    assert!(
+        out.contains("SUN RGB-D") && !out.contains("panicked"),
+        "{out}"
+    );
+    assert!(!text(&o.stderr).contains("panicked"), "{out}");
 }
 
 /// Trained long enough to learn its one scene by heart, the tiny model must find the bed

@@ -9,6 +9,13 @@ use std::path::Path;
 /// split is an error.
 pub fn split_ids(data_dir: &Path, split: &str, max_frames: usize) -> Result<Vec<String>> {
     let dataset = DatasetDir::new(data_dir);
+    if !data_dir.join("ImageSets").is_dir() && data_dir.join("splits").is_dir() {
+        return Err(DataError::Data(format!(
+            "{} is a prepared SUN RGB-D directory (splits/, no ImageSets/), but this reads \
+             KITTI data; train or detect with a `[dataset] format = \"sun_rgbd\"` model",
+            data_dir.display()
+        )));
+    }
     let mut ids = read_split(&dataset.split(split))?;
     if max_frames > 0 {
         ids.truncate(max_frames);
@@ -40,6 +47,13 @@ mod tests {
 
     fn sample_root() -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/kitti-sample")
+    }
+
+    #[test]
+    fn a_sun_rgbd_directory_is_named_as_such() {
+        let sun = Path::new(env!("CARGO_MANIFEST_DIR")).join("../sunrgbd/tests/data");
+        let err = split_ids(&sun, "val", 0).unwrap_err().to_string();
+        assert!(err.contains("SUN RGB-D"), "{err}");
     }
 
     #[test]
