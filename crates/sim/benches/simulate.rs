@@ -1,5 +1,6 @@
 //! Frames per second of the simulator on this machine: a full frame (scene, LiDAR,
-//! camera, labels, 2D detections), its parts, and encoding/writing its files.
+//! camera, labels, 2D detections), its parts, and encoding/writing its files; and an indoor
+//! scene (room, RGB-D capture, points, labels, 2D detections) with its JPEG.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use fusiondet_sim::{SimConfig, simulate_frame};
@@ -35,6 +36,26 @@ fn bench(c: &mut Criterion) {
     });
     g.bench_function("velodyne_encode", |b| {
         b.iter(|| black_box(fusiondet_kitti::velodyne::encode_velodyne(&frame.points)))
+    });
+    g.finish();
+    let cfg = fusiondet_sim::indoor::IndoorConfig::default();
+    let mut g = c.benchmark_group("sim_indoor");
+    g.sample_size(20);
+    g.throughput(Throughput::Elements(1));
+    let mut i = 0usize;
+    g.bench_function("simulate_indoor_frame", |b| {
+        b.iter(|| {
+            i += 1;
+            black_box(fusiondet_sim::indoor::simulate_indoor_frame(
+                7,
+                i % 50,
+                &cfg,
+            ))
+        })
+    });
+    let frame = fusiondet_sim::indoor::simulate_indoor_frame(7, 3, &cfg);
+    g.bench_function("jpeg_encode", |b| {
+        b.iter(|| black_box(fusiondet_sim::indoor::writer::encode_jpeg(&frame.image)))
     });
     g.finish();
 }
