@@ -41,6 +41,8 @@ pub struct RoomLayout {
 
 /// Margin kept between footprints (and to the camera's place).
 const MARGIN: f64 = 0.04;
+/// The smallest gap between two pieces placed side by side: both margins and a little.
+const CLEAR: f64 = 2.0 * MARGIN + 0.01;
 
 struct Furnisher<'a> {
     room: Room,
@@ -80,13 +82,26 @@ impl Furnisher<'_> {
         size: [f64; 3],
         walls: &[usize],
     ) -> Option<(Pose, Vec<Support>)> {
+        self.against_wall_within(class, size, walls, 1.0)
+    }
+
+    /// Against one of `walls`, its middle within `spread` (a share of the free length) of
+    /// the wall's middle.
+    fn against_wall_within(
+        &mut self,
+        class: SunClass,
+        size: [f64; 3],
+        walls: &[usize],
+        spread: f64,
+    ) -> Option<(Pose, Vec<Support>)> {
         for _ in 0..12 {
             let wall = self.room.wall(*self.s.pick(walls));
             let (lo, hi) = (size[1] / 2.0 + 0.03, wall.length - size[1] / 2.0 - 0.03);
             if hi < lo {
                 continue;
             }
-            let at = self.s.range(lo, hi);
+            let (mid, half) = (0.5 * (lo + hi), 0.5 * (hi - lo) * spread);
+            let at = self.s.range(mid - half, mid + half);
             let mut pose = wall.pose_against(at, size[0], self.s.range(0.02, 0.06));
             pose.rot = pose.rot.mul(&M3::rot_z(self.s.range(-0.03, 0.03)));
             if let Some(sup) = self.place(class, size, pose) {
@@ -138,7 +153,7 @@ impl Furnisher<'_> {
     /// A chair facing a desk or table whose front is its +x, at lateral offset `y`.
     fn chair_at(&mut self, host: &Pose, host_dx: f64, y: f64) {
         let size = sample_size(SunClass::Chair, self.s);
-        let ahead = host_dx / 2.0 + size[0] / 2.0 + self.s.range(0.02, 0.25);
+        let ahead = host_dx / 2.0 + size[0] / 2.0 + self.s.range(CLEAR, 0.3);
         self.relative(SunClass::Chair, size, host, ahead, y, std::f64::consts::PI);
     }
 
@@ -149,12 +164,14 @@ impl Furnisher<'_> {
     fn bedroom(&mut self) {
         let walls = self.walls.clone();
         let size = sample_size(SunClass::Bed, self.s);
-        if let Some((bed, _)) = self.against_wall(SunClass::Bed, size, &walls) {
+        // Beds mostly stand in the middle of a wall, with room for night stands.
+        let spread = if self.s.chance(0.7) { 0.3 } else { 1.0 };
+        if let Some((bed, _)) = self.against_wall_within(SunClass::Bed, size, &walls, spread) {
             // Night stands beside the head end.
             for side in [1.0, -1.0] {
                 if self.s.chance(0.7) {
                     let ns = sample_size(SunClass::NightStand, self.s);
-                    let y = side * (size[1] / 2.0 + ns[1] / 2.0 + self.s.range(0.06, 0.15));
+                    let y = side * (size[1] / 2.0 + ns[1] / 2.0 + self.s.range(CLEAR, 0.16));
                     let x = -size[0] / 2.0 + ns[0] / 2.0 + 0.01;
                     let pose = Pose {
                         rot: bed.rot,
@@ -214,7 +231,7 @@ impl Furnisher<'_> {
                     if self.s.chance(0.75) {
                         let along = ((k as f64 + 0.5) / per_side as f64 - 0.5) * size[1];
                         let cs = sample_size(SunClass::Chair, self.s);
-                        let off = size[0] / 2.0 + cs[0] / 2.0 + self.s.range(0.0, 0.2);
+                        let off = size[0] / 2.0 + cs[0] / 2.0 + self.s.range(CLEAR, 0.25);
                         // Facing the table: the chair at +x looks along −x.
                         let turn = if side > 0.0 {
                             std::f64::consts::PI
@@ -354,7 +371,8 @@ impl Furnisher<'_> {
             let m = sample_size(class, self.s);
             [m[0].min(0.75), m[1].min(1.4), m[2].clamp(0.7, 0.78)]
         };
-        let row_pitch = size[0] + self.s.range(0.75, 1.0);
+        // Room between rows for a chair (up to 0.77 m deep), its gaps and the margins.
+        let row_pitch = size[0] + self.s.range(1.05, 1.25);
         let col_pitch = size[1] + self.s.range(0.3, 0.7);
         let depth = back.length.max(0.0);
         let room_depth = if cam_wall.is_multiple_of(2) {
@@ -379,8 +397,12 @@ impl Furnisher<'_> {
                     if self.s.chance(0.85) {
                         // The chair behind its desk, facing the same way.
                         let cs = sample_size(SunClass::Chair, self.s);
-                        let ahead = -(dsize[0] / 2.0 + cs[0] / 2.0 + self.s.range(0.02, 0.15));
-                        self.relative(SunClass::Chair, cs, &desk, ahead, 0.0, 0.0);
+                        let ahead = -(dsize[0] / 2.0 + cs[0] / 2.0 + self.s.range(CLEAR, 0.14));
+                        let pose = Pose {
+                            rot: rot.mul(&M3::rot_z(self.s.range(-0.06, 0.06))),
+                            t: desk.point(v3(ahead, self.s.range(-0.1, 0.1), 0.0)),
+                        };
+                        self.place(SunClass::Chair, cs, pose);
                     }
                 }
             }
@@ -508,5 +530,28 @@ mod tests {
             }
             assert!(pieces >= 25, "{kind:?}: {pieces} pieces in 25 rooms");
         }
+    }
+
+    /// Pieces that come in pairs find room: most classroom desks get their chair, most
+    /// beds a night stand (the gaps between them clear both margins).
+    #[test]
+    fn companions_fit_beside_their_hosts() {
+        let mut s = Sampler::new(2);
+        let count =
+            |l: &RoomLayout, c: SunClass| l.furniture.iter().filter(|p| p.class == c).count();
+        let (mut desks, mut chairs, mut beds, mut stands) = (0, 0, 0, 0);
+        for _ in 0..20 {
+            let l = build_room_of(RoomKind::Classroom, &mut s);
+            desks += count(&l, SunClass::Desk) + count(&l, SunClass::Table);
+            chairs += count(&l, SunClass::Chair);
+            let l = build_room_of(RoomKind::Bedroom, &mut s);
+            beds += count(&l, SunClass::Bed);
+            stands += count(&l, SunClass::NightStand);
+        }
+        assert!(
+            chairs * 10 >= desks * 6,
+            "{chairs} chairs for {desks} desks"
+        );
+        assert!(stands >= beds, "{stands} night stands for {beds} beds");
     }
 }

@@ -23,20 +23,21 @@
 //! 200 simulated scenes (seed 1, default settings; the printed report and `sim_stats.json`
 //! give these numbers for any run, [`stats`]):
 //! * camera height: the real floor is at z ≈ −1.24 m (1st percentile of z); simulated heights
-//!   are drawn from 1.0–1.6 m (mean 1.29) and the floor's 1st percentile lands within 4 mm of
+//!   are drawn from 1.0–1.6 m (mean 1.29) and the floor's 1st percentile lands within 5 mm of
 //!   minus the height on average;
 //! * points per object (inside the labelled box, of 50,000): the real bed, 3.0 m away, holds
-//!   18,117, simulated beds at 3.0 ± 0.5 m 9,700 on average (12 of them) — the real bed's box
-//!   is larger (2.29 × 1.58 × 1.28 m against 2.10 × 1.58 × 0.94 on average) and the real
+//!   18,117, simulated beds at 3.0 ± 0.5 m 9,700 on average (8 of them) — the real bed's box
+//!   is larger (2.29 × 1.58 × 1.28 m against 2.10 × 1.57 × 0.94 on average) and the real
 //!   frame is a close-up of it; the real night stand at 3.6 m holds 951, simulated ones at
-//!   3.6 ± 0.5 m 800 (8 of them). Over all distances: beds 13,100, sofas 3,800, bookshelves
-//!   3,900, dressers 3,200, desks 1,640, tables 1,980, chairs 1,230, night stands 1,230;
+//!   3.6 ± 0.5 m 790 (13 of them). Over all distances: beds 15,700 (mean distance 2.2 m),
+//!   sofas 3,750, bookshelves 4,130, dressers 2,970, desks 1,790, tables 2,110, chairs 1,280,
+//!   night stands 1,000;
 //! * sizes: drawn around SUN RGB-D's per-class means (σ 12%, beds by mattress width); the
 //!   simulated class means are within 6% of them except coffee tables making tables lower
-//!   (0.66 vs 0.72 m) and bathtubs longer (1.69 vs 1.40 m);
+//!   (0.64 vs 0.72 m) and bathtubs longer (1.69 vs 1.40 m);
 //! * measured pixels: 95% of the image (holes at dark, glass, glancing and far surfaces and in
 //!   the projector's shadow beside nearer things); no flying pixels at depth edges;
-//! * labels: 3.1 of the ten classes per scene; the 2D detector finds 88% of them at IoU 0.5
+//! * labels: 3.2 of the ten classes per scene; the 2D detector finds 89% of them at IoU 0.5
 //!   and 94% of its detections scored 0.5 or more are right;
 //! * what else differs: no motion blur or colour–depth misregistration, Lambertian shading
 //!   under one ceiling light, furniture made of boxes, cylinders and ellipsoids, and none of
