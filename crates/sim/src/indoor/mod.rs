@@ -37,6 +37,8 @@
 //!   (0.64 vs 0.72 m) and bathtubs longer (1.69 vs 1.40 m);
 //! * measured pixels: 95% of the image (holes at dark, glass, glancing and far surfaces and in
 //!   the projector's shadow beside nearer things); no flying pixels at depth edges;
+//! * colour: the points' mean colour is 0.49, 0.46, 0.42 (r, g, b), the real scene's 0.51,
+//!   0.49, 0.48 (its white walls and bedding);
 //! * labels: 3.2 of the ten classes per scene; the 2D detector finds 89% of them at IoU 0.5
 //!   and 94% of its detections scored 0.5 or more are right;
 //! * what else differs: no motion blur or colour–depth misregistration, Lambertian shading

@@ -15,6 +15,8 @@ use std::fmt::Write as _;
 pub const REAL_FLOOR_Z: f64 = -1.24;
 pub const REAL_BED_POINTS: usize = 18_117;
 pub const REAL_NIGHT_STAND_POINTS: usize = 951;
+/// The real scene's mean point colour (r, g, b in [0, 1]).
+pub const REAL_MEAN_RGB: [f64; 3] = [0.508, 0.491, 0.483];
 /// Horizontal distances of the real bed's and night stand's box centres from the camera, m.
 pub const REAL_BED_DISTANCE: f64 = 2.99;
 pub const REAL_NIGHT_STAND_DISTANCE: f64 = 3.63;
@@ -52,6 +54,8 @@ pub struct FrameStats {
     pub floor_z: f64,
     pub measured_fraction: f64,
     pub points: usize,
+    /// Mean colour of the points.
+    pub mean_rgb: [f64; 3],
     pub objects: Vec<ObjectRecord>,
     pub detections: usize,
     /// Detections with score ≥ 0.5, and those matching a label of their class at IoU ≥ 0.5.
@@ -93,6 +97,7 @@ impl FrameStats {
             floor_z,
             measured_fraction: f.measured as f64 / f.depth.millimetres.len().max(1) as f64,
             points: f.points.len(),
+            mean_rgb: std::array::from_fn(|k| mean(f.points.iter().map(|p| f64::from(p[3 + k])))),
             objects,
             detections: f.detections.len(),
             confident: confident.len(),
@@ -130,6 +135,7 @@ pub struct DatasetStats {
     pub rooms: BTreeMap<String, usize>,
     pub points_per_scene: f64,
     pub measured_fraction: f64,
+    pub mean_rgb: [f64; 3],
     pub camera_height: [f64; 3],
     /// Mean of floor z + camera height (how well the floor shows the height).
     pub floor_offset: f64,
@@ -213,6 +219,7 @@ impl DatasetStats {
             rooms,
             points_per_scene: mean(frames.iter().map(|f| f.points as f64)),
             measured_fraction: mean(frames.iter().map(|f| f.measured_fraction)),
+            mean_rgb: std::array::from_fn(|k| mean(frames.iter().map(|f| f.mean_rgb[k]))),
             camera_height: [
                 heights.iter().copied().fold(f64::INFINITY, f64::min),
                 mean(heights.iter().copied()),
@@ -250,6 +257,12 @@ impl DatasetStats {
             "  points per scene {:.0} (real prepared scenes: 50000); measured pixels {:.0}%",
             self.points_per_scene,
             100.0 * self.measured_fraction
+        );
+        let [r, g, b] = self.mean_rgb;
+        let [rr, rg, rb] = REAL_MEAN_RGB;
+        let _ = writeln!(
+            o,
+            "  mean point colour {r:.2} {g:.2} {b:.2} (real 000017: {rr:.2} {rg:.2} {rb:.2})"
         );
         let _ = writeln!(
             o,
@@ -324,6 +337,7 @@ mod tests {
             floor_z: -1.28,
             measured_fraction: 0.9,
             points: 50_000,
+            mean_rgb: [0.5; 3],
             objects,
             detections: 3,
             confident,
