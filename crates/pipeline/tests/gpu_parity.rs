@@ -1,9 +1,9 @@
-//! CPU–GPU parity (cargo feature `wgpu`): the shipped F-ConvNet and Voxel R-CNN Car models
-//! give the same boxes on burn's wgpu backend as on the CPU for the bundled KITTI val frames,
-//! within a stated tolerance (f32 kernels that sum in another order: centres and sizes within
-//! 2 cm, headings within 0.02 rad, scores within 0.005). Where no wgpu adapter is found the
-//! test says so and passes.
-#![cfg(feature = "wgpu")]
+//! CPU–GPU parity (cargo features `wgpu` and `cuda`): the shipped F-ConvNet and Voxel R-CNN
+//! Car models give the same boxes on burn's wgpu or CUDA backend as on the CPU for the bundled
+//! KITTI val frames, within a stated tolerance (f32 kernels that sum in another order: centres
+//! and sizes within 2 cm, headings within 0.02 rad, scores within 0.005). Where the backend
+//! finds no adapter, driver or device the test says so and passes.
+#![cfg(any(feature = "wgpu", feature = "cuda"))]
 
 use burn::prelude::Device;
 use fusiondet_pipeline::{ComputeDevice, Detector, ExperimentConfig, SideInputs, StageTimes};
@@ -13,26 +13,26 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
-/// The wgpu device, if an adapter can be had (creating one panics where none exists).
-fn wgpu_device() -> Option<Device> {
-    let device = ComputeDevice::Wgpu.device();
-    let probe = device.clone();
-    let works = std::panic::catch_unwind(move || {
-        let t = burn::tensor::Tensor::<1>::from_floats([1.0, 2.0, 3.0], &probe);
-        t.sum().into_scalar::<f32>()
-    });
-    match works {
-        Ok(sum) if (sum - 6.0).abs() < 1e-6 => Some(device),
-        _ => None,
-    }
-}
-
+#[cfg(feature = "wgpu")]
 #[test]
 fn shipped_models_give_the_same_boxes_on_wgpu_as_on_the_cpu() {
-    let Some(gpu) = wgpu_device() else {
-        eprintln!("skipped: no wgpu adapter on this machine; parity was not checked");
+    parity(ComputeDevice::Wgpu, "wgpu");
+}
+
+#[cfg(feature = "cuda")]
+#[test]
+fn shipped_models_give_the_same_boxes_on_cuda_as_on_the_cpu() {
+    parity(ComputeDevice::Cuda(0), "CUDA");
+}
+
+/// Compares every box of both models on `gpu` with the CPU's, or skips (passing) where
+/// [`ComputeDevice::check`] finds the device unusable.
+fn parity(gpu: ComputeDevice, name: &str) {
+    if let Err(why) = gpu.check() {
+        eprintln!("skipped: {why}; {name} parity was not checked");
         return;
-    };
+    }
+    let gpu = gpu.device();
     let data = repo().join("data/kitti-sample");
     for model in ["fconvnet-car", "voxel-rcnn-car"] {
         let path = repo().join(format!("models/{model}.bpk"));
@@ -47,10 +47,10 @@ fn shipped_models_give_the_same_boxes_on_wgpu_as_on_the_cpu() {
                 .unwrap()
                 .objects
         };
-        let (cpu, wgpu) = (run(&ComputeDevice::Cpu.device()), run(&gpu));
+        let (cpu, on_gpu) = (run(&ComputeDevice::Cpu.device()), run(&gpu));
         let mut compared = 0;
         for (id, a) in &cpu {
-            let b = &wgpu[id];
+            let b = &on_gpu[id];
             assert_eq!(a.len(), b.len(), "{model} {id}: box counts differ");
             for (x, y) in a.iter().zip(b) {
                 let (p, q) = (&x.box3d, &y.box3d);
@@ -77,6 +77,6 @@ fn shipped_models_give_the_same_boxes_on_wgpu_as_on_the_cpu() {
                 compared += 1;
             }
         }
-        eprintln!("{model}: {compared} boxes equal on CPU and wgpu within the tolerance");
+        eprintln!("{model}: {compared} boxes equal on CPU and {name} within the tolerance");
     }
 }

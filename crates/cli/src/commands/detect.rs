@@ -31,7 +31,8 @@ pub struct ModelOnSplit {
     /// fewer is faster).
     #[arg(long)]
     pub points: Option<usize>,
-    /// Where the network runs (this build: cpu).
+    /// Where the network runs: `cpu`; `wgpu`, `cuda` or `cuda:N` in builds with the cargo
+    /// feature of that name.
     #[arg(long, default_value = "cpu")]
     pub device: ComputeDevice,
     /// DASANet: completed depth maps (`<id>.png`, KITTI depth format, e.g. from

@@ -26,7 +26,8 @@ pub struct TrainArgs {
     /// (overrides refine.first_stage).
     #[arg(long)]
     pub first_stage: Option<PathBuf>,
-    /// Where the network trains (this build: cpu).
+    /// Where the network trains: `cpu`; `wgpu`, `cuda` or `cuda:N` in builds with the cargo
+    /// feature of that name.
     #[arg(long, default_value = "cpu")]
     pub device: ComputeDevice,
 }
