@@ -7,7 +7,7 @@ use crate::style::{self, EGO, GRID, Source, TEXT};
 use crate::text::{draw_text, text_size};
 use fusiondet_geometry::{CameraModel, bev_polygon};
 use fusiondet_kitti::{LidarPoint, Object, ObjectClass};
-use image::RgbImage;
+use image::{Rgb, RgbImage};
 use imageproc::drawing::draw_polygon_mut;
 use imageproc::point::Point;
 
@@ -196,6 +196,44 @@ pub fn draw_points(
     dimmed
 }
 
+/// Points in colours of their own (`colours[i]` for `points[i]`, e.g. an RGB-D camera's),
+/// the lowest first so that tops of furniture stand out over the floor beneath them.
+pub fn draw_coloured_points(
+    img: &mut RgbImage,
+    map: &BevMap,
+    cam: &CameraModel,
+    points: &[LidarPoint],
+    colours: &[Rgb<u8>],
+    point_size: u32,
+) {
+    let mut shown: Vec<(f32, u32, u32, Rgb<u8>)> = points
+        .iter()
+        .zip(colours)
+        .filter_map(|(p, &c)| {
+            let r = cam.velo_to_rect([p[0] as f64, p[1] as f64, p[2] as f64]);
+            let (col, row) = map.pixel_of(r[0], r[2])?;
+            // Camera y points down: the highest point has the smallest y.
+            Some((-r[1] as f32, col, row, c))
+        })
+        .collect();
+    shown.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let half = (point_size / 2) as i32;
+    for (_, col, row, c) in shown {
+        if point_size <= 1 {
+            img.put_pixel(col, row, c);
+        } else {
+            fill_rect(
+                img,
+                col as i32 - half,
+                row as i32 - half,
+                point_size,
+                point_size,
+                c,
+            );
+        }
+    }
+}
+
 /// Pseudo points (LiDAR frame, metres) in their own colour, one pixel each: drawn under
 /// the LiDAR points, which they densify.
 pub fn draw_pseudo_points(
@@ -233,9 +271,13 @@ pub fn draw_footprints(img: &mut RgbImage, map: &BevMap, objects: &[&Object], so
     }
 }
 
-/// The ego camera: a filled triangle pointing forward at the origin.
+/// The ego camera: a filled triangle pointing forward at the origin, 2.4 m long on
+/// KITTI's 70 m view and shrinking with shorter ranges (a room's 8 m).
 pub fn draw_ego(img: &mut RgbImage, map: &BevMap) {
+    let forward = map.range.forward.1 - map.range.forward.0;
+    let k = (forward / 70.0).clamp(0.1, 1.0);
     let pts = [(0.0, 2.2), (-1.0, -0.2), (1.0, -0.2)].map(|(x, z)| {
+        let (x, z) = (x * k, z * k);
         let (c, r) = map.to_pixel(x, z);
         Point::new(c.round() as i32, r.round() as i32)
     });

@@ -96,6 +96,20 @@ pub fn draw_labels(
     scale: u32,
     placed: &mut Vec<LabelRect>,
 ) {
+    draw_labels_with(img, cam, objects, source, scale, placed, &|s, o| s.label(o));
+}
+
+/// [`draw_labels`] with the label text from `text` (e.g. class names KITTI's classes
+/// do not have).
+pub fn draw_labels_with(
+    img: &mut RgbImage,
+    cam: &CameraModel,
+    objects: &[&Object],
+    source: Source,
+    scale: u32,
+    placed: &mut Vec<LabelRect>,
+    text: &dyn Fn(Source, &Object) -> String,
+) {
     const TRIES: i32 = 6;
     let (w, h) = (img.width() as f64, img.height() as f64);
     for o in objects.iter().filter(|o| o.class != ObjectClass::DontCare) {
@@ -106,7 +120,7 @@ pub fn draw_labels(
         else {
             continue;
         };
-        let text = source.label(o);
+        let text = text(source, o);
         let (_, _, _, label_h) = label_rect(img, 0, 0, &text, scale);
         let x = bounds.x1.round() as i32;
         let (base, step) = match source {

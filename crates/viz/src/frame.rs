@@ -8,7 +8,7 @@ use crate::legend::{Entry, Icon, render_legend};
 use crate::style::{self, BACKGROUND, Source};
 use fusiondet_geometry::CameraModel;
 use fusiondet_kitti::{DepthMap, LidarPoint, Object, ObjectClass};
-use image::{GenericImage, RgbImage};
+use image::{GenericImage, Rgb, RgbImage};
 
 /// Everything drawn for one frame.
 #[derive(Debug, Clone)]
@@ -31,6 +31,20 @@ pub struct FrameView {
     pub pseudo_points: Option<Vec<[f32; 3]>>,
     /// A completed depth map of the image, drawn as a colour map above it when present.
     pub depth: Option<DepthMap>,
+    /// Each point's own colour (an RGB-D camera's), one per point of `points`: the
+    /// bird's-eye view then draws them so instead of by height.
+    pub point_colours: Option<Vec<Rgb<u8>>>,
+    /// Class names of the boxes where KITTI's classes do not name them (SUN RGB-D's
+    /// boxes are `Misc` objects): the labels then show these.
+    pub class_names: Option<ClassNames>,
+}
+
+/// The names shown on box labels, one per object of [`FrameView::ground_truth`] and of
+/// [`FrameView::detections`], in their order.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ClassNames {
+    pub ground_truth: Vec<String>,
+    pub detections: Vec<String>,
 }
 
 /// How to draw; the defaults suit KITTI's 1242×375 images.
@@ -94,6 +108,26 @@ impl FrameView {
         });
         shown
     }
+
+    /// The label text of `object`, one of this view's boxes from `source`: the class
+    /// name given in [`FrameView::class_names`] where there is one, else KITTI's.
+    pub fn label(&self, source: Source, object: &Object) -> String {
+        let named = self.class_names.as_ref().and_then(|names| {
+            let (objects, names) = match source {
+                Source::GroundTruth => (self.ground_truth.as_slice(), &names.ground_truth),
+                Source::Detection => (self.detections.as_deref().unwrap_or(&[]), &names.detections),
+            };
+            let i = objects.iter().position(|o| std::ptr::eq(o, object))?;
+            names.get(i).cloned()
+        });
+        match named {
+            None => source.label(object),
+            Some(name) => match (source, object.score) {
+                (Source::Detection, Some(score)) => format!("{name} {score:.2}"),
+                _ => name,
+            },
+        }
+    }
 }
 
 /// The camera image with DontCare regions, ground truth and detections drawn on it.
@@ -107,21 +141,24 @@ pub fn render_camera(view: &FrameView, options: &RenderOptions) -> RgbImage {
     camera_view::draw_boxes(&mut img, &view.camera, &det, Source::Detection);
     let mut placed = Vec::new();
     let scale = options.label_scale;
-    camera_view::draw_labels(
+    let text = |source: Source, o: &Object| view.label(source, o);
+    camera_view::draw_labels_with(
         &mut img,
         &view.camera,
         &gt,
         Source::GroundTruth,
         scale,
         &mut placed,
+        &text,
     );
-    camera_view::draw_labels(
+    camera_view::draw_labels_with(
         &mut img,
         &view.camera,
         &det,
         Source::Detection,
         scale,
         &mut placed,
+        &text,
     );
     img
 }
@@ -143,14 +180,27 @@ pub fn render_bev(view: &FrameView, options: &RenderOptions, width: u32) -> (Rgb
     if let Some(points) = &view.pseudo_points {
         bev::draw_pseudo_points(&mut img, &map, &view.camera, points);
     }
-    let dimmed = bev::draw_points(
-        &mut img,
-        &map,
-        &view.camera,
-        view.image.dimensions(),
-        &view.points,
-        options.point_size,
-    );
+    let dimmed = match &view.point_colours {
+        Some(colours) => {
+            bev::draw_coloured_points(
+                &mut img,
+                &map,
+                &view.camera,
+                &view.points,
+                colours,
+                options.point_size,
+            );
+            0
+        }
+        None => bev::draw_points(
+            &mut img,
+            &map,
+            &view.camera,
+            view.image.dimensions(),
+            &view.points,
+            options.point_size,
+        ),
+    };
     bev::draw_footprints(&mut img, &map, &view.boxes_gt(), Source::GroundTruth);
     bev::draw_footprints(
         &mut img,
@@ -185,10 +235,16 @@ fn legend_entries(view: &FrameView, options: &RenderOptions, dimmed: usize) -> V
         entries.push(Entry::new(Icon::Dashed, "DontCare (2D)"));
     }
     entries.push(Entry::new(Icon::Front, "front / heading"));
-    entries.push(Entry::new(
-        Icon::Ramp,
-        format!("height 0-{:.0} m", style::HEIGHT_RAMP_TOP),
-    ));
+    match &view.point_colours {
+        Some(_) => entries.push(Entry::new(
+            Icon::Swatch(style::TEXT),
+            "points in their camera colour",
+        )),
+        None => entries.push(Entry::new(
+            Icon::Ramp,
+            format!("height 0-{:.0} m", style::HEIGHT_RAMP_TOP),
+        )),
+    }
     if dimmed > 0 {
         entries.push(Entry::new(Icon::DimRamp, "outside image"));
     }

@@ -17,6 +17,7 @@ pub mod camera_view;
 pub mod draw;
 pub mod error;
 pub mod frame;
+pub mod indoor;
 pub mod legend;
 pub mod load;
 pub mod pr_plot;
@@ -33,9 +34,10 @@ pub use image;
 pub use bev::{BevMap, BevRange};
 pub use error::VizError;
 pub use frame::{
-    FrameView, RenderOptions, render_bev, render_camera, render_frame, render_frame_with,
-    stack_vertical,
+    ClassNames, FrameView, RenderOptions, render_bev, render_camera, render_frame,
+    render_frame_with, stack_vertical,
 };
+pub use indoor::{indoor_render_options, is_sun_rgbd_dir, load_indoor_scene};
 pub use load::{load_frame, result_file};
 pub use pr_plot::{
     LegendAp, PlotArea, PrPlotOptions, render_pr_curves, render_pr_difficulties, write_plot_png,

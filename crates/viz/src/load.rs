@@ -82,6 +82,8 @@ pub fn load_frame(
         notes,
         pseudo_points: None,
         depth: None,
+        point_colours: None,
+        class_names: None,
     })
 }
 

@@ -1,22 +1,30 @@
 //! `fusiondet viz`: draws one frame (camera image with projected 3D boxes above a
-//! bird's-eye view) to a PNG. The drawing lives in `fusiondet-viz`.
+//! bird's-eye view) to a PNG, of a KITTI frame or of a prepared SUN RGB-D scene (told
+//! apart by the directory: `splits/` and `points/` are SUN RGB-D's). The drawing lives in
+//! `fusiondet-viz`.
 
 use anyhow::{Context, bail};
 use fusiondet_kitti::FrameDir;
 use fusiondet_kitti::image::write_png;
-use fusiondet_viz::{BevRange, RenderOptions, load_frame, render_frame_with};
+use fusiondet_viz::image::RgbImage;
+use fusiondet_viz::{
+    BevRange, RenderOptions, indoor_render_options, load_frame, load_indoor_scene,
+    render_frame_with,
+};
 use fusiondet_workflows::outln;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
 pub struct VizArgs {
-    /// KITTI `training/` (or `testing/`) directory with image_2/, calib/, velodyne/ and label_2/.
+    /// KITTI `training/` (or `testing/`) directory with image_2/, calib/, velodyne/ and
+    /// label_2/; or a prepared SUN RGB-D directory (splits/, points/, image/, calib/, label/).
     #[arg(long)]
     pub data_dir: PathBuf,
     /// Frame id, e.g. 000001 (shorter numbers are zero-padded to six digits).
     #[arg(long)]
     pub id: String,
-    /// Directory of KITTI result files (ID.txt or data/ID.txt) drawn as detections.
+    /// Directory of result files (ID.txt or data/ID.txt; KITTI lines, or SUN RGB-D's
+    /// upright-depth lines for a SUN RGB-D directory) drawn as detections.
     /// A directory without this frame draws ground truth only, with a warning.
     #[arg(long)]
     pub result_dir: Option<PathBuf>,
@@ -26,12 +34,12 @@ pub struct VizArgs {
     /// Output PNG (written atomically).
     #[arg(long)]
     pub out: PathBuf,
-    /// Bird's-eye view: metres shown ahead of the camera.
-    #[arg(long, default_value_t = 70.0)]
-    pub bev_forward: f64,
-    /// Bird's-eye view: metres shown to each side.
-    #[arg(long, default_value_t = 40.0)]
-    pub bev_side: f64,
+    /// Bird's-eye view: metres shown ahead of the camera [default: 70; 8 for SUN RGB-D].
+    #[arg(long)]
+    pub bev_forward: Option<f64>,
+    /// Bird's-eye view: metres shown to each side [default: 40; 5 for SUN RGB-D].
+    #[arg(long)]
+    pub bev_side: Option<f64>,
     /// Do not draw KITTI's DontCare regions (faint dashed 2D boxes on the image).
     #[arg(long)]
     pub no_dont_care: bool,
@@ -66,10 +74,14 @@ pub(crate) fn check_score_threshold(threshold: Option<f64>) -> anyhow::Result<()
 pub fn run(args: VizArgs) -> anyhow::Result<()> {
     let id = frame_id(&args.id)?;
     check_score_threshold(args.score_threshold)?;
-    for (name, v) in [
-        ("--bev-forward", args.bev_forward),
-        ("--bev-side", args.bev_side),
-    ] {
+    let indoor = fusiondet_viz::is_sun_rgbd_dir(&args.data_dir);
+    let (forward, side) = match indoor {
+        true => (8.0, 5.0),
+        false => (70.0, 40.0),
+    };
+    let bev_forward = args.bev_forward.unwrap_or(forward);
+    let bev_side = args.bev_side.unwrap_or(side);
+    for (name, v) in [("--bev-forward", bev_forward), ("--bev-side", bev_side)] {
         if !(v.is_finite() && v > 0.0 && v <= 500.0) {
             bail!("{name} must be in (0, 500] metres, got {v}");
         }
@@ -84,6 +96,9 @@ pub fn run(args: VizArgs) -> anyhow::Result<()> {
             ("--depth-dir", args.depth_dir.as_deref()),
         ],
     )?;
+    if indoor {
+        return run_indoor(&args, &id, bev_forward, bev_side);
+    }
     let frames = FrameDir::new(&args.data_dir);
     let mut view = load_frame(&frames, &id, args.result_dir.as_deref())
         .with_context(|| format!("cannot load frame {id} from {}", args.data_dir.display()))?;
@@ -112,21 +127,53 @@ pub fn run(args: VizArgs) -> anyhow::Result<()> {
     let options = RenderOptions {
         score_threshold: args.score_threshold,
         bev_range: BevRange {
-            forward: (0.0, args.bev_forward),
-            lateral: (-args.bev_side, args.bev_side),
+            forward: (0.0, bev_forward),
+            lateral: (-bev_side, bev_side),
         },
         dont_care: !args.no_dont_care,
         ..RenderOptions::default()
     };
-    let picture = render_frame_with(&view, &options);
-    write_png(&args.out, &picture).context("cannot write the picture")?;
+    write_picture(&args.out, &render_frame_with(&view, &options))
+}
+
+fn write_picture(out: &Path, picture: &RgbImage) -> anyhow::Result<()> {
+    write_png(out, picture).context("cannot write the picture")?;
     outln!(
         "wrote {} ({}x{})",
-        args.out.display(),
+        out.display(),
         picture.width(),
         picture.height()
     );
     Ok(())
+}
+
+/// A prepared SUN RGB-D scene: the image with its boxes above the room seen from above.
+fn run_indoor(args: &VizArgs, id: &str, bev_forward: f64, bev_side: f64) -> anyhow::Result<()> {
+    for (flag, given) in [
+        ("--pseudo-dir", args.pseudo_dir.is_some()),
+        ("--depth-dir", args.depth_dir.is_some()),
+    ] {
+        if given {
+            bail!(
+                "{flag} is for KITTI frames; {} is a prepared SUN RGB-D directory",
+                args.data_dir.display()
+            );
+        }
+    }
+    let view = load_indoor_scene(&args.data_dir, id, args.result_dir.as_deref())
+        .with_context(|| format!("cannot load scene {id} from {}", args.data_dir.display()))?;
+    for note in &view.notes {
+        eprintln!("warning: {note}");
+    }
+    let options = RenderOptions {
+        score_threshold: args.score_threshold,
+        bev_range: BevRange {
+            forward: (0.0, bev_forward),
+            lateral: (-bev_side, bev_side),
+        },
+        ..indoor_render_options()
+    };
+    write_picture(&args.out, &render_frame_with(&view, &options))
 }
 
 #[cfg(test)]
