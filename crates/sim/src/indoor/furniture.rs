@@ -12,22 +12,6 @@ use crate::rng::Sampler;
 use crate::scene::SceneBuilder;
 use fusiondet_sunrgbd::SunClass;
 
-/// SUN RGB-D's mean box sizes (dx, dy, dz) per class in [`SunClass::ALL`] order, metres: the
-/// averages over its training labels that indoor detectors use as size anchors (VoteNet's
-/// `type_mean_size`).
-pub const MEAN_SIZE: [[f64; 3]; 10] = [
-    [2.114256, 1.620300, 0.927272],
-    [0.791118, 1.279516, 0.718182],
-    [0.923508, 1.867419, 0.845495],
-    [0.591958, 0.552978, 0.827272],
-    [0.699104, 0.454178, 0.756250],
-    [0.695190, 1.346299, 0.736364],
-    [0.528526, 1.002642, 1.172878],
-    [0.500618, 0.632163, 0.683424],
-    [0.404671, 1.071108, 1.688889],
-    [0.765840, 1.398258, 0.472728],
-];
-
 /// A flat surface things can stand on (a table top, a shelf), in the room frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Support {
@@ -45,7 +29,7 @@ pub struct Support {
 /// −25%…+30%), beds by mattress width (single, double, queen, king; weighted so that their
 /// mean width is SUN RGB-D's 1.6 m).
 pub fn sample_size(class: SunClass, s: &mut Sampler) -> [f64; 3] {
-    let m = MEAN_SIZE[class.index()];
+    let m = class.mean_size();
     let mut size = m.map(|v| v * s.normal_clamped(1.0, 0.12, 0.75, 1.3));
     match class {
         SunClass::Bed => {
@@ -640,7 +624,7 @@ mod tests {
                     mean[k] += sz[k] / n as f64;
                 }
             }
-            let m = MEAN_SIZE[class.index()];
+            let m = class.mean_size();
             for k in 0..3 {
                 assert!(
                     (mean[k] / m[k] - 1.0).abs() < 0.2,

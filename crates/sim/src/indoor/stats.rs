@@ -4,7 +4,6 @@
 //! 2D detector's recall and precision. Written to `sim_stats.json`, printed after a run.
 
 use super::IndoorFrame;
-use super::furniture::MEAN_SIZE;
 use fusiondet_geometry::iou_2d;
 use fusiondet_sunrgbd::SunClass;
 use std::collections::BTreeMap;
@@ -182,7 +181,7 @@ impl DatasetStats {
                     mean_box_points: mean(pts.iter().copied()),
                     median_box_points: pts.get(pts.len() / 2).copied().unwrap_or(0.0),
                     mean_size: std::array::from_fn(|k| mean(objs.iter().map(|o| o.size[k]))),
-                    real_mean_size: MEAN_SIZE[c.index()],
+                    real_mean_size: c.mean_size(),
                     mean_distance: mean(objs.iter().map(|o| o.distance)),
                 }
             })
