@@ -25,7 +25,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Run the whole pipeline on the bundled data: simulate, train, detect, evaluate, draw.
+    /// Run the whole pipeline on the bundled data: simulate, train, detect, evaluate, draw
+    /// (--indoor: simulated rooms and a real SUN RGB-D scene).
     Demo(commands::demo::DemoArgs),
     /// Train a detector (the frustum family or Voxel R-CNN) from a TOML experiment configuration.
     Train(commands::train::TrainArgs),
@@ -35,7 +36,8 @@ enum Command {
     Info(commands::info::InfoArgs),
     /// Official KITTI object evaluation (devkit-exact AP11/AP40, bbox/bev/3d/aos).
     Eval(commands::eval::EvalArgs),
-    /// Draw a frame: image with projected 3D boxes above a bird's-eye view.
+    /// Draw a frame: image with projected 3D boxes above a bird's-eye view (KITTI frames or
+    /// prepared SUN RGB-D scenes).
     Viz(commands::viz::VizArgs),
     /// Interactive 3D pages of frames (self-contained HTML): points, boxes, image, toggles.
     View(commands::view::ViewArgs),

@@ -178,9 +178,57 @@ pub const SAF_CAR: ShippedFiles = ShippedFiles {
 /// The tiny network's configuration, as shipped in `configs/tiny.toml`.
 pub const TINY_CONFIG: &str = include_str!("../../../configs/tiny.toml");
 
+/// The tiny network on SUN RGB-D's ten classes, as shipped in `configs/tiny-sunrgbd.toml`.
+pub const TINY_SUNRGBD_CONFIG: &str = include_str!("../../../configs/tiny-sunrgbd.toml");
+
+/// The real SUN RGB-D scene of the `sunrgbd` crate's fixture (`crates/sunrgbd/tests/data`,
+/// see its README): points (5,000, float32 × 6), image, calibration and labels, by path
+/// relative to a prepared directory.
+pub const SUNRGBD_SCENE: &[(&str, &[u8])] = &[
+    (
+        "points/000017.bin",
+        include_bytes!("../../sunrgbd/tests/data/points/000017.bin"),
+    ),
+    (
+        "image/000017.jpg",
+        include_bytes!("../../sunrgbd/tests/data/image/000017.jpg"),
+    ),
+    (
+        "calib/000017.txt",
+        include_bytes!("../../sunrgbd/tests/data/calib/000017.txt"),
+    ),
+    (
+        "label/000017.txt",
+        include_bytes!("../../sunrgbd/tests/data/label/000017.txt"),
+    ),
+];
+
+/// The id of the bundled real scene.
+pub const SUNRGBD_SCENE_ID: &str = "000017";
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_embedded_scene_is_the_fixture_and_the_tiny_config_the_shipped_one() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../sunrgbd/tests/data");
+        for (relative, bytes) in SUNRGBD_SCENE {
+            assert_eq!(
+                &std::fs::read(root.join(relative)).unwrap(),
+                bytes,
+                "{relative}"
+            );
+            assert!(relative.contains(SUNRGBD_SCENE_ID), "{relative}");
+        }
+        // Points, image, calibration, labels: a scene the readers take.
+        assert_eq!(SUNRGBD_SCENE[0].1.len(), 5_000 * 24);
+        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+        assert_eq!(
+            std::fs::read_to_string(configs.join("tiny-sunrgbd.toml")).unwrap(),
+            TINY_SUNRGBD_CONFIG
+        );
+    }
 
     #[test]
     fn the_embedded_sample_is_the_whole_directory() {

@@ -87,8 +87,9 @@ impl std::str::FromStr for ShippedModel {
     }
 }
 
-/// Creates `out`, or clears the demo's own sub-directories from an earlier run.
-fn prepare_out(out: &Path) -> anyhow::Result<()> {
+/// Creates `out`, or clears the demo's own sub-directories from an earlier run (of the
+/// street or of the indoor demo).
+pub(crate) fn prepare_out(out: &Path) -> anyhow::Result<()> {
     if out.exists() {
         let empty = std::fs::read_dir(out)
             .with_context(|| format!("{}: cannot read", out.display()))?
@@ -100,7 +101,9 @@ fn prepare_out(out: &Path) -> anyhow::Result<()> {
                 out.display()
             );
         }
-        for sub in ["sim", "kitti", "run", "model", "results", "pictures"] {
+        for sub in [
+            "sim", "kitti", "real", "run", "model", "results", "pictures",
+        ] {
             let p = out.join(sub);
             if p.exists() {
                 std::fs::remove_dir_all(&p)
