@@ -155,10 +155,12 @@ fn bad_indoor_demo_arguments_are_refused() {
         &["--indoor", "--model", "saf", "--out", out],
         "--model",
     );
-    assert_fails_with(
-        "demo",
-        &["--points", "5000", "--out", out],
-        "--points is for --indoor",
-    );
+    for points in ["5000", "20000"] {
+        assert_fails_with(
+            "demo",
+            &["--points", points, "--out", out],
+            "--points is for --indoor",
+        );
+    }
     assert!(!Path::new(out).exists());
 }

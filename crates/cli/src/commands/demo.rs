@@ -33,12 +33,12 @@ pub struct DemoArgs {
     #[arg(long, conflicts_with_all = ["model", "train_tiny"])]
     pub indoor: bool,
     /// Training epochs of the tiny network (with --train-tiny or --indoor)
-    /// [default: 8; 6 with --indoor].
+    /// [default: 8; 15 with --indoor].
     #[arg(long)]
     pub epochs: Option<usize>,
-    /// Points kept per simulated room (with --indoor).
-    #[arg(long, default_value_t = 20_000)]
-    pub points: usize,
+    /// Points kept per simulated room (with --indoor) [default: 20000].
+    #[arg(long)]
+    pub points: Option<usize>,
 }
 
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
@@ -49,11 +49,11 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
                 .unwrap_or_else(|| PathBuf::from("fusiondet-demo-indoor")),
             frames: args.frames.unwrap_or(24),
             seed: args.seed,
-            epochs: args.epochs.unwrap_or(6),
-            points: args.points,
+            epochs: args.epochs.unwrap_or(15),
+            points: args.points.unwrap_or(20_000),
         });
     }
-    if args.points != 20_000 {
+    if args.points.is_some() {
         bail!("--points is for --indoor");
     }
     let model: ShippedModel = args.model.parse().map_err(anyhow::Error::msg)?;
