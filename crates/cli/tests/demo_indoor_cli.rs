@@ -109,7 +109,9 @@ fn the_indoor_demo_runs_from_an_installed_binary() {
         assert!(out.join(format!("pictures/sim-{id}.png")).is_file(), "{id}");
     }
 
-    // A second run replaces its own output (here with fewer rooms).
+    // A second run replaces its own output (here with fewer rooms), and the street
+    // demo's evaluation where one had run before.
+    std::fs::write(out.join("eval-kitti.json"), "{}").unwrap();
     let o = demo(
         &bin,
         work.path(),
@@ -120,6 +122,8 @@ fn the_indoor_demo_runs_from_an_installed_binary() {
     assert!(o.status.success(), "{}", all_output(&o));
     assert!(text(&o.stdout).contains("simulated 4 rooms"));
     assert!(!out.join("sim/points/000005.bin").exists());
+    assert!(!out.join("eval-kitti.json").exists());
+    assert!(out.join("eval-real.json").is_file());
 
     // A directory the demo did not write is refused and left alone.
     let foreign = work.path().join("mine");

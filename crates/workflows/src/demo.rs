@@ -110,6 +110,14 @@ pub(crate) fn prepare_out(out: &Path) -> anyhow::Result<()> {
                     .with_context(|| format!("{}: cannot remove", p.display()))?;
             }
         }
+        // The evaluations of either demo, so that none is left from the other one.
+        for file in ["eval-sim.json", "eval-kitti.json", "eval-real.json"] {
+            let p = out.join(file);
+            if p.is_file() {
+                std::fs::remove_file(&p)
+                    .with_context(|| format!("{}: cannot remove", p.display()))?;
+            }
+        }
     }
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
     std::fs::write(out.join(MARKER), b"written by fusiondet demo\n")
