@@ -28,20 +28,24 @@ enum Command {
     /// Run the whole pipeline on the bundled data: simulate, train, detect, evaluate, draw
     /// (--indoor: simulated rooms and a real SUN RGB-D scene).
     Demo(commands::demo::DemoArgs),
-    /// Train a detector (the frustum family or Voxel R-CNN) from a TOML experiment configuration.
+    /// Train a detector (the frustum family, Voxel R-CNN or DASANet) from a TOML experiment
+    /// configuration, on KITTI-format data or (frustum family) prepared SUN RGB-D scenes.
     Train(commands::train::TrainArgs),
-    /// Detect 3D boxes with a trained checkpoint and write KITTI result files.
+    /// Detect 3D boxes with a trained checkpoint and write result files (KITTI's, or SUN
+    /// RGB-D's for a model trained on it).
     Detect(commands::detect::DetectArgs),
     /// Print a network's per-module parameter table.
     Info(commands::info::InfoArgs),
-    /// Official KITTI object evaluation (devkit-exact AP11/AP40, bbox/bev/3d/aos).
+    /// Official KITTI object evaluation (devkit-exact AP11/AP40, bbox/bev/3d/aos), or with
+    /// --dataset sunrgbd SUN RGB-D's indoor evaluation (VoteNet's protocol, exact IoU).
     Eval(commands::eval::EvalArgs),
     /// Draw a frame: image with projected 3D boxes above a bird's-eye view (KITTI frames or
     /// prepared SUN RGB-D scenes).
     Viz(commands::viz::VizArgs),
     /// Interactive 3D pages of frames (self-contained HTML): points, boxes, image, toggles.
     View(commands::view::ViewArgs),
-    /// Simulate a LiDAR + camera dataset in KITTI format.
+    /// Simulate a LiDAR + camera dataset in KITTI format, or (--indoor) RGB-D rooms as a
+    /// prepared SUN RGB-D data set.
     Simulate(commands::simulate::SimulateArgs),
     /// Train and evaluate several configurations on one dataset: ablation tables and PR plots.
     Ablation(commands::ablation::AblationArgs),
