@@ -3,6 +3,7 @@
 //! and the statistics — so an interrupted run never leaves a dataset whose index
 //! files claim frames that are not all there.
 
+use crate::output_dir;
 use crate::stats::{DatasetStats, FrameStats};
 use crate::{SimConfig, Split, simulate_frame};
 use fusiondet_kitti::detections2d::format_detections2d;
@@ -89,8 +90,8 @@ pub fn validate(opts: &DatasetOptions) -> Result<(), SimError> {
 /// run: `--force` replaces only such a data set, and only its frames. The simulator also
 /// holds an advisory lock on it while writing, so two runs cannot mix their frames.
 pub const MARKER_FILE: &str = ".fusiondet-sim";
-/// The advisory lock a simulator holds on its output directory while writing.
-const LOCK_FILE: &str = ".fusiondet-sim.lock";
+/// The first line of a street data set's marker.
+const MARKER_HEAD: &str = "fusiondet simulate";
 
 /// Is `name` one of the files this simulator writes into `dir` (a subfolder name), for a
 /// run of `frames` frames?
@@ -99,14 +100,11 @@ fn is_ours(dir: &str, name: &str, frames: usize) -> bool {
     if let Some(target) = fusiondet_kitti::atomic::temp_target(name) {
         return is_ours(dir, target, frames);
     }
-    let (stem, ext) = name.rsplit_once('.').unwrap_or((name, ""));
-    let frame = stem.len() == 6
-        && stem.bytes().all(|b| b.is_ascii_digit())
-        && stem.parse::<usize>().is_ok_and(|i| i < frames);
+    let ext = output_dir::frame_file(name, frames);
     match dir {
-        "velodyne" => frame && ext == "bin",
-        "calib" | "label_2" => frame && ext == "txt",
-        "image_2" | "depth_2" => frame && ext == "png",
+        "velodyne" => ext == Some("bin"),
+        "calib" | "label_2" => ext == Some("txt"),
+        "image_2" | "depth_2" => ext == Some("png"),
         "ImageSets" => matches!(name, "train.txt" | "val.txt" | "trainval.txt"),
         "rgb_detections" => {
             matches!(name, "rgb_detection_train.txt" | "rgb_detection_val.txt")
@@ -116,64 +114,24 @@ fn is_ours(dir: &str, name: &str, frames: usize) -> bool {
     }
 }
 
-/// The frame count a marker file records.
-fn marked_frames(text: &str) -> Option<usize> {
-    let mut lines = text.lines();
-    (lines.next()? == "fusiondet simulate").then_some(())?;
-    lines.next()?.strip_prefix("frames: ")?.parse().ok()
-}
-
 /// The output directory, open for writing: its lock is held until dropped.
 struct PreparedDir {
     ds: DatasetDir,
     _lock: std::fs::File,
 }
 
-/// Prepares the output directory: refuses a non-empty one unless `force` and it is a data
-/// set this simulator wrote (its marker), in which case that run's own files are removed
-/// (nothing else: no other file, nothing behind a symbolic link).
+/// Prepares the output directory ([`output_dir::claim`]): an earlier run's own files are
+/// removed when `force` replaces it.
 fn prepare_dir(opts: &DatasetOptions) -> Result<PreparedDir, SimError> {
     let root = &opts.out;
-    let marker = root.join(MARKER_FILE);
-    let mut earlier_frames = None;
-    if root.exists() {
-        if !root.is_dir() {
-            return Err(SimError::InvalidArgument(format!(
-                "{}: the output path exists and is not a directory",
-                root.display()
-            )));
-        }
-        let non_empty = std::fs::read_dir(root)
-            .map_err(io_err(root))?
-            .next()
-            .is_some();
-        if non_empty && !opts.force {
-            return Err(SimError::NotEmpty(root.clone()));
-        }
-        if non_empty {
-            let text = std::fs::read_to_string(&marker).unwrap_or_default();
-            let Some(frames) = marked_frames(&text) else {
-                return Err(SimError::InvalidArgument(format!(
-                    "{}: --force replaces only a data set that `fusiondet simulate` wrote (it \
-                     has no {MARKER_FILE}), and this directory holds other files; choose an \
-                     empty directory",
-                    root.display()
-                )));
-            };
-            earlier_frames = Some(frames);
-        }
-    }
-    std::fs::create_dir_all(root).map_err(io_err(root))?;
-    let lock_path = root.join(LOCK_FILE);
-    let Some(lock) =
-        fusiondet_kitti::atomic::try_lock_file(&lock_path).map_err(io_err(&lock_path))?
-    else {
-        return Err(SimError::InvalidArgument(format!(
-            "{}: another `fusiondet simulate` is writing into this directory",
-            root.display()
-        )));
-    };
-    if let Some(frames) = earlier_frames {
+    let claimed = output_dir::claim(
+        root,
+        opts.force,
+        MARKER_HEAD,
+        &format!("a data set that `fusiondet simulate` wrote (it has no {MARKER_FILE})"),
+    )?;
+    let lock = claimed.lock;
+    if let Some(frames) = claimed.earlier_frames {
         remove_earlier_run(root, frames)?;
     }
     write_marker(root, opts.frames)?;
@@ -186,16 +144,15 @@ fn prepare_dir(opts: &DatasetOptions) -> Result<PreparedDir, SimError> {
 /// Writes the marker of a run of `frames` frames (before any frame, so that a killed run
 /// can still be replaced with --force).
 pub(crate) fn write_marker(root: &Path, frames: usize) -> Result<(), SimError> {
-    fusiondet_kitti::write_atomic(
-        &root.join(MARKER_FILE),
-        format!("fusiondet simulate\nframes: {frames}\n").as_bytes(),
-    )?;
-    Ok(())
+    output_dir::write_marker(root, MARKER_HEAD, frames)
 }
 
 /// The frame count recorded in `root`'s marker, if it is a data set the simulator wrote.
 pub(crate) fn read_marker(root: &Path) -> Option<usize> {
-    marked_frames(&std::fs::read_to_string(root.join(MARKER_FILE)).ok()?)
+    output_dir::marked_frames(
+        &std::fs::read_to_string(root.join(MARKER_FILE)).ok()?,
+        MARKER_HEAD,
+    )
 }
 
 /// Creates the data set's folders under `root`.
@@ -226,26 +183,7 @@ pub(crate) fn remove_earlier_run(root: &Path, frames: usize) -> Result<(), SimEr
         (fusiondet_kitti::shard::SHARDS_DIR, "shards"),
         ("", ""),
     ];
-    for (sub, kind) in dirs {
-        let dir = root.join(sub);
-        // A linked folder leads outside the data set: not ours to clear.
-        let real_dir = std::fs::symlink_metadata(&dir).is_ok_and(|m| m.is_dir());
-        let Ok(entries) = std::fs::read_dir(&dir) else {
-            continue;
-        };
-        if !real_dir {
-            continue;
-        }
-        for entry in entries {
-            let entry = entry.map_err(io_err(&dir))?;
-            let path = entry.path();
-            let plain_file = entry.file_type().is_ok_and(|t| t.is_file());
-            if plain_file && is_ours(kind, &entry.file_name().to_string_lossy(), frames) {
-                std::fs::remove_file(&path).map_err(io_err(&path))?;
-            }
-        }
-    }
-    Ok(())
+    output_dir::remove_own_files(root, &dirs, |kind, name| is_ours(kind, name, frames))
 }
 
 /// Writes one simulated frame's five files (the label last).
@@ -458,10 +396,7 @@ mod tests {
         assert!(root.join("keep.txt").exists());
         assert!(outside.path().join("000001.txt").exists());
         assert!(root.join("training/image_2").is_dir());
-        assert_eq!(
-            marked_frames(&std::fs::read_to_string(root.join(MARKER_FILE)).unwrap()),
-            Some(1)
-        );
+        assert_eq!(read_marker(root), Some(1));
     }
 
     #[test]

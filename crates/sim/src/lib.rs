@@ -57,6 +57,7 @@ pub mod layout;
 pub mod lidar;
 pub mod material;
 pub mod math;
+mod output_dir;
 pub mod parts;
 pub mod primitive;
 pub mod rng;

@@ -14,6 +14,7 @@ use super::stats::{DatasetStats, FrameStats};
 use super::{IndoorConfig, IndoorFrame, simulate_indoor_frame};
 use crate::dataset::{MARKER_FILE, MAX_FRAMES, STATS_FILE, SimError, io_err};
 use crate::detector::Split;
+use crate::output_dir;
 use fusiondet_sunrgbd::{
     SunRgbdDir, write_calib, write_detections_2d, write_objects, write_points,
 };
@@ -23,7 +24,6 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The marker's first line for an indoor data set.
 const MARKER_HEAD: &str = "fusiondet simulate --indoor";
-const LOCK_FILE: &str = ".fusiondet-sim.lock";
 /// JPEG quality of the colour images.
 const JPEG_QUALITY: u8 = 92;
 
@@ -51,24 +51,15 @@ fn is_ours(dir: &str, name: &str, frames: usize) -> bool {
     if let Some(target) = fusiondet_kitti::atomic::temp_target(name) {
         return is_ours(dir, target, frames);
     }
-    let (stem, ext) = name.rsplit_once('.').unwrap_or((name, ""));
-    let frame = stem.len() == 6
-        && stem.bytes().all(|b| b.is_ascii_digit())
-        && stem.parse::<usize>().is_ok_and(|i| i < frames);
+    let ext = output_dir::frame_file(name, frames);
     match dir {
-        "points" => frame && ext == "bin",
-        "image" => frame && ext == "jpg",
-        "depth" => frame && ext == "png",
-        "calib" | "label" | "det_2d" => frame && ext == "txt",
+        "points" => ext == Some("bin"),
+        "image" => ext == Some("jpg"),
+        "depth" => ext == Some("png"),
+        "calib" | "label" | "det_2d" => ext == Some("txt"),
         "splits" => matches!(name, "train.txt" | "val.txt"),
         _ => name == STATS_FILE,
     }
-}
-
-fn marked_frames(text: &str) -> Option<usize> {
-    let mut lines = text.lines();
-    (lines.next()? == MARKER_HEAD).then_some(())?;
-    lines.next()?.strip_prefix("frames: ")?.parse().ok()
 }
 
 fn validate(opts: &IndoorOptions) -> Result<(), SimError> {
@@ -98,73 +89,29 @@ fn validate(opts: &IndoorOptions) -> Result<(), SimError> {
     Ok(())
 }
 
-/// Prepares the directory (module docs); the returned lock is held while writing.
+/// Prepares the directory (module docs, [`output_dir::claim`]); the returned lock is held
+/// while writing.
 fn prepare_dir(opts: &IndoorOptions) -> Result<std::fs::File, SimError> {
     let root = &opts.out;
-    let mut earlier = None;
-    if root.exists() {
-        if !root.is_dir() {
-            return Err(SimError::InvalidArgument(format!(
-                "{}: the output path exists and is not a directory",
-                root.display()
-            )));
-        }
-        let non_empty = std::fs::read_dir(root)
-            .map_err(io_err(root))?
-            .next()
-            .is_some();
-        if non_empty && !opts.force {
-            return Err(SimError::NotEmpty(root.clone()));
-        }
-        if non_empty {
-            let text = std::fs::read_to_string(root.join(MARKER_FILE)).unwrap_or_default();
-            let Some(frames) = marked_frames(&text) else {
-                return Err(SimError::InvalidArgument(format!(
-                    "{}: --force replaces only an indoor data set that `fusiondet simulate \
-                     --indoor` wrote (its {MARKER_FILE} says so), and this directory holds \
-                     other files; choose an empty directory",
-                    root.display()
-                )));
-            };
-            earlier = Some(frames);
-        }
-    }
-    std::fs::create_dir_all(root).map_err(io_err(root))?;
-    let lock_path = root.join(LOCK_FILE);
-    let Some(lock) =
-        fusiondet_kitti::atomic::try_lock_file(&lock_path).map_err(io_err(&lock_path))?
-    else {
-        return Err(SimError::InvalidArgument(format!(
-            "{}: another `fusiondet simulate` is writing into this directory",
-            root.display()
-        )));
-    };
-    if let Some(frames) = earlier {
-        for sub in SUBDIRS.iter().copied().chain([""]) {
-            let dir = root.join(sub);
-            // A linked folder leads outside the data set: not ours to clear.
-            if !std::fs::symlink_metadata(&dir).is_ok_and(|m| m.is_dir()) {
-                continue;
-            }
-            for entry in std::fs::read_dir(&dir).map_err(io_err(&dir))? {
-                let entry = entry.map_err(io_err(&dir))?;
-                let plain = entry.file_type().is_ok_and(|t| t.is_file());
-                if plain && is_ours(sub, &entry.file_name().to_string_lossy(), frames) {
-                    let path = entry.path();
-                    std::fs::remove_file(&path).map_err(io_err(&path))?;
-                }
-            }
-        }
-    }
-    fusiondet_kitti::write_atomic(
-        &root.join(MARKER_FILE),
-        format!("{MARKER_HEAD}\nframes: {}\n", opts.frames).as_bytes(),
+    let claimed = output_dir::claim(
+        root,
+        opts.force,
+        MARKER_HEAD,
+        &format!(
+            "an indoor data set that `fusiondet simulate --indoor` wrote (its {MARKER_FILE} \
+             says so)"
+        ),
     )?;
+    if let Some(frames) = claimed.earlier_frames {
+        let dirs: Vec<(&str, &str)> = SUBDIRS.iter().chain([&""]).map(|&d| (d, d)).collect();
+        output_dir::remove_own_files(root, &dirs, |kind, name| is_ours(kind, name, frames))?;
+    }
+    output_dir::write_marker(root, MARKER_HEAD, opts.frames)?;
     for sub in SUBDIRS {
         let dir = root.join(sub);
         std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
     }
-    Ok(lock)
+    Ok(claimed.lock)
 }
 
 /// Encodes the colour image as JPEG.
@@ -233,11 +180,14 @@ mod tests {
         assert!(is_ours("", "sim_stats.json", 1));
         assert!(!is_ours("", "README.md", 1));
         assert_eq!(
-            marked_frames("fusiondet simulate --indoor\nframes: 4\n"),
+            output_dir::marked_frames("fusiondet simulate --indoor\nframes: 4\n", MARKER_HEAD),
             Some(4)
         );
         // A street data set's marker is not an indoor one.
-        assert_eq!(marked_frames("fusiondet simulate\nframes: 4\n"), None);
+        assert_eq!(
+            output_dir::marked_frames("fusiondet simulate\nframes: 4\n", MARKER_HEAD),
+            None
+        );
     }
 
     #[test]
