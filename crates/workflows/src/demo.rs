@@ -125,14 +125,15 @@ pub(crate) fn prepare_out(out: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Detects on `split` of `data`, evaluates, prints the table and writes the JSON.
-fn detect_and_evaluate(
+/// Detects on the val split of `data` into `results` and prints what it did (`unit`: what
+/// a frame is called, "frames" or "scenes"). Shared by both demos.
+pub(crate) fn detect_val(
     title: &str,
+    unit: &str,
     config: &ExperimentConfig,
     model: &Path,
     data: &Path,
     results: &Path,
-    json: &Path,
 ) -> anyhow::Result<()> {
     let started = Instant::now();
     let s = detect(&DetectOptions {
@@ -149,13 +150,26 @@ fn detect_and_evaluate(
         shard: None,
     })?;
     outln!(
-        "\n== {title}: {} frames, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",
+        "\n== {title}: {} {unit}, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",
         s.frames,
         s.detections_2d,
         s.samples,
         s.boxes_written,
         started.elapsed().as_secs_f64()
     );
+    Ok(())
+}
+
+/// Detects on the val split of `data`, evaluates, prints the table and writes the JSON.
+fn detect_and_evaluate(
+    title: &str,
+    config: &ExperimentConfig,
+    model: &Path,
+    data: &Path,
+    results: &Path,
+    json: &Path,
+) -> anyhow::Result<()> {
+    detect_val(title, "frames", config, model, data, results)?;
     let dataset = DatasetDir::new(data);
     let eval_config = EvalConfig {
         classes: config.frustum.kitti_classes(),
@@ -300,27 +314,60 @@ fn shipped_model(out: &Path, which: ShippedModel) -> anyhow::Result<(ExperimentC
 
 /// Trains the tiny network on the simulated train split.
 fn train_tiny(args: &DemoOptions, sim: &Path) -> anyhow::Result<(ExperimentConfig, PathBuf)> {
-    let t = Instant::now();
-    let mut config =
-        ExperimentConfig::from_toml_str(bundled::TINY_CONFIG, Path::new("configs/tiny.toml"))?;
-    config.train.epochs = args.epochs;
-    config.train.seed = args.seed;
-    let summary = train(&TrainOptions {
-        device: Default::default(),
-        config: config.clone(),
-        data_dir: sim.to_path_buf(),
-        run_dir: args.out.join("run"),
-        resume: false,
-        progress: std::io::stderr().is_terminal(),
-    })?;
-    outln!(
-        "== trained the tiny F-ConvNet ({} epochs, {} frustums from {} frames, final loss {:.3}) in {:.1} s -> {}",
-        summary.epochs_run,
-        summary.samples,
-        summary.frames,
-        summary.final_loss.unwrap_or(f64::NAN),
-        t.elapsed().as_secs_f64(),
-        summary.model.display()
-    );
-    Ok((config, summary.model))
+    let tiny = TinyTraining {
+        config_toml: bundled::TINY_CONFIG,
+        config_name: "configs/tiny.toml",
+        classes: "",
+        unit: "frames",
+    };
+    tiny.train(args.epochs, args.seed, sim, &args.out.join("run"))
+}
+
+/// A bundled tiny configuration both demos train for seconds, and how its line reads.
+pub(crate) struct TinyTraining {
+    pub config_toml: &'static str,
+    /// The name the configuration's errors and relative paths go by.
+    pub config_name: &'static str,
+    /// What it learns, said after "the tiny F-ConvNet" ("" or " on …").
+    pub classes: &'static str,
+    /// What a frame is called ("frames", "rooms").
+    pub unit: &'static str,
+}
+
+impl TinyTraining {
+    /// Trains on `data` into `run_dir`, prints what it did, returns the configuration and
+    /// the model.
+    pub(crate) fn train(
+        &self,
+        epochs: usize,
+        seed: u64,
+        data: &Path,
+        run_dir: &Path,
+    ) -> anyhow::Result<(ExperimentConfig, PathBuf)> {
+        let t = Instant::now();
+        let mut config =
+            ExperimentConfig::from_toml_str(self.config_toml, Path::new(self.config_name))?;
+        config.train.epochs = epochs;
+        config.train.seed = seed;
+        let summary = train(&TrainOptions {
+            device: Default::default(),
+            config: config.clone(),
+            data_dir: data.to_path_buf(),
+            run_dir: run_dir.to_path_buf(),
+            resume: false,
+            progress: std::io::stderr().is_terminal(),
+        })?;
+        outln!(
+            "== trained the tiny F-ConvNet{} ({} epochs, {} frustums from {} {}, final loss {:.3}) in {:.1} s -> {}",
+            self.classes,
+            summary.epochs_run,
+            summary.samples,
+            summary.frames,
+            self.unit,
+            summary.final_loss.unwrap_or(f64::NAN),
+            t.elapsed().as_secs_f64(),
+            summary.model.display()
+        );
+        Ok((config, summary.model))
+    }
 }

@@ -8,15 +8,14 @@
 //! Nothing here reads the source tree: an installed binary runs it from any directory.
 
 use crate::bundled;
-use crate::demo::prepare_out;
+use crate::demo::{TinyTraining, detect_val, prepare_out};
 use crate::{out, outln};
 use anyhow::{Context, bail};
 use fusiondet_eval::indoor::{
     IOU_THRESHOLDS, IndoorReport, evaluate_indoor, load_indoor_dirs, write_indoor_json,
 };
-use fusiondet_pipeline::{DetectOptions, ExperimentConfig, TrainOptions, detect, train};
+use fusiondet_pipeline::ExperimentConfig;
 use fusiondet_sunrgbd::{Detection2d, SunRgbdDir};
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -78,28 +77,7 @@ fn detect_and_evaluate(
     results: &Path,
     json: &Path,
 ) -> anyhow::Result<IndoorReport> {
-    let started = Instant::now();
-    let s = detect(&DetectOptions {
-        device: Default::default(),
-        config: config.clone(),
-        checkpoint: model.to_path_buf(),
-        data_dir: data.to_path_buf(),
-        split: "val".into(),
-        out_dir: results.to_path_buf(),
-        detections: None,
-        depth_dir: None,
-        // The demo's own directory (it refuses directories it did not write).
-        replace: true,
-        shard: None,
-    })?;
-    outln!(
-        "\n== {title}: {} scenes, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",
-        s.frames,
-        s.detections_2d,
-        s.samples,
-        s.boxes_written,
-        started.elapsed().as_secs_f64()
-    );
+    detect_val(title, "scenes", config, model, data, results)?;
     let dir = SunRgbdDir::new(data);
     let ids = fusiondet_kitti::read_split(&dir.split("val"))?;
     let loaded = load_indoor_dirs(&dir.label_dir(), results, &ids)?;
@@ -189,37 +167,20 @@ pub fn run(args: &IndoorDemoOptions) -> anyhow::Result<()> {
     );
 
     // 2. Train the tiny network.
-    let t = Instant::now();
-    let mut config = ExperimentConfig::from_toml_str(
-        bundled::TINY_SUNRGBD_CONFIG,
-        Path::new("configs/tiny-sunrgbd.toml"),
-    )?;
-    config.train.epochs = args.epochs;
-    config.train.seed = args.seed;
-    let summary = train(&TrainOptions {
-        device: Default::default(),
-        config: config.clone(),
-        data_dir: sim.clone(),
-        run_dir: out.join("run"),
-        resume: false,
-        progress: std::io::stderr().is_terminal(),
-    })?;
-    outln!(
-        "== trained the tiny F-ConvNet on SUN RGB-D's ten classes ({} epochs, {} frustums from {} rooms, final loss {:.3}) in {:.1} s -> {}",
-        summary.epochs_run,
-        summary.samples,
-        summary.frames,
-        summary.final_loss.unwrap_or(f64::NAN),
-        t.elapsed().as_secs_f64(),
-        summary.model.display()
-    );
+    let tiny = TinyTraining {
+        config_toml: bundled::TINY_SUNRGBD_CONFIG,
+        config_name: "configs/tiny-sunrgbd.toml",
+        classes: " on SUN RGB-D's ten classes",
+        unit: "rooms",
+    };
+    let (config, model) = tiny.train(args.epochs, args.seed, &sim, &out.join("run"))?;
 
     // 3. Detect and evaluate: simulated val rooms, then the real scene.
     let results = out.join("results");
     let sim_report = detect_and_evaluate(
         "simulated val rooms (the simulated 2D detector's boxes)",
         &config,
-        &summary.model,
+        &model,
         &sim,
         &results.join("sim"),
         &out.join("eval-sim.json"),
@@ -227,7 +188,7 @@ pub fn run(args: &IndoorDemoOptions) -> anyhow::Result<()> {
     let real_report = detect_and_evaluate(
         "real SUN RGB-D scene 000017 (2D boxes from its labels)",
         &config,
-        &summary.model,
+        &model,
         &real,
         &results.join("real"),
         &out.join("eval-real.json"),
