@@ -69,7 +69,11 @@ fn demo_runs_the_shipped_model_and_can_be_rerun() {
 #[test]
 fn demo_runs_each_shipped_variant_from_the_clone() {
     // (--model, file stem, title printed)
-    for (model, stem, title) in [("fcam", "fcam-car", "FCAM"), ("saf", "saf-car", "SAF")] {
+    for (model, stem, title) in [
+        ("fcam", "fcam-car", "FCAM"),
+        ("saf", "saf-car", "SAF"),
+        ("voxel-rcnn", "voxel-rcnn-car", "Voxel R-CNN"),
+    ] {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("demo");
         let o = demo(&out, "6", &["--model", model]);

@@ -1,6 +1,6 @@
 //! Data that ships inside the binary, so that an installed `fusiondet` runs its demo
 //! from any directory with the source tree out of reach: the seven bundled KITTI frames
-//! (`data/kitti-sample/`, CC BY-NC-SA 3.0, see its README) and the three shipped Car
+//! (`data/kitti-sample/`, CC BY-NC-SA 3.0, see its README) and the shipped Car
 //! models with the configurations they were trained with (`models/`).
 
 use anyhow::Context;
@@ -173,6 +173,10 @@ pub const FCAM_CAR: ShippedFiles = ShippedFiles {
 pub const SAF_CAR: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/saf-car.bpk"),
     config: include_str!("../../../models/saf-car.toml"),
+};
+pub const VOXEL_RCNN_CAR: ShippedFiles = ShippedFiles {
+    checkpoint: include_bytes!("../../../models/voxel-rcnn-car.bpk"),
+    config: include_str!("../../../models/voxel-rcnn-car.toml"),
 };
 
 /// The tiny network's configuration, as shipped in `configs/tiny.toml`.

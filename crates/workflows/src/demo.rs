@@ -11,8 +11,10 @@ use crate::{out, outln};
 use anyhow::{Context, bail};
 use fusiondet_eval::{EvalConfig, evaluate_dirs};
 use fusiondet_kitti::{DatasetDir, read_split};
-use fusiondet_models::info::parameter_count;
-use fusiondet_pipeline::{DetectOptions, ExperimentConfig, TrainOptions, detect, train};
+use fusiondet_models::DetectorKind;
+use fusiondet_pipeline::{
+    DetectOptions, ExperimentConfig, TrainOptions, detect, train, trained_parameters,
+};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -46,10 +48,12 @@ pub enum ShippedModel {
     Fcam,
     /// SAF: depth-guided slicing, LFA and the projection loss.
     Saf,
+    /// Voxel R-CNN: the LiDAR scan alone, no 2D detections.
+    VoxelRcnn,
 }
 
 impl ShippedModel {
-    pub const ALL: [ShippedModel; 3] = [Self::Fconvnet, Self::Fcam, Self::Saf];
+    pub const ALL: [ShippedModel; 4] = [Self::Fconvnet, Self::Fcam, Self::Saf, Self::VoxelRcnn];
 
     /// The file stem under `models/`, also the name `--model` takes without `-car`.
     pub fn stem(self) -> &'static str {
@@ -57,6 +61,7 @@ impl ShippedModel {
             ShippedModel::Fconvnet => "fconvnet-car",
             ShippedModel::Fcam => "fcam-car",
             ShippedModel::Saf => "saf-car",
+            ShippedModel::VoxelRcnn => "voxel-rcnn-car",
         }
     }
 
@@ -65,6 +70,7 @@ impl ShippedModel {
             ShippedModel::Fconvnet => "F-ConvNet",
             ShippedModel::Fcam => "FCAM",
             ShippedModel::Saf => "SAF",
+            ShippedModel::VoxelRcnn => "Voxel R-CNN",
         }
     }
 
@@ -73,6 +79,7 @@ impl ShippedModel {
             ShippedModel::Fconvnet => &bundled::FCONVNET_CAR,
             ShippedModel::Fcam => &bundled::FCAM_CAR,
             ShippedModel::Saf => &bundled::SAF_CAR,
+            ShippedModel::VoxelRcnn => &bundled::VOXEL_RCNN_CAR,
         }
     }
 }
@@ -83,7 +90,13 @@ impl std::str::FromStr for ShippedModel {
         Self::ALL
             .into_iter()
             .find(|m| m.stem().strip_suffix("-car") == Some(s))
-            .ok_or_else(|| format!("unknown model `{s}` (expected fconvnet, fcam or saf)"))
+            .ok_or_else(|| {
+                let names: Vec<&str> = Self::ALL
+                    .iter()
+                    .filter_map(|m| m.stem().strip_suffix("-car"))
+                    .collect();
+                format!("unknown model `{s}` (expected one of {})", names.join(", "))
+            })
     }
 }
 
@@ -149,14 +162,22 @@ pub(crate) fn detect_val(
         replace: true,
         shard: None,
     })?;
-    outln!(
-        "\n== {title}: {} {unit}, {} 2D detections -> {} frustums -> {} boxes ({:.1} s)",
-        s.frames,
-        s.detections_2d,
-        s.samples,
-        s.boxes_written,
-        started.elapsed().as_secs_f64()
-    );
+    let seconds = started.elapsed().as_secs_f64();
+    match config.kind() {
+        DetectorKind::Frustum => outln!(
+            "\n== {title}: {} {unit}, {} 2D detections -> {} frustums -> {} boxes ({seconds:.1} s)",
+            s.frames,
+            s.detections_2d,
+            s.samples,
+            s.boxes_written,
+        ),
+        // The voxel families read whole scans (DASANet also the image): no 2D detections.
+        DetectorKind::VoxelRcnn | DetectorKind::Dasanet => outln!(
+            "\n== {title}: {} {unit} -> {} boxes ({seconds:.1} s)",
+            s.frames,
+            s.boxes_written,
+        ),
+    }
     Ok(())
 }
 
@@ -256,7 +277,10 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
         &out.join("eval-sim.json"),
     )?;
     detect_and_evaluate(
-        "bundled KITTI frames (val split, F-PointNet 2D detections)",
+        match config.kind() {
+            DetectorKind::Frustum => "bundled KITTI frames (val split, F-PointNet 2D detections)",
+            DetectorKind::VoxelRcnn | DetectorKind::Dasanet => "bundled KITTI frames (val split)",
+        },
         &config,
         &model,
         kitti,
@@ -302,7 +326,7 @@ fn shipped_model(out: &Path, which: ShippedModel) -> anyhow::Result<(ExperimentC
     fusiondet_kitti::write_atomic(&model, bytes)?;
     let size = bytes.len();
     let config = ExperimentConfig::from_file(&config_path)?;
-    let params = parameter_count(&config.model)?;
+    let params = trained_parameters(&config)?;
     outln!(
         "== the shipped {} Car model ({:.1} MB, {params} parameters) -> {}",
         which.title(),
