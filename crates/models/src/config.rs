@@ -73,6 +73,13 @@ pub struct LfaConfig {
     pub neighbours: usize,
     /// One entry per random halving.
     pub stages: Vec<LfaStageConfig>,
+    /// Metres that divide the centroid-relative positions p_k and p_i of the local encoding
+    /// and the point MLP's input (1 = the paper's raw metres). With raw metres a point's
+    /// position (metres from the centroid) dwarfs its neighbour offsets (decimetres), so
+    /// the first layer learns mostly where a point is; see the README's SAF section.
+    pub position_scale_m: f64,
+    /// Metres that divide the neighbour offsets p_i − p_k and their length (1 = raw).
+    pub offset_scale_m: f64,
 }
 
 /// The MLP widths of one LFA stage.
@@ -107,6 +114,8 @@ impl Default for LfaConfig {
                     point: vec![32],
                 },
             ],
+            position_scale_m: 1.0,
+            offset_scale_m: 1.0,
         }
     }
 }
@@ -413,6 +422,18 @@ impl ModelConfig {
                  `local` and `point` widths"
                     .into(),
             );
+        }
+        if let Some(lfa) = &self.lfa {
+            for (key, v) in [
+                ("position_scale_m", lfa.position_scale_m),
+                ("offset_scale_m", lfa.offset_scale_m),
+            ] {
+                if !(v.is_finite() && v > 0.0) {
+                    return bad(format!(
+                        "lfa.{key} = {v}: must be a positive number of metres (1 = raw metres)"
+                    ));
+                }
+            }
         }
         if self.size_clusters.is_empty() {
             return bad("size_clusters must not be empty".into());

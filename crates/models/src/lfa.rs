@@ -8,7 +8,9 @@
 //! `f_i = MaxPool_k MLP_local(p_k ⊕ (p_i − p_k) ⊕ ‖p_i − p_k‖ ⊕ p_i [⊕ g_k]) ⊕ MLP_point(p_i [⊕ g_i])`
 //!
 //! over its K nearest neighbours k among the points of the current stage (g the previous
-//! stage's features; coordinates relative to the frustum's centroid). Only survivors get
+//! stage's features; coordinates relative to the frustum's centroid). Optionally
+//! (`position_scale_m`, `offset_scale_m`) positions and offsets are divided by their own
+//! scales first, so that neither dominates the first layer. Only survivors get
 //! features: the dropped half would feed nothing downstream. The slice PointNets then see
 //! each pair's coordinates relative to its sub-frustum centre together with `f` of its point.
 //!
@@ -37,6 +39,9 @@ pub struct LfaStageIndex {
 #[derive(Debug, Clone)]
 pub struct LfaInputs {
     pub neighbours: usize,
+    /// 1 / `position_scale_m` and 1 / `offset_scale_m` of the config.
+    pub position_gain: f32,
+    pub offset_gain: f32,
     /// [B · N₀, 3]: points relative to their frustum's centroid.
     pub coords: Tensor<2>,
     pub stages: Vec<LfaStageIndex>,
@@ -106,6 +111,8 @@ impl LfaInputs {
         }
         Ok(Self {
             neighbours: k,
+            position_gain: (1.0 / config.position_scale_m) as f32,
+            offset_gain: (1.0 / config.offset_scale_m) as f32,
             coords: Tensor::from_data(TensorData::new(coords, [batch_size * n0, 3]), device),
             stages: stage_index,
         })
@@ -153,6 +160,11 @@ pub struct LfaStage {
     pub point: Vec<MlpLayer>,
 }
 
+/// `x · gain`, skipping the product at the paper's gain of 1 (no work, same bits).
+fn scaled(x: Tensor<2>, gain: f32) -> Tensor<2> {
+    if gain == 1.0 { x } else { x.mul_scalar(gain) }
+}
+
 fn run(layers: &[MlpLayer], mut x: Tensor<2>) -> Tensor<2> {
     for layer in layers {
         x = layer.forward(x);
@@ -198,10 +210,11 @@ impl Lfa {
                 .reshape([m, 1, 3])
                 .expand([m, k, 3])
                 .reshape([m * k, 3]);
-            let rel = qk.clone() - nb.clone();
+            let rel = scaled(qk.clone() - nb.clone(), inputs.offset_gain);
             let dist = rel.clone().square().sum_dim(1).add_scalar(1e-12).sqrt();
-            let mut local_in = vec![nb, rel, dist, qk];
-            let mut point_in = vec![q.clone()];
+            let position = |x: Tensor<2>| scaled(x, inputs.position_gain);
+            let mut local_in = vec![position(nb), rel, dist, position(qk)];
+            let mut point_in = vec![position(q.clone())];
             if let Some(g) = &feats {
                 local_in.push(g.clone().select(0, index.neighbours.clone()));
                 point_in.push(g.clone().select(0, index.keep.clone()));
@@ -241,6 +254,67 @@ mod tests {
     fn too_few_distinct_points_repeat_the_last_neighbour() {
         let pts = vec![[1.0, 2.0, 3.0]; 8];
         assert_eq!(nearest_neighbours(&pts, 2, 4), vec![0; 8]);
+    }
+
+    /// Dividing positions and offsets by one scale s is the same as running the raw LFA on
+    /// the frustum shrunk by s (neighbours are the same; every input is linear in the
+    /// coordinates); unequal scales change the features.
+    #[test]
+    fn input_scales_divide_positions_and_offsets() {
+        let device = Device::flex();
+        let n0 = 32;
+        let points: Vec<f32> = (0..2 * n0 * 3)
+            .map(|i| ((i * 53) % 97) as f32 * 0.25 - 6.0)
+            .collect();
+        let raw = LfaConfig {
+            neighbours: 4,
+            ..LfaConfig::default()
+        };
+        let model = ModelConfig {
+            lfa: Some(raw.clone()),
+            ..ModelConfig::default()
+        };
+        let lfa = Lfa::new(&model, &raw, &device);
+        let features = |config: &LfaConfig, pts: &[f32]| {
+            let inputs = LfaInputs::new(pts, 2, n0, config, &device).unwrap();
+            lfa.forward(&inputs).into_data().to_vec::<f32>().unwrap()
+        };
+        let both = LfaConfig {
+            position_scale_m: 4.0,
+            offset_scale_m: 4.0,
+            ..raw.clone()
+        };
+        let shrunk: Vec<f32> = points.iter().map(|p| p / 4.0).collect();
+        let (a, b) = (features(&both, &points), features(&raw, &shrunk));
+        assert_eq!(a.len(), b.len());
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() <= 1e-4 * (1.0 + y.abs()), "{x} vs {y}");
+        }
+        let offsets_only = LfaConfig {
+            offset_scale_m: 0.25,
+            ..raw.clone()
+        };
+        let c = features(&offsets_only, &points);
+        let d = features(&raw, &points);
+        assert!(c.iter().zip(&d).any(|(x, y)| (x - y).abs() > 1e-3));
+    }
+
+    #[test]
+    fn input_scales_must_be_positive() {
+        for v in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let model = ModelConfig {
+                lfa: Some(LfaConfig {
+                    offset_scale_m: v,
+                    ..LfaConfig::default()
+                }),
+                ..ModelConfig::default()
+            };
+            let e = model.validate().unwrap_err().to_string();
+            assert!(
+                e.contains("lfa.offset_scale_m") && e.contains("positive"),
+                "{e}"
+            );
+        }
     }
 
     #[test]
