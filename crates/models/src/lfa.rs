@@ -277,7 +277,10 @@ mod tests {
         let lfa = Lfa::new(&model, &raw, &device);
         let features = |config: &LfaConfig, pts: &[f32]| {
             let inputs = LfaInputs::new(pts, 2, n0, config, &device).unwrap();
-            lfa.forward(&inputs).into_data().to_vec::<f32>().unwrap()
+            lfa.forward(&inputs)
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap()
         };
         let both = LfaConfig {
             position_scale_m: 4.0,

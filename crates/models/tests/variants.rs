@@ -99,6 +99,7 @@ fn tiny_variant(kind: SliceEncoderKind, lfa: bool, projection: bool) -> FConvNet
                     point: vec![8],
                 },
             ],
+            ..LfaConfig::default()
         });
     }
     if projection {
