@@ -25,6 +25,9 @@ pub struct BatchScale {
     pub pair_slice: Vec<i64>,
     /// The cap on points per sub-frustum at this scale (Car: 32, 64, 64, 128).
     pub max_points_per_slice: usize,
+    /// Per sub-frustum, [batch · slices_per_frustum]: the factor on a point's depth (z)
+    /// relative to the sub-frustum's centre; empty = 1 everywhere (the published models).
+    pub relative_depth_gains: Vec<f32>,
 }
 
 /// Training targets, one object per frustum.

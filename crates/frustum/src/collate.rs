@@ -75,7 +75,11 @@ pub fn collate(samples: &[FrustumSample]) -> FrustumBatch {
                 pair_point: Vec::with_capacity(pairs),
                 pair_slice: Vec::with_capacity(pairs),
                 max_points_per_slice: first.scales[k].max_points_per_slice,
+                relative_depth_gains: Vec::new(),
             };
+            let with_gains = samples
+                .iter()
+                .any(|s| !s.scales[k].relative_depth_gains.is_empty());
             for (i, s) in samples.iter().enumerate() {
                 let sc = &s.scales[k];
                 scale
@@ -88,6 +92,16 @@ pub fn collate(samples: &[FrustumSample]) -> FrustumBatch {
                 scale
                     .pair_slice
                     .extend(sc.pair_slice.iter().map(|&q| q as i64 + so));
+                if with_gains {
+                    match sc.relative_depth_gains.len() {
+                        0 => scale
+                            .relative_depth_gains
+                            .extend(std::iter::repeat_n(1.0, per)),
+                        _ => scale
+                            .relative_depth_gains
+                            .extend(sc.relative_depth_gains.iter().map(|&g| g as f32)),
+                    }
+                }
             }
             scale
         })

@@ -25,6 +25,9 @@ pub struct SampleScale {
     /// For each pair, the sub-frustum's index; non-decreasing.
     pub pair_slice: Vec<u32>,
     pub max_points_per_slice: usize,
+    /// Per sub-frustum, the factor on depths relative to its centre
+    /// ([`crate::Slicing::relative_depth_gains`]); empty = 1.
+    pub relative_depth_gains: Vec<f64>,
 }
 
 /// Training targets of one frustum.
@@ -191,6 +194,7 @@ pub fn build_sample(
             let (pair_point, pair_slice) =
                 slice_pairs(&depths, &order, &scale.slices, scale.max_points);
             SampleScale {
+                relative_depth_gains: config.slicing.relative_depth_gains(&scale.slices),
                 centers: scale
                     .slices
                     .iter()
@@ -314,6 +318,7 @@ mod tests {
     use crate::error::SkipReason;
     use crate::frustum::extract_frustum;
     use crate::rng::Sampler;
+    use crate::slicing::{DepthGuidedSlicing, Slicing};
     use crate::targets::LABEL_POSITIVE;
     use crate::test_data::sample_frame;
     use fusiondet_geometry::points_in_box;
@@ -422,6 +427,48 @@ mod tests {
         // The decoded target is the label.
         let back = BoxCoder::kitti().decode_encoding(&t.encoding, &s.frame);
         assert!((back.x - obj.box3d.x).abs() < 1e-9 && (back.z - obj.box3d.z).abs() < 1e-9);
+    }
+
+    /// `compress_near_depth` reaches the sample's scales and the collated batch: the
+    /// near sub-frustum's gain, 1 for the rest, and no gains without it.
+    #[test]
+    fn compressed_near_depth_reaches_the_batch() {
+        let none = Augmentation {
+            mirror: false,
+            depth_shift: 0.0,
+        };
+        let plain = sample_of_000003(&FrustumConfig::saf_car(), none, 7);
+        assert!(
+            plain
+                .scales
+                .iter()
+                .all(|sc| sc.relative_depth_gains.is_empty())
+        );
+        assert!(
+            crate::collate(std::slice::from_ref(&plain))
+                .scales
+                .iter()
+                .all(|sc| sc.relative_depth_gains.is_empty())
+        );
+        let config = FrustumConfig {
+            slicing: Slicing::DepthGuided(DepthGuidedSlicing {
+                omega: 0.85,
+                compress_near_depth: true,
+                ..DepthGuidedSlicing::saf_car()
+            }),
+            ..FrustumConfig::saf_car()
+        };
+        let s = sample_of_000003(&config, none, 7);
+        let batch = crate::collate(&[s.clone(), s.clone()]);
+        for (sc, bs) in s.scales.iter().zip(&batch.scales) {
+            let g = &sc.relative_depth_gains;
+            assert_eq!(g.len(), sc.slices.len());
+            let regular = sc.slices.last().unwrap().half_length;
+            assert_eq!(g[0], regular / sc.slices[0].half_length);
+            assert!(g[0] < 1.0 && g[1..].iter().all(|&x| x == 1.0));
+            let expected: Vec<f32> = g.iter().chain(g).map(|&x| x as f32).collect();
+            assert_eq!(bs.relative_depth_gains, expected);
+        }
     }
 
     #[test]

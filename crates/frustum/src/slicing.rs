@@ -102,6 +102,26 @@ impl Slicing {
             Slicing::DepthGuided(s) => s,
         }
     }
+
+    /// Per sub-frustum of one scale (`slices`, as laid out), the factor that multiplies
+    /// a point's depth relative to the sub-frustum's centre; empty = 1 everywhere (the
+    /// published models). Only depth-guided slicing with `compress_near_depth` has one:
+    /// the near sub-frustum's is the regular half-length over its own when it is longer
+    /// than the rest, 1 otherwise.
+    pub fn relative_depth_gains(&self, slices: &[SliceInterval]) -> Vec<f64> {
+        match self {
+            Slicing::DepthGuided(d) if d.compress_near_depth && slices.len() >= 2 => {
+                let regular = slices[slices.len() - 1].half_length;
+                let near = slices[0].half_length;
+                let mut gains = vec![1.0; slices.len()];
+                if near > regular {
+                    gains[0] = regular / near;
+                }
+                gains
+            }
+            _ => Vec::new(),
+        }
+    }
 }
 
 impl SliceStrategy for Slicing {
@@ -312,6 +332,11 @@ pub struct DepthGuidedSlicing {
     /// Cap on points per sub-frustum, per scale (this also sets the number of scales).
     pub max_points: Vec<usize>,
     pub mean_heights: MeanHeights,
+    /// Compress the depths of points relative to a near sub-frustum longer than the
+    /// scale's regular ones by regular / near length, so that its relative depths span
+    /// what every other sub-frustum's do (the PointNets' batch norm is shared by all
+    /// sub-frustums of a scale). `false` = the paper (metres throughout).
+    pub compress_near_depth: bool,
 }
 
 impl Default for DepthGuidedSlicing {
@@ -329,6 +354,7 @@ impl DepthGuidedSlicing {
             omega: DEFAULT_OMEGA,
             max_points: vec![32, 64, 64, 128],
             mean_heights: MeanHeights::default(),
+            compress_near_depth: false,
         }
     }
 
@@ -630,6 +656,47 @@ mod tests {
             let caps: Vec<usize> = layout.iter().map(|l| l.max_points).collect();
             assert_eq!(caps, [32, 64, 64, 128]);
         }
+    }
+
+    /// With `compress_near_depth`, a near sub-frustum longer than the regular ones gets
+    /// gain regular / near (its relative depths then span a regular one's), every other
+    /// sub-frustum 1; a short near one keeps 1; the published slicings have no gains.
+    #[test]
+    fn compressed_near_depth_gains_by_hand() {
+        let b = tall(52.0); // L_depth = 21.6 m
+        let ctx = saf_ctx(&b, ObjectClass::Car, [0.0, 75.0]);
+        let gains_of = |s: DepthGuidedSlicing| {
+            let slicing = Slicing::DepthGuided(s.clone());
+            s.layout(&ctx)
+                .iter()
+                .map(|l| slicing.relative_depth_gains(&l.slices))
+                .collect::<Vec<_>>()
+        };
+        assert!(gains_of(saf(0.55)).iter().all(Vec::is_empty));
+        let compressed = |omega| DepthGuidedSlicing {
+            compress_near_depth: true,
+            ..saf(omega)
+        };
+        // ω = 0.5: near 10.8 m (half 5.4); at 240 slices the step is 64.2 / 240 m and the
+        // regular half-length one step; at 30, 64.2 / 30.
+        for (scale, gains) in gains_of(compressed(0.5)).iter().enumerate() {
+            let n = 240 >> scale;
+            let step = (75.0 - 10.8) / n as f64;
+            assert_eq!(gains.len(), n);
+            assert!(
+                (gains[0] - step / 5.4).abs() < 1e-9,
+                "scale {scale}: {}",
+                gains[0]
+            );
+            assert!(gains[1..].iter().all(|&g| g == 1.0));
+        }
+        // ω = 0: an empty near region is not stretched.
+        for gains in gains_of(compressed(0.0)) {
+            assert!(gains.iter().all(|&g| g == 1.0));
+        }
+        let uniform = Slicing::Uniform(car());
+        let layout = uniform.layout(&saf_ctx(&b, ObjectClass::Car, [0.0, 70.0]));
+        assert!(uniform.relative_depth_gains(&layout[0].slices).is_empty());
     }
 
     #[test]

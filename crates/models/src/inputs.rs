@@ -292,6 +292,12 @@ impl ScaleInputs {
         if s.pair_point.len() != s.pair_slice.len() {
             return err("pair_point and pair_slice differ in length".into());
         }
+        if !s.relative_depth_gains.is_empty() && s.relative_depth_gains.len() != num_slices {
+            return err(format!(
+                "relative_depth_gains has {} values, expected {num_slices}",
+                s.relative_depth_gains.len()
+            ));
+        }
         let num_pairs = s.pair_point.len();
         let mut rel = Vec::with_capacity(num_pairs * 3);
         let mut counts = vec![0usize; num_slices];
@@ -315,6 +321,10 @@ impl ScaleInputs {
             counts[sl] += 1;
             for d in 0..3 {
                 rel.push(points[p * 3 + d] - s.slice_centers[sl * 3 + d]);
+            }
+            if let Some(&gain) = s.relative_depth_gains.get(sl) {
+                // z is the depth along the frustum (see `fusiondet_frustum::batch`).
+                *rel.last_mut().expect("three pushed") *= gain;
             }
         }
         let fullest = counts.iter().copied().max().unwrap_or(0);
@@ -378,5 +388,52 @@ impl ScaleInputs {
             empty: Tensor::from_data(TensorData::new(empty, [s, 1]), device),
             num_pairs: self.num_pairs,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::{SyntheticSpec, synthetic_batch};
+
+    /// A sub-frustum's depth gain multiplies the depth (z) of its pairs' relative
+    /// coordinates and nothing else; a gain list of the wrong length is refused.
+    #[test]
+    fn relative_depth_gains_scale_only_the_depth_of_their_sub_frustum() {
+        let device = Device::flex();
+        let config = ModelConfig::tiny();
+        let plain = synthetic_batch(&SyntheticSpec::tiny(2), 3);
+        let mut gained = plain.clone();
+        let scale = &mut gained.scales[0];
+        let per = scale.slices_per_frustum;
+        scale.relative_depth_gains = (0..2 * per)
+            .map(|sl: usize| if sl.is_multiple_of(per) { 0.25 } else { 1.0 })
+            .collect();
+        let a = BatchInputs::new(&plain, &config, &device).unwrap();
+        let b = BatchInputs::new(&gained, &config, &device).unwrap();
+        let pair_slice = &plain.scales[0].pair_slice;
+        let (ra, rb) = (&a.scales[0].rel_host, &b.scales[0].rel_host);
+        let mut in_first = 0;
+        for (pair, &sl) in pair_slice.iter().enumerate() {
+            let gain = if (sl as usize).is_multiple_of(per) {
+                0.25
+            } else {
+                1.0
+            };
+            in_first += usize::from(gain != 1.0);
+            assert_eq!(rb[pair * 3], ra[pair * 3]);
+            assert_eq!(rb[pair * 3 + 1], ra[pair * 3 + 1]);
+            assert_eq!(rb[pair * 3 + 2], ra[pair * 3 + 2] * gain);
+        }
+        assert!(
+            in_first > 0,
+            "the synthetic batch has pairs in a first sub-frustum"
+        );
+        for k in 1..a.scales.len() {
+            assert_eq!(a.scales[k].rel_host, b.scales[k].rel_host);
+        }
+        gained.scales[0].relative_depth_gains.pop();
+        let e = BatchInputs::new(&gained, &config, &device).unwrap_err();
+        assert!(e.to_string().contains("relative_depth_gains"), "{e}");
     }
 }

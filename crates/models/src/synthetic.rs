@@ -135,6 +135,7 @@ pub fn synthetic_batch(spec: &SyntheticSpec, seed: u64) -> FrustumBatch {
                 pair_point,
                 pair_slice,
                 max_points_per_slice: spec.caps[k],
+                relative_depth_gains: Vec::new(),
             }
         })
         .collect::<Vec<_>>();
