@@ -112,6 +112,48 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
     assert!(out.contains("depth completion + pseudo points"), "{out}");
     eval_val(&data, &results);
 
+    // model.bpk leaves out the auxiliary heads; the last epoch checkpoint (which keeps them
+    // for resuming) detects the same boxes.
+    let mut epochs: Vec<_> = std::fs::read_dir(run_dir.join("checkpoints"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.to_string_lossy().ends_with(".bpk") && !p.to_string_lossy().ends_with(".optim.bpk")
+        })
+        .collect();
+    epochs.sort();
+    let last = epochs.last().expect("an epoch checkpoint");
+    let size = |p: &std::path::Path| std::fs::metadata(p).unwrap().len();
+    assert!(
+        size(&model) < size(last),
+        "{} vs {}",
+        size(&model),
+        size(last)
+    );
+    let from_epoch = dir.path().join("results-epoch");
+    let o = run(
+        "detect",
+        &[
+            "--checkpoint",
+            s(last),
+            "--config",
+            s(&run_dir.join("config.toml")),
+            "--data",
+            s(&data),
+            "--out",
+            s(&from_epoch),
+        ],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+    for id in &val {
+        let name = format!("{id}.txt");
+        assert_eq!(
+            std::fs::read(results.join(&name)).unwrap(),
+            std::fs::read(from_epoch.join(&name)).unwrap(),
+            "{name}"
+        );
+    }
+
     // Given completed maps (as `depth-complete` writes them, IP-Basic's default without
     // extrapolation), detection reads them instead of completing: the same boxes up to the
     // PNG's 1/256 m depth steps. Empty maps leave no pseudo point: nothing is detected.

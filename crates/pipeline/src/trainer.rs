@@ -92,6 +92,11 @@ pub trait TrainingTask: Sync {
     fn load_model(&self, path: &Path, device: &Device) -> Result<Self::Model>;
     /// Writes the weights atomically.
     fn save_model(&self, model: &Self::Model, path: &Path) -> Result<()>;
+    /// Writes what detection needs (`RUN_DIR/model.bpk`); training-only parts may be left
+    /// out, since resuming reads the epoch checkpoints. Default: everything.
+    fn save_inference_model(&self, model: &Self::Model, path: &Path) -> Result<()> {
+        self.save_model(model, path)
+    }
     /// The batches of epoch `epoch` (0-based) in training order; called on the data
     /// thread's behalf, so preparing a batch overlaps the previous step.
     fn epoch_batches(
@@ -295,7 +300,7 @@ pub fn run_training<T: TrainingTask>(
                 path: run.root.join(&state.optimizer),
                 message: format!("cannot write the optimizer state: {e}"),
             })?;
-        task.save_model(&model, &run.model())?;
+        task.save_inference_model(&model, &run.model())?;
 
         // The metrics line goes first and the state commit last: a kill between the two
         // leaves a line beyond the committed epochs, which resume truncates, so an epoch's

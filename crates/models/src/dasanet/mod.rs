@@ -21,7 +21,9 @@ pub mod stca;
 pub mod tca;
 pub mod tdis;
 
-pub use checkpoint::{DasanetShape, load_dasanet, read_dasanet_shape, save_dasanet};
+pub use checkpoint::{
+    DasanetShape, load_dasanet, read_dasanet_shape, save_dasanet, save_dasanet_for_inference,
+};
 pub use config::{AblationRow, DasanetModules, DasanetNetConfig, PSEUDO_VOXEL_FEATURES};
 pub use giou::{giou_3d_loss, iou_giou_3d};
 pub use loss::rcnn_loss;
@@ -121,6 +123,15 @@ impl Dasanet {
             aux_tdis: config.has_aux_heads().then(|| head(grid_width)),
             aux_stca: config.has_aux_heads().then(|| head(stca_width)),
         })
+    }
+
+    /// The network for detection: the training-only auxiliary heads dropped.
+    pub fn without_aux_heads(self) -> Self {
+        Self {
+            aux_tdis: None,
+            aux_stca: None,
+            ..self
+        }
     }
 
     /// LiDAR voxel features [voxels, 4] and pseudo voxel features [voxels, 6] on their

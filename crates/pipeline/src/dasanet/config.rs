@@ -73,6 +73,7 @@ impl DasanetSection {
                 modules: self.modules.clone(),
             },
             grid_z: voxel_rcnn.voxels.sparse_shape()[0],
+            inference_only: false,
         }
     }
 

@@ -19,7 +19,9 @@ use crate::voxel_rcnn::task::{
 };
 use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
-use fusiondet_models::dasanet::{Dasanet, DasanetShape, load_dasanet, rcnn_loss, save_dasanet};
+use fusiondet_models::dasanet::{
+    Dasanet, DasanetShape, load_dasanet, rcnn_loss, save_dasanet, save_dasanet_for_inference,
+};
 use fusiondet_models::voxel_rcnn::anchor_loss;
 use fusiondet_voxel::{GtDatabase, GtSampler};
 use rayon::prelude::*;
@@ -117,6 +119,9 @@ impl TrainingTask for DasanetTask<'_> {
     }
     fn save_model(&self, model: &Dasanet, path: &Path) -> Result<()> {
         Ok(save_dasanet(model, &self.shape, path)?)
+    }
+    fn save_inference_model(&self, model: &Dasanet, path: &Path) -> Result<()> {
+        Ok(save_dasanet_for_inference(model, &self.shape, path)?)
     }
     fn epoch_batches(
         &self,
