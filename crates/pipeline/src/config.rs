@@ -909,6 +909,45 @@ mod shipped_configs {
         assert_eq!(load("fconvnet-car.toml"), ExperimentConfig::default());
     }
 
+    /// The CPU-sized DASANet ablation rows differ only in their modules, and the baseline
+    /// row (Voxel R-CNN) shares their data, augmentation, voxel grid, stage one and schedule.
+    #[test]
+    fn the_cpu_ablation_rows_differ_only_in_the_network() {
+        let base = load("voxel-rcnn-local-aug-car-sim.toml");
+        assert_eq!(base.kind(), DetectorKind::VoxelRcnn);
+        let shipped = load("voxel-rcnn-car-sim.toml");
+        let (b, s) = (
+            base.voxel_rcnn.as_ref().unwrap(),
+            shipped.voxel_rcnn.as_ref().unwrap(),
+        );
+        assert_eq!(b.network, s.network);
+        assert_ne!(b.augment, s.augment);
+        for (name, tdis, stca) in [
+            ("dasanet-tdis-car-sim.toml", true, false),
+            ("dasanet-stca-car-sim.toml", false, true),
+            ("dasanet-car-sim.toml", true, true),
+        ] {
+            let row = load(name);
+            assert_eq!(row.kind(), DetectorKind::Dasanet, "{name}");
+            let v = row.voxel_rcnn.as_ref().unwrap();
+            let m = &row.dasanet.as_ref().unwrap().modules;
+            assert_eq!((m.tdis, m.stca), (tdis, stca), "{name}");
+            assert_eq!(v.augment, b.augment, "{name}");
+            assert_eq!(v.voxels, b.voxels, "{name}");
+            assert_eq!(v.anchors, b.anchors, "{name}");
+            assert_eq!(v.roi_targets, b.roi_targets, "{name}");
+            assert_eq!(v.proposals, b.proposals, "{name}");
+            assert_eq!(v.post, b.post, "{name}");
+            assert_eq!(
+                v.network.backbone_channels, b.network.backbone_channels,
+                "{name}"
+            );
+            assert_eq!(v.network.bev, b.network.bev, "{name}");
+            assert_eq!(row.train, base.train, "{name}");
+            assert_eq!(row.dataset, base.dataset, "{name}");
+        }
+    }
+
     #[test]
     fn a_voxel_rcnn_file_takes_the_families_published_defaults() {
         let c = load("voxel-rcnn-car.toml");
