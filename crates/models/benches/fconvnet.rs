@@ -19,12 +19,22 @@ use std::time::Duration;
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// The binary's allocator option (`keep_freed_memory` there): freed memory stays committed
+/// (mimalloc's purge delay, option 15, at -1) unless `MIMALLOC_PURGE_DELAY` says otherwise.
+fn binary_allocator_options() {
+    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
+        // SAFETY: sets one of mimalloc's options; any value is valid for this one.
+        unsafe { libmimalloc_sys::mi_option_set(15, -1) };
+    }
+}
+
 /// Reads a tensor back so lazily executed work is finished inside the timing.
 fn sync<const D: usize>(t: &Tensor<D>) -> f32 {
     t.try_to_vec_as::<f32>().unwrap()[0]
 }
 
 fn inference(c: &mut Criterion) {
+    binary_allocator_options();
     let config = FConvNetConfig::car();
     let device = Device::flex();
     let model = FConvNet::new(&config.model, &device).unwrap().valid();
@@ -63,6 +73,7 @@ fn inference(c: &mut Criterion) {
 }
 
 fn train_step(c: &mut Criterion) {
+    binary_allocator_options();
     let config = FConvNetConfig::car();
     let device = Device::flex().autodiff();
     let batch = synthetic_batch(&SyntheticSpec::car(32), 7);
@@ -109,6 +120,7 @@ fn train_step(c: &mut Criterion) {
 /// The backend's f32 matrix product on all threads: a square one and the shape of the
 /// scale-4 PointNet's widest layer over a frame (about 8,000 (point, sub-frustum) pairs × 256 → 512).
 fn matmul_rate(c: &mut Criterion) {
+    binary_allocator_options();
     let device = Device::flex();
     let mut g = c.benchmark_group("flex_matmul");
     g.sample_size(10).measurement_time(Duration::from_secs(10));
