@@ -58,6 +58,19 @@ pub fn load_dasanet(
     })
 }
 
+/// Loads either kind of file for detection: a training checkpoint of `shape` (its
+/// auxiliary heads loaded, never run) or an inference file of `shape.for_inference()`.
+pub fn load_dasanet_for_detection(
+    shape: &DasanetShape,
+    path: &Path,
+    device: &Device,
+) -> Result<Dasanet, ModelError> {
+    match read_dasanet_shape(path)?.inference_only {
+        true => load_dasanet(&shape.for_inference(), path, device),
+        false => load_dasanet(shape, path, device),
+    }
+}
+
 /// Writes `model` without its auxiliary heads, as `shape.for_inference()`.
 pub fn save_dasanet_for_inference(
     model: &Dasanet,
@@ -182,6 +195,11 @@ mod tests {
         assert_eq!(head(&back), head(&model));
         let size = |p: &std::path::Path| std::fs::metadata(p).unwrap().len();
         assert!(size(&lean) < size(&full));
+        // Detection takes both files.
+        for path in [&full, &lean] {
+            let m = load_dasanet_for_detection(&shape, path, &device).unwrap();
+            assert_eq!(head(&m), head(&model));
+        }
         // A training configuration refuses the inference file.
         let err = load_dasanet(&shape, &lean, &device)
             .unwrap_err()

@@ -22,7 +22,8 @@ pub mod tca;
 pub mod tdis;
 
 pub use checkpoint::{
-    DasanetShape, load_dasanet, read_dasanet_shape, save_dasanet, save_dasanet_for_inference,
+    DasanetShape, load_dasanet, load_dasanet_for_detection, read_dasanet_shape, save_dasanet,
+    save_dasanet_for_inference,
 };
 pub use config::{AblationRow, DasanetModules, DasanetNetConfig, PSEUDO_VOXEL_FEATURES};
 pub use giou::{giou_3d_loss, iou_giou_3d};

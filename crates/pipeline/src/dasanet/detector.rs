@@ -15,7 +15,7 @@ use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
 use fusiondet_models::dasanet::{
     Dasanet, DasanetNetConfig, DasanetRoiInputs, DasanetShape, DasanetStageOne, RoiPoints,
-    load_dasanet, read_dasanet_shape,
+    load_dasanet_for_detection,
 };
 use fusiondet_models::voxel_rcnn::{BackboneOutput, RoiBox, RoiGridIndex, pooled_maps};
 use fusiondet_nn::sparse::SparseSites;
@@ -107,13 +107,9 @@ pub fn sections(config: &ExperimentConfig) -> Result<(&VoxelRcnnSection, &Dasane
 impl DasanetDetector {
     pub fn load(config: ExperimentConfig, checkpoint: &Path, device: &Device) -> Result<Self> {
         let (voxel, dasanet) = sections(&config)?;
-        // A run's model.bpk leaves out the auxiliary heads, an epoch checkpoint holds them;
-        // detection takes either.
-        let shape = match read_dasanet_shape(checkpoint)?.inference_only {
-            true => dasanet.shape(voxel).for_inference(),
-            false => dasanet.shape(voxel),
-        };
-        let model = load_dasanet(&shape, checkpoint, device)?;
+        // A run's model.bpk leaves out the auxiliary heads, an epoch checkpoint holds them.
+        let shape = dasanet.shape(voxel);
+        let model = load_dasanet_for_detection(&shape, checkpoint, device)?;
         let data = super::task::detection_data(voxel, dasanet)?;
         Ok(DasanetDetector {
             model,
