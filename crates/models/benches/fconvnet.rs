@@ -1,5 +1,6 @@
 //! F-ConvNet Car benchmarks on the flex CPU backend:
-//! inference for one frame (8 frustums) and its parts, a training step for batch 32, and the
+//! inference for one frame (8 frustums) and its parts, SAF's local feature aggregation for
+//! the same frame (host neighbour search and network), a training step for batch 32, and the
 //! backend's matrix-multiply rate, the yardstick the step's rate is read against. Throughput
 //! is in FLOPs (2 per multiply-add; a training step counted as 3 forward passes: the forward,
 //! and the backward's input and weight gradients), so criterion's `thrpt` reads as FLOP/s.
@@ -72,6 +73,31 @@ fn inference(c: &mut Criterion) {
     g.finish();
 }
 
+/// SAF's LFA for one frame of 8 Car frustums of 4,096 points (its shipped stages): the
+/// host-side index building (two k-nearest-neighbour searches per frustum) and the network.
+fn saf_lfa(c: &mut Criterion) {
+    binary_allocator_options();
+    let device = Device::flex();
+    let mut config = FConvNetConfig::car();
+    let lfa_config = fusiondet_models::config::LfaConfig::default();
+    config.model.lfa = Some(lfa_config.clone());
+    let lfa = fusiondet_models::lfa::Lfa::new(&config.model, &lfa_config, &device);
+    let mut spec = SyntheticSpec::car(8);
+    spec.points_per_frustum = 4096;
+    let batch = synthetic_batch(&spec, 42);
+    let index = |points: &[f32]| {
+        fusiondet_models::lfa::LfaInputs::new(points, 8, 4096, &lfa_config, &device).unwrap()
+    };
+    let inputs = index(&batch.points);
+    let mut g = c.benchmark_group("saf_lfa_b8");
+    g.sample_size(20).measurement_time(Duration::from_secs(8));
+    g.bench_function("neighbour search (host)", |b| {
+        b.iter(|| index(black_box(&batch.points)))
+    });
+    g.bench_function("forward", |b| b.iter(|| sync(&lfa.forward(&inputs))));
+    g.finish();
+}
+
 fn train_step(c: &mut Criterion) {
     binary_allocator_options();
     let config = FConvNetConfig::car();
@@ -138,5 +164,5 @@ fn matmul_rate(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, inference, train_step, matmul_rate);
+criterion_group!(benches, inference, saf_lfa, train_step, matmul_rate);
 criterion_main!(benches);

@@ -15,13 +15,15 @@
 //! each pair's coordinates relative to its sub-frustum centre together with `f` of its point.
 //!
 //! The neighbour search runs on the host when the batch's tensors are built (a k-d tree
-//! from `kiddo` over the frustum's distinct points: repeated samples are one neighbour).
+//! from `kiddo` over the frustum's distinct points: repeated samples are one neighbour),
+//! the frustums in parallel.
 
 use crate::config::{LfaConfig, ModelConfig};
 use crate::error::ModelError;
 use burn::prelude::*;
 use fusiondet_nn::{MlpLayer, mlp_stack};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
 use std::num::NonZero;
 
 /// One stage's host-built indices.
@@ -84,18 +86,26 @@ impl LfaInputs {
         let mut n = n0;
         for _ in 0..stages {
             let half = n / 2;
-            let mut keep = Vec::with_capacity(batch_size * half);
+            let keep: Vec<i64> = (0..batch_size * half)
+                .map(|r| ((r / half) * n + r % half) as i64)
+                .collect();
+            // The frustums' searches are independent: one per rayon task, collected in
+            // frustum order (the same indices with any number of threads).
+            let per_frustum: Vec<Vec<usize>> = (0..batch_size)
+                .into_par_iter()
+                .map(|f| {
+                    // The stage's points of frustum f are the first n of its N₀ points.
+                    let pts: Vec<[f32; 3]> = (0..n)
+                        .map(|i| {
+                            let r = (f * n0 + i) * 3;
+                            [coords[r], coords[r + 1], coords[r + 2]]
+                        })
+                        .collect();
+                    nearest_neighbours(&pts, half, k)
+                })
+                .collect();
             let mut neighbours = Vec::with_capacity(batch_size * half * k);
-            for f in 0..batch_size {
-                // The stage's points of frustum f are the first n of its N₀ points.
-                let pts: Vec<[f32; 3]> = (0..n)
-                    .map(|i| {
-                        let r = (f * n0 + i) * 3;
-                        [coords[r], coords[r + 1], coords[r + 2]]
-                    })
-                    .collect();
-                let knn = nearest_neighbours(&pts, half, k);
-                keep.extend((0..half).map(|i| (f * n + i) as i64));
+            for (f, knn) in per_frustum.into_iter().enumerate() {
                 neighbours.extend(knn.into_iter().map(|j| (f * n + j) as i64));
             }
             let ints = |v: Vec<i64>| {
@@ -346,6 +356,17 @@ mod tests {
                 }
             }
             n /= 2;
+        }
+        // The frustums are searched in parallel: one thread gives the same indices.
+        let one_thread = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| LfaInputs::new(&points, 2, n0, &config, &device).unwrap());
+        for (a, b) in inputs.stages.iter().zip(&one_thread.stages) {
+            let ints = |t: &Tensor<1, Int>| t.clone().try_into_vec_as::<i64>().unwrap();
+            assert_eq!(ints(&a.neighbours), ints(&b.neighbours));
+            assert_eq!(ints(&a.keep), ints(&b.keep));
         }
         let bad = LfaInputs::new(&points[..2 * 6 * 3], 2, 6, &config, &device);
         assert!(bad.unwrap_err().to_string().contains("halved"));
