@@ -19,7 +19,6 @@ use burn::nn::{Linear, LinearConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 use burn::tensor::activation::{relu, sigmoid, tanh};
-use fusiondet_nn::SegmentPool;
 
 /// A channel MLP C → C/r → C without biases (CBAM's shared MLP).
 #[derive(Module, Debug)]
@@ -94,7 +93,7 @@ impl Cbam {
             IndexingUpdateOp::Add,
         );
         let avg = sum / index.frustum_counts.clone();
-        let max = pool_max(&index.frustum_pool, x);
+        let max = index.frustum_pool.max_pool(x);
         let mut logits = self.channel.forward(avg.clone()) + self.channel.forward(max.clone());
         if let Some(t) = &self.channel_tanh {
             logits = logits + t.forward(avg) + t.forward(max);
@@ -114,14 +113,6 @@ impl Cbam {
         let att = self.spatial.forward(grid).reshape([b * l * n, 1]);
         sigmoid(att.select(0, index.pair_grid_cell.clone()))
     }
-}
-
-/// Max over each frustum's pairs through the bucketed gather of [`SegmentPool`] (a zero row
-/// stands for frustums without pairs).
-fn pool_max(pool: &SegmentPool, x: Tensor<2>) -> Tensor<2> {
-    let [_, c] = x.dims();
-    let device = x.device();
-    pool.max_pool(Tensor::cat(vec![x, Tensor::zeros([1, c], &device)], 0))
 }
 
 #[cfg(test)]

@@ -51,7 +51,7 @@ pub struct AttentionIndex {
     pub pair_frustum: Tensor<1, Int>,
     /// [frustums, 1]: pairs per frustum, at least 1 (the mean's divisor).
     pub frustum_counts: Tensor<2>,
-    /// Max-pools pair rows (plus a zero row) into frustums.
+    /// Max-pools pair rows into frustums.
     pub frustum_pool: SegmentPool,
     /// [frustums · slices · cap]: the pair in each grid cell, `pairs` (a zero row) if empty.
     pub grid_cell_pair: Tensor<1, Int>,
@@ -96,7 +96,7 @@ impl AttentionIndex {
             cap,
             pair_frustum: ints(pair_frustum),
             frustum_counts: Tensor::from_data(TensorData::new(counts_f, [frustums, 1]), device),
-            frustum_pool: SegmentPool::new(&counts, &starts, num_pairs, device),
+            frustum_pool: SegmentPool::new(&counts, &starts, device),
             grid_cell_pair: ints(cell_pair),
             pair_grid_cell: ints(pair_cell),
         }
@@ -339,7 +339,7 @@ impl ScaleInputs {
         for c in &counts {
             slice_start.push(slice_start.last().unwrap() + c);
         }
-        let pool = SegmentPool::new(&counts, &slice_start, num_pairs, device);
+        let pool = SegmentPool::new(&counts, &slice_start, device);
         let cap = s.max_points_per_slice.max(1);
         let attention = with_attention.then(|| {
             AttentionIndex::new(&slice_start, batch_size, s.slices_per_frustum, cap, device)

@@ -88,9 +88,7 @@ impl PointNet {
         for (l, layer) in rest.iter().enumerate() {
             x = self.attend(l, layer.forward(x), scale);
         }
-        let x = last.forward_pre_activation(x);
-        let x = Tensor::cat(vec![x, Tensor::zeros([1, c], &device)], 0);
-        relu(scale.pool.max_pool(x))
+        relu(scale.pool.max_pool(last.forward_pre_activation(x)))
     }
 
     /// Padded form: the same function computed on every slice padded to the cap (the plain

@@ -7,13 +7,14 @@ use burn::tensor::IndexingUpdateOp;
 
 /// Max-pooling of ragged rows into segments, by gather.
 ///
-/// The row features get a zero row appended (row `num_rows`). Segments are grouped into
-/// buckets by their row count rounded up to a power of two; a bucket of width w gathers
-/// [segments · w] rows — each segment's window repeats its own rows (duplicates do not
-/// change a max), an empty segment points at the zero row — and takes the max over the
-/// window. Buckets keep the gathered volume under twice the rows plus the segments,
-/// where one window as wide as the fullest segment would gather segments × cap rows.
-/// `restore` puts the bucket-ordered segments back in segment order.
+/// Segments are grouped into buckets by their row count rounded up to a power of two; a
+/// bucket of width w gathers [segments · w] rows — each segment's window repeats its own
+/// rows (duplicates do not change a max) — and takes the max over the window. Empty
+/// segments form a bucket of width 0 whose output is zeros (so the features need no zero
+/// row appended: that was a copy of the whole [rows, C] tensor per pooling). Buckets keep
+/// the gathered volume under twice the rows, where one window as wide as the fullest
+/// segment would gather segments × cap rows. `restore` puts the bucket-ordered segments
+/// back in segment order.
 #[derive(Debug, Clone)]
 pub struct SegmentPool {
     pub buckets: Vec<PoolBucket>,
@@ -31,9 +32,9 @@ pub struct PoolBucket {
 }
 
 impl SegmentPool {
-    /// `counts[s]` rows in segment s, starting at row `starts[s]`, of `num_rows` rows.
-    pub fn new(counts: &[usize], starts: &[usize], num_rows: usize, device: &Device) -> Self {
-        let width = |c: usize| c.max(1).next_power_of_two();
+    /// `counts[s]` rows in segment s, starting at row `starts[s]`.
+    pub fn new(counts: &[usize], starts: &[usize], device: &Device) -> Self {
+        let width = |c: usize| if c == 0 { 0 } else { c.next_power_of_two() };
         let mut by_width: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
         for (s, &c) in counts.iter().enumerate() {
             by_width.entry(width(c)).or_default().push(s);
@@ -48,9 +49,7 @@ impl SegmentPool {
                     restore[s] = next;
                     next += 1;
                     let (start, n) = (starts[s], counts[s]);
-                    index.extend(
-                        (0..w).map(|j| if n == 0 { num_rows } else { start + j % n } as i64),
-                    );
+                    index.extend((0..w).map(|j| (start + j % n) as i64));
                 }
                 PoolBucket {
                     width: w,
@@ -72,14 +71,17 @@ impl SegmentPool {
         self.buckets.iter().map(|b| b.width * b.num_segments).sum()
     }
 
-    /// Per-segment max of `features` ([num_rows + 1, C], the last row zero) →
-    /// [num_segments, C]; an empty segment gives the zero row.
+    /// Per-segment max of `features` ([rows, C]) → [num_segments, C]; an empty segment
+    /// gives zeros.
     pub fn max_pool(&self, features: Tensor<2>) -> Tensor<2> {
         let c = features.dims()[1];
         let parts: Vec<Tensor<2>> = self
             .buckets
             .iter()
             .map(|b| {
+                if b.width == 0 {
+                    return Tensor::zeros([b.num_segments, c], &features.device());
+                }
                 let rows = features.clone().select(0, b.index.clone());
                 if b.width == 1 {
                     rows
@@ -152,16 +154,15 @@ mod tests {
         ];
         // Segments: rows 0..2, empty, rows 2..5.
         let (counts, starts) = ([2, 0, 3], [0, 2, 2]);
-        let pool = SegmentPool::new(&counts, &starts, data.len(), &device);
-        let mut with_zero = data.to_vec();
-        with_zero.push([0.0, 0.0]);
+        let pool = SegmentPool::new(&counts, &starts, &device);
         let out: Vec<f32> = pool
-            .max_pool(rows(&with_zero, &device))
+            .max_pool(rows(&data, &device))
             .into_data()
             .try_to_vec::<f32>()
             .unwrap();
         assert_eq!(out, vec![3.0, 0.5, 0.0, 0.0, 2.0, 4.0]);
-        assert_eq!(pool.gathered_rows(), 2 + 1 + 4);
+        // The empty segment gathers nothing.
+        assert_eq!(pool.gathered_rows(), 2 + 4);
     }
 
     #[test]

@@ -257,7 +257,7 @@ impl Stca {
         for layer in &self.encoder.point_mlp {
             x = layer.forward(x);
         }
-        let pool = SegmentPool::new(&points.counts, &points.starts, n, device);
+        let pool = SegmentPool::new(&points.counts, &points.starts, device);
         let mut x = pool.max_pool(x);
         let subm = Rulebook::submanifold(&points.sites, [3; 3], device);
         for layer in &self.encoder.subm {
