@@ -21,6 +21,7 @@
 use crate::config::{LfaConfig, ModelConfig};
 use crate::error::ModelError;
 use burn::prelude::*;
+use burn::tensor::activation::relu;
 use fusiondet_nn::{MlpLayer, mlp_stack};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
@@ -229,9 +230,12 @@ impl Lfa {
                 local_in.push(g.clone().select(0, index.neighbours.clone()));
                 point_in.push(g.clone().select(0, index.keep.clone()));
             }
-            let local = run(&stage.local, Tensor::cat(local_in, 1));
+            // The local MLP's last ReLU after the max over the K neighbours: it commutes
+            // with the max, and then runs over M rows instead of M·K.
+            let (last, hidden) = stage.local.split_last().expect("a local MLP has layers");
+            let local = last.forward_pre_activation(run(hidden, Tensor::cat(local_in, 1)));
             let c = local.dims()[1];
-            let local = local.reshape([m, k, c]).max_dim(1).reshape([m, c]);
+            let local = relu(local.reshape([m, k, c]).max_dim(1).reshape([m, c]));
             let point = run(&stage.point, Tensor::cat(point_in, 1));
             feats = Some(Tensor::cat(vec![local, point], 1));
             coords = q;
