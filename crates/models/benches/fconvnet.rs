@@ -73,6 +73,31 @@ fn inference(c: &mut Criterion) {
     g.finish();
 }
 
+/// FCAM's forward (the improved CBAM after each slice PointNet's first layer) beside
+/// F-ConvNet's on the same frame, both with batch norm folded as the binary runs them.
+fn fcam_inference(c: &mut Criterion) {
+    binary_allocator_options();
+    let device = Device::flex();
+    let batch = synthetic_batch(&SyntheticSpec::car(8), 42);
+    let mut g = c.benchmark_group("fcam_vs_fconvnet_b8");
+    g.sample_size(20).measurement_time(Duration::from_secs(8));
+    for (name, encoder) in [
+        ("fconvnet forward", SliceEncoderKind::PointNet),
+        ("fcam forward", SliceEncoderKind::ImprovedCbam),
+    ] {
+        let mut config = FConvNetConfig::car();
+        config.model.slice_encoder = encoder;
+        config.model.attention.after_layers = vec![0];
+        let mut model = FConvNet::new(&config.model, &device).unwrap().valid();
+        model.fold_norms();
+        let inputs = model.inputs(&batch, &device).unwrap();
+        g.bench_function(name, |b| {
+            b.iter(|| sync(&model.forward_inputs(&inputs).regression))
+        });
+    }
+    g.finish();
+}
+
 /// SAF's LFA for one frame of 8 Car frustums of 4,096 points (its shipped stages): the
 /// host-side index building (two k-nearest-neighbour searches per frustum) and the network.
 fn saf_lfa(c: &mut Criterion) {
@@ -164,5 +189,12 @@ fn matmul_rate(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, inference, saf_lfa, train_step, matmul_rate);
+criterion_group!(
+    benches,
+    inference,
+    fcam_inference,
+    saf_lfa,
+    train_step,
+    matmul_rate
+);
 criterion_main!(benches);
