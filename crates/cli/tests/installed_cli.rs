@@ -14,11 +14,12 @@ use std::process::Command;
 /// reshaped for a second detector family, and written anew when detection's point sampling
 /// came to draw from streams named by frame (so that a split detected in chunks gives what
 /// it gives whole) and to put a small frustum's distinct points before its repeats.
-/// Voxel R-CNN's were pinned when it joined the demo (the same with 1 and 2 threads).
+/// Voxel R-CNN's and DASANet's were pinned when each joined the demo (the same with 1 and
+/// 2 threads).
 #[test]
 fn the_demo_writes_the_same_result_files_as_before_with_every_shipped_model() {
     let dir = tempfile::tempdir().unwrap();
-    for model in ["fconvnet", "fcam", "saf", "voxel-rcnn"] {
+    for model in ["fconvnet", "fcam", "saf", "voxel-rcnn", "dasanet"] {
         let out = dir.path().join(model);
         let o = Command::new(env!("CARGO_BIN_EXE_fusiondet"))
             .args(["demo", "--model", model, "--out", out.to_str().unwrap()])
@@ -70,7 +71,7 @@ fn an_installed_binary_runs_the_demo_from_an_empty_directory() {
     let installed = bin_dir.path().join("fusiondet");
     std::fs::copy(env!("CARGO_BIN_EXE_fusiondet"), &installed).unwrap();
     let work = tempfile::tempdir().unwrap();
-    for model in ["fconvnet", "saf", "voxel-rcnn"] {
+    for model in ["fconvnet", "saf", "voxel-rcnn", "dasanet"] {
         let out = format!("demo-{model}");
         let o = Command::new(&installed)
             .current_dir(work.path())

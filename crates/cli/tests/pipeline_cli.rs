@@ -73,6 +73,7 @@ fn demo_runs_each_shipped_variant_from_the_clone() {
         ("fcam", "fcam-car", "FCAM"),
         ("saf", "saf-car", "SAF"),
         ("voxel-rcnn", "voxel-rcnn-car", "Voxel R-CNN"),
+        ("dasanet", "dasanet-car", "DASANet"),
     ] {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("demo");

@@ -178,6 +178,10 @@ pub const VOXEL_RCNN_CAR: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/voxel-rcnn-car.bpk"),
     config: include_str!("../../../models/voxel-rcnn-car.toml"),
 };
+pub const DASANET_CAR: ShippedFiles = ShippedFiles {
+    checkpoint: include_bytes!("../../../models/dasanet-car.bpk"),
+    config: include_str!("../../../models/dasanet-car.toml"),
+};
 
 /// The tiny network's configuration, as shipped in `configs/tiny.toml`.
 pub const TINY_CONFIG: &str = include_str!("../../../configs/tiny.toml");

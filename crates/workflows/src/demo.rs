@@ -50,10 +50,18 @@ pub enum ShippedModel {
     Saf,
     /// Voxel R-CNN: the LiDAR scan alone, no 2D detections.
     VoxelRcnn,
+    /// DASANet: the scan and pseudo points completed from the image, fused by TDIS and STCA.
+    Dasanet,
 }
 
 impl ShippedModel {
-    pub const ALL: [ShippedModel; 4] = [Self::Fconvnet, Self::Fcam, Self::Saf, Self::VoxelRcnn];
+    pub const ALL: [ShippedModel; 5] = [
+        Self::Fconvnet,
+        Self::Fcam,
+        Self::Saf,
+        Self::VoxelRcnn,
+        Self::Dasanet,
+    ];
 
     /// The file stem under `models/`, also the name `--model` takes without `-car`.
     pub fn stem(self) -> &'static str {
@@ -62,6 +70,7 @@ impl ShippedModel {
             ShippedModel::Fcam => "fcam-car",
             ShippedModel::Saf => "saf-car",
             ShippedModel::VoxelRcnn => "voxel-rcnn-car",
+            ShippedModel::Dasanet => "dasanet-car",
         }
     }
 
@@ -71,6 +80,7 @@ impl ShippedModel {
             ShippedModel::Fcam => "FCAM",
             ShippedModel::Saf => "SAF",
             ShippedModel::VoxelRcnn => "Voxel R-CNN",
+            ShippedModel::Dasanet => "DASANet",
         }
     }
 
@@ -80,6 +90,7 @@ impl ShippedModel {
             ShippedModel::Fcam => &bundled::FCAM_CAR,
             ShippedModel::Saf => &bundled::SAF_CAR,
             ShippedModel::VoxelRcnn => &bundled::VOXEL_RCNN_CAR,
+            ShippedModel::Dasanet => &bundled::DASANET_CAR,
         }
     }
 }
