@@ -20,12 +20,16 @@ use std::time::Duration;
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// mimalloc's `mi_option_purge_delay`, as `MI_OPTION_PURGE_DELAY` in `crates/cli/src/main.rs`
+/// (whose test pins the index).
+const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+
 /// The binary's allocator option (`keep_freed_memory` there): freed memory stays committed
-/// (mimalloc's purge delay, option 15, at -1) unless `MIMALLOC_PURGE_DELAY` says otherwise.
+/// (the purge delay at -1) unless `MIMALLOC_PURGE_DELAY` says otherwise.
 fn binary_allocator_options() {
     if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
         // SAFETY: sets one of mimalloc's options; any value is valid for this one.
-        unsafe { libmimalloc_sys::mi_option_set(15, -1) };
+        unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1) };
     }
 }
 

@@ -74,6 +74,17 @@ impl ShippedModel {
         }
     }
 
+    /// The name `--model` takes: the stem without `-car`.
+    pub fn name(self) -> &'static str {
+        let stem = self.stem();
+        stem.strip_suffix("-car").unwrap_or(stem)
+    }
+
+    /// Every `--model` name, in [`Self::ALL`]'s order (the CLI's possible values).
+    pub fn names() -> [&'static str; Self::ALL.len()] {
+        Self::ALL.map(Self::name)
+    }
+
     pub fn title(self) -> &'static str {
         match self {
             ShippedModel::Fconvnet => "F-ConvNet",
@@ -100,13 +111,12 @@ impl std::str::FromStr for ShippedModel {
     fn from_str(s: &str) -> Result<Self, String> {
         Self::ALL
             .into_iter()
-            .find(|m| m.stem().strip_suffix("-car") == Some(s))
+            .find(|m| m.name() == s)
             .ok_or_else(|| {
-                let names: Vec<&str> = Self::ALL
-                    .iter()
-                    .filter_map(|m| m.stem().strip_suffix("-car"))
-                    .collect();
-                format!("unknown model `{s}` (expected one of {})", names.join(", "))
+                format!(
+                    "unknown model `{s}` (expected one of {})",
+                    Self::names().join(", ")
+                )
             })
     }
 }

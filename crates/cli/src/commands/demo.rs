@@ -21,7 +21,7 @@ pub struct DemoArgs {
     pub seed: u64,
     /// Which shipped Car model detects (all trained on simulated data and built into the
     /// binary; see the README).
-    #[arg(long, default_value = "fconvnet", value_parser = ["fconvnet", "fcam", "saf", "voxel-rcnn", "dasanet"])]
+    #[arg(long, default_value = "fconvnet", value_parser = clap::builder::PossibleValuesParser::new(ShippedModel::names()))]
     pub model: String,
     /// Train the tiny network on the simulated train split and detect with it instead of
     /// a shipped model.
