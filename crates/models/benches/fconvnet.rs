@@ -193,8 +193,43 @@ fn matmul_rate(c: &mut Criterion) {
     g.finish();
 }
 
+/// Max over the middle axis of [groups, width, C], the ragged max-pool's and LFA's shape:
+/// burn-flex's reduction, the same after moving the axis last, and the host path that
+/// inference takes (`fusiondet_nn::host_max`).
+fn middle_max(c: &mut Criterion) {
+    binary_allocator_options();
+    let device = Device::flex();
+    let mut g = c.benchmark_group("middle_max");
+    g.sample_size(20).measurement_time(Duration::from_secs(5));
+    for [n, w, ch] in [[16384, 16, 32], [8192, 16, 32], [2000, 64, 256]] {
+        let x = Tensor::<3>::random([n, w, ch], burn::tensor::Distribution::Default, &device);
+        // Each variant gets a tensor of its own, as in the network (the host path reads a
+        // uniquely owned buffer in place).
+        let own = || x.clone().add_scalar(0.0);
+        let batched = criterion::BatchSize::LargeInput;
+        g.bench_function(format!("max_dim(1) {n}x{w}x{ch}"), |b| {
+            b.iter_batched(own, |t| sync(&t.max_dim(1)), batched)
+        });
+        g.bench_function(format!("permute+max_dim(2) {n}x{w}x{ch}"), |b| {
+            b.iter_batched(own, |t| sync(&t.permute([0, 2, 1]).max_dim(2)), batched)
+        });
+        g.bench_function(format!("host blocks_max {n}x{w}x{ch}"), |b| {
+            b.iter_batched(
+                own,
+                |t| {
+                    let rows = t.reshape([n * w, ch]);
+                    sync(&fusiondet_nn::host_max::blocks_max(rows, w))
+                },
+                batched,
+            )
+        });
+    }
+    g.finish();
+}
+
 criterion_group!(
     benches,
+    middle_max,
     inference,
     fcam_inference,
     saf_lfa,

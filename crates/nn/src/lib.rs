@@ -5,6 +5,7 @@
 //!
 //! Backend-agnostic: every layer takes the [`burn::tensor::Device`] it is built on.
 
+pub mod host_max;
 pub mod mlp;
 pub mod norm;
 pub mod segment;

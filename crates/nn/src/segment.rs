@@ -2,6 +2,7 @@
 //! pairs of a frustum, the points of a voxel. Segments are given by their row counts
 //! and start rows in a flat [rows, C] tensor, so no group is padded to the largest.
 
+use crate::host_max;
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
@@ -18,6 +19,8 @@ use burn::tensor::IndexingUpdateOp;
 #[derive(Debug, Clone)]
 pub struct SegmentPool {
     pub buckets: Vec<PoolBucket>,
+    /// Each segment's (start row, row count), for the host path of inference.
+    pub runs: (Vec<usize>, Vec<usize>),
     /// [num_segments]: row of each segment in the concatenated bucket outputs; `None`
     /// when that is already segment order.
     pub restore: Option<Tensor<1, Int>>,
@@ -32,7 +35,8 @@ pub struct PoolBucket {
 }
 
 impl SegmentPool {
-    /// `counts[s]` rows in segment s, starting at row `starts[s]`.
+    /// `counts[s]` rows in segment s, starting at row `starts[s]` (`starts` may hold more
+    /// entries, e.g. a closing one).
     pub fn new(counts: &[usize], starts: &[usize], device: &Device) -> Self {
         let width = |c: usize| if c == 0 { 0 } else { c.next_power_of_two() };
         let mut by_width: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
@@ -62,6 +66,7 @@ impl SegmentPool {
         let n = restore.len();
         Self {
             buckets,
+            runs: (starts[..counts.len()].to_vec(), counts.to_vec()),
             restore: (!in_order).then(|| Tensor::from_data(TensorData::new(restore, [n]), device)),
         }
     }
@@ -74,6 +79,9 @@ impl SegmentPool {
     /// Per-segment max of `features` ([rows, C]) → [num_segments, C]; an empty segment
     /// gives zeros.
     pub fn max_pool(&self, features: Tensor<2>) -> Tensor<2> {
+        if host_max::host_path(&features) {
+            return host_max::runs_max(features, &self.runs.0, &self.runs.1);
+        }
         let c = features.dims()[1];
         let parts: Vec<Tensor<2>> = self
             .buckets
