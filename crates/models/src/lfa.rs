@@ -22,7 +22,7 @@ use crate::config::{LfaConfig, ModelConfig};
 use crate::error::ModelError;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use fusiondet_nn::{MlpLayer, mlp_stack};
+use fusiondet_nn::{MlpLayer, host_max, mlp_stack};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use std::num::NonZero;
@@ -215,27 +215,19 @@ impl Lfa {
         for (stage, index) in self.stages.iter().zip(&inputs.stages) {
             let q = coords.clone().select(0, index.keep.clone()); // [M, 3]
             let m = q.dims()[0];
-            let nb = coords.clone().select(0, index.neighbours.clone()); // [M·K, 3]
-            let qk = q
-                .clone()
-                .reshape([m, 1, 3])
-                .expand([m, k, 3])
-                .reshape([m * k, 3]);
-            let rel = scaled(qk.clone() - nb.clone(), inputs.offset_gain);
-            let dist = rel.clone().square().sum_dim(1).add_scalar(1e-12).sqrt();
-            let position = |x: Tensor<2>| scaled(x, inputs.position_gain);
-            let mut local_in = vec![position(nb), rel, dist, position(qk)];
-            let mut point_in = vec![position(q.clone())];
-            if let Some(g) = &feats {
-                local_in.push(g.clone().select(0, index.neighbours.clone()));
-                point_in.push(g.clone().select(0, index.keep.clone()));
-            }
+            let (first, rest) = stage.local.split_first().expect("a local MLP has layers");
+            let local = local_first_layer(first, inputs, &coords, feats.as_ref(), &q, index, k);
             // The local MLP's last ReLU after the max over the K neighbours: it commutes
             // with the max, and then runs over M rows instead of M·K.
-            let (last, hidden) = stage.local.split_last().expect("a local MLP has layers");
-            let local = last.forward_pre_activation(run(hidden, Tensor::cat(local_in, 1)));
-            let c = local.dims()[1];
-            let local = relu(local.reshape([m, k, c]).max_dim(1).reshape([m, c]));
+            let local = match rest.split_last() {
+                None => local,
+                Some((last, hidden)) => last.forward_pre_activation(run(hidden, relu(local))),
+            };
+            let local = relu(max_over_neighbours(local, k));
+            let mut point_in = vec![scaled(q.clone(), inputs.position_gain)];
+            if let Some(g) = &feats {
+                point_in.push(g.clone().select(0, index.keep.clone()));
+            }
             let point = run(&stage.point, Tensor::cat(point_in, 1));
             feats = Some(Tensor::cat(vec![local, point], 1));
             coords = q;
@@ -244,9 +236,75 @@ impl Lfa {
     }
 }
 
+/// [M·K, C] → [M, C], the max over each query's K neighbours: on the host in inference
+/// on the CPU (see `fusiondet_nn::host_max`), else burn's reduction.
+fn max_over_neighbours(x: Tensor<2>, k: usize) -> Tensor<2> {
+    if host_max::host_path(&x) {
+        return host_max::blocks_max(x, k);
+    }
+    let [rows, c] = x.dims();
+    x.reshape([rows / k, k, c])
+        .max_dim(1)
+        .reshape([rows / k, c])
+}
+
+/// The local MLP's first layer before its ReLU, [M·K, C₁], for the encoding
+/// `a·p_k ⊕ b·(p_i − p_k) ⊕ d_ik ⊕ a·p_i [⊕ g_k]` (a, b the position and offset gains,
+/// d_ik = ‖b·(p_i − p_k)‖) without building that [M·K, 10 + C_g] matrix. Its linear map
+/// splits by input rows, W = [W_k; W_o; w_d; W_i; W_g], so
+/// `y_ik = (p_k·(a W_k − b W_o) + g_k W_g)  +  (p_i·(b W_o + a W_i) + bias)  +  d_ik w_d`:
+/// a term per point of the stage (N rows, then gathered for the neighbours), one per
+/// query (M rows, broadcast over its K) and the distance term. The neighbours' features
+/// g_k, the widest part of the encoding, are never gathered; the product is the same up
+/// to float rounding.
+fn local_first_layer(
+    layer: &MlpLayer,
+    inputs: &LfaInputs,
+    coords: &Tensor<2>,
+    feats: Option<&Tensor<2>>,
+    q: &Tensor<2>,
+    index: &LfaStageIndex,
+    k: usize,
+) -> Tensor<2> {
+    let m = q.dims()[0];
+    let (a, b) = (inputs.position_gain, inputs.offset_gain);
+    let (w, bias) = layer.affine();
+    let [d_in, c1] = w.dims();
+    let rows = |r: std::ops::Range<usize>| w.clone().slice([r, 0..c1]);
+    let (w_k, w_o, w_d, w_i) = (rows(0..3), rows(3..6), rows(6..7), rows(7..10));
+    let per_point_w = scaled(w_k, a) - scaled(w_o.clone(), b);
+    let mut per_point = coords.clone().matmul(per_point_w);
+    if let Some(g) = feats {
+        per_point = per_point + g.clone().matmul(rows(10..d_in));
+    }
+    let mut per_query = q.clone().matmul(scaled(w_o, b) + scaled(w_i, a));
+    if let Some(bias) = bias {
+        per_query = per_query + bias.reshape([1, c1]);
+    }
+    // ‖p_i − p_k‖ of the scaled offsets, [M·K, 1].
+    let nb = coords.clone().select(0, index.neighbours.clone()); // [M·K, 3]
+    let qk = q
+        .clone()
+        .reshape([m, 1, 3])
+        .expand([m, k, 3])
+        .reshape([m * k, 3]);
+    let dist = scaled(qk - nb, b)
+        .square()
+        .sum_dim(1)
+        .add_scalar(1e-12)
+        .sqrt();
+    let y = per_point
+        .select(0, index.neighbours.clone())
+        .reshape([m, k, c1])
+        + per_query.reshape([m, 1, c1])
+        + (dist * w_d).reshape([m, k, c1]);
+    layer.normalize(y.reshape([m * k, c1]))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::LfaStageConfig;
 
     #[test]
     fn neighbours_are_the_nearest_distinct_points() {
@@ -314,6 +372,98 @@ mod tests {
         let c = features(&offsets_only, &points);
         let d = features(&raw, &points);
         assert!(c.iter().zip(&d).any(|(x, y)| (x - y).abs() > 1e-3));
+    }
+
+    /// LFA with the encoding built whole: `[a·p_k, b·(p_i − p_k), d_ik, a·p_i, g_k]`
+    /// concatenated and run through the local MLP.
+    fn forward_by_concatenation(lfa: &Lfa, inputs: &LfaInputs) -> Tensor<2> {
+        let k = inputs.neighbours;
+        let (a, b) = (inputs.position_gain, inputs.offset_gain);
+        let mut coords = inputs.coords.clone();
+        let mut feats: Option<Tensor<2>> = None;
+        for (stage, index) in lfa.stages.iter().zip(&inputs.stages) {
+            let q = coords.clone().select(0, index.keep.clone());
+            let m = q.dims()[0];
+            let nb = coords.clone().select(0, index.neighbours.clone());
+            let qk = q
+                .clone()
+                .reshape([m, 1, 3])
+                .expand([m, k, 3])
+                .reshape([m * k, 3]);
+            let rel = (qk.clone() - nb.clone()).mul_scalar(b);
+            let dist = rel.clone().square().sum_dim(1).add_scalar(1e-12).sqrt();
+            let mut local_in = vec![nb.mul_scalar(a), rel, dist, qk.mul_scalar(a)];
+            let mut point_in = vec![q.clone().mul_scalar(a)];
+            if let Some(g) = &feats {
+                local_in.push(g.clone().select(0, index.neighbours.clone()));
+                point_in.push(g.clone().select(0, index.keep.clone()));
+            }
+            let local = run(&stage.local, Tensor::cat(local_in, 1));
+            let c = local.dims()[1];
+            let local = local.reshape([m, k, c]).max_dim(1).reshape([m, c]);
+            let point = run(&stage.point, Tensor::cat(point_in, 1));
+            feats = Some(Tensor::cat(vec![local, point], 1));
+            coords = q;
+        }
+        feats.unwrap()
+    }
+
+    /// The first local layer evaluated in parts (per point, per query, distance) computes
+    /// what the layer does on the whole encoding: with unit and non-unit input scales,
+    /// one- and two-layer local MLPs, batch statistics (training) and a folded norm.
+    #[test]
+    fn split_first_layer_matches_the_concatenated_encoding() {
+        let n0 = 64;
+        let points: Vec<f32> = (0..3 * n0 * 3)
+            .map(|i| ((i * 53) % 97) as f32 * 0.21 - 9.0)
+            .collect();
+        for (scales, stages) in [
+            ((1.0, 1.0), LfaConfig::default().stages),
+            (
+                (5.0, 0.5),
+                vec![
+                    LfaStageConfig {
+                        local: vec![8],
+                        point: vec![8],
+                    },
+                    LfaStageConfig {
+                        local: vec![8, 16, 12],
+                        point: vec![4],
+                    },
+                ],
+            ),
+        ] {
+            let config = LfaConfig {
+                neighbours: 4,
+                stages,
+                position_scale_m: scales.0,
+                offset_scale_m: scales.1,
+            };
+            let model = ModelConfig {
+                lfa: Some(config.clone()),
+                ..ModelConfig::default()
+            };
+            let compare = |lfa: &Lfa, device: &Device| {
+                let inputs = LfaInputs::new(&points, 3, n0, &config, device).unwrap();
+                let split = lfa.forward(&inputs).try_into_vec_as::<f32>().unwrap();
+                let whole = forward_by_concatenation(lfa, &inputs)
+                    .try_into_vec_as::<f32>()
+                    .unwrap();
+                assert_eq!(split.len(), whole.len());
+                for (x, y) in split.iter().zip(&whole) {
+                    assert!((x - y).abs() <= 1e-4 * (1.0 + y.abs()), "{x} vs {y}");
+                }
+            };
+            let train = Device::flex().autodiff();
+            compare(&Lfa::new(&model, &config, &train), &train);
+            let device = Device::flex();
+            let mut lfa = Lfa::new(&model, &config, &device);
+            compare(&lfa, &device);
+            for stage in &mut lfa.stages {
+                stage.local.iter_mut().for_each(MlpLayer::fold_norm);
+            }
+            compare(&lfa, &device);
+        }
     }
 
     #[test]

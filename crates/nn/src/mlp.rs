@@ -61,6 +61,29 @@ impl MlpLayer {
         }
     }
 
+    /// The linear map the layer applies before its norm, (W [in, out], b): the folded one
+    /// when the norm is folded. For callers that evaluate the product in parts (a sum of
+    /// products over blocks of input columns) and then call
+    /// [`normalize`](Self::normalize) on the sum.
+    pub fn affine(&self) -> (Tensor<2>, Option<Tensor<1>>) {
+        match &self.folded {
+            Some((weight, bias)) => (weight.clone(), Some(bias.clone())),
+            None => (
+                self.linear.weight.val(),
+                self.linear.bias.as_ref().map(|b| b.val()),
+            ),
+        }
+    }
+
+    /// The norm applied to the output of [`affine`](Self::affine)'s map (nothing when folded
+    /// into it); no ReLU.
+    pub fn normalize(&self, y: Tensor<2>) -> Tensor<2> {
+        match &self.folded {
+            Some(_) => y,
+            None => self.norm.forward(y),
+        }
+    }
+
     /// Like [`forward`](Self::forward), with batch-norm statistics over the rows where
     /// `valid` is 1 (in training mode; inference uses the running statistics either way).
     pub fn forward_masked(&self, x: Tensor<2>, valid: &Tensor<2>, count: usize) -> Tensor<2> {
