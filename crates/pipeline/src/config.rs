@@ -948,6 +948,27 @@ mod shipped_configs {
         }
     }
 
+    /// TDIS starts like a linear layer unless `tdis_init = "zero"`; an unknown value is an
+    /// error naming the file.
+    #[test]
+    fn tdis_init_reads_back_and_refuses_unknown_values() {
+        use fusiondet_models::dasanet::config::TdisInit;
+        let text = |init: &str| {
+            format!("[detector]\nkind = \"dasanet\"\n[dasanet.modules]\nstca = false\n{init}")
+        };
+        let read = |t: String| ExperimentConfig::from_toml_str(&t, Path::new("d.toml"));
+        let init = |c: &ExperimentConfig| c.dasanet.as_ref().unwrap().modules.tdis_init;
+        assert_eq!(init(&read(text("")).unwrap()), TdisInit::FanIn);
+        let zero = read(text("tdis_init = \"zero\"\n")).unwrap();
+        assert_eq!(init(&zero), TdisInit::Zero);
+        let back = read(zero.to_toml_string()).unwrap();
+        assert_eq!(init(&back), TdisInit::Zero);
+        let e = read(text("tdis_init = \"ones\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("d.toml") && e.contains("tdis_init"), "{e}");
+    }
+
     #[test]
     fn a_voxel_rcnn_file_takes_the_families_published_defaults() {
         let c = load("voxel-rcnn-car.toml");

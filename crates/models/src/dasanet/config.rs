@@ -82,6 +82,8 @@ pub struct DasanetModules {
     /// λ1, λ2 of Eq. 16: the auxiliary heads on F^T and on F^A (present only when both
     /// modules are, whose optimisation they balance).
     pub aux_weights: [f64; 2],
+    /// How TDIS's weights start (the paper does not say).
+    pub tdis_init: TdisInit,
 }
 
 impl Default for DasanetModules {
@@ -91,8 +93,23 @@ impl Default for DasanetModules {
             stca: true,
             stca_shape: StcaConfig::default(),
             aux_weights: [1.0, 1.0],
+            tdis_init: TdisInit::FanIn,
         }
     }
+}
+
+/// The starting weights of TDIS's W^Sp, W^Ch and W^Go.
+///
+/// `fan-in` draws them like a linear layer's (±1/√(N·C)); the three sums then add to
+/// every feature a term whose variance is about that of F^D = F^P − F^S, so the head
+/// first sees F^S under a disturbance as large as itself. `zero` starts TDIS as the
+/// identity (F^T = F^S), as residual branches are often started; W still receives a
+/// gradient from the first step, since ∂F^T/∂W is F^D, not W.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TdisInit {
+    FanIn,
+    Zero,
 }
 
 /// The whole network's shape: Voxel R-CNN's (LiDAR branch, BEV network, anchor head, head

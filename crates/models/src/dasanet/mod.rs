@@ -115,7 +115,10 @@ impl Dasanet {
             ),
             lidar_pool: config.modules.tdis.then(pool),
             pseudo_pool: config.modules.tdis.then(pool),
-            tdis: config.modules.tdis.then(|| Tdis::new(c, n, device)),
+            tdis: config
+                .modules
+                .tdis
+                .then(|| Tdis::new(c, n, config.modules.tdis_init, device)),
             stca: config
                 .modules
                 .stca

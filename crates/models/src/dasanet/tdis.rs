@@ -17,6 +17,7 @@
 //! Layout: rows of [RoIs, N·C], location-major (element `j·C + i` is channel i at grid
 //! location j), as the RoI grid pooling writes them.
 
+use super::config::TdisInit;
 use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::Distribution;
@@ -36,16 +37,18 @@ pub struct Tdis {
 }
 
 impl Tdis {
-    /// Weights drawn uniformly in ±1/√(N·C), the fan-in bound burn's linear layers use.
-    pub fn new(channels: usize, locations: usize, device: &Device) -> Self {
+    /// Weights drawn uniformly in ±1/√(N·C), the fan-in bound burn's linear layers use,
+    /// or zeros (see [`TdisInit`]).
+    pub fn new(channels: usize, locations: usize, init: TdisInit, device: &Device) -> Self {
         let fan_in = channels * locations;
         let bound = 1.0 / (fan_in as f64).sqrt();
         let init = |cols: usize| {
-            Param::from_tensor(Tensor::random(
-                [fan_in, cols],
-                Distribution::Uniform(-bound, bound),
-                device,
-            ))
+            Param::from_tensor(match init {
+                TdisInit::FanIn => {
+                    Tensor::random([fan_in, cols], Distribution::Uniform(-bound, bound), device)
+                }
+                TdisInit::Zero => Tensor::zeros([fan_in, cols], device),
+            })
         };
         Self {
             spatial: init(locations),
@@ -118,7 +121,7 @@ mod tests {
             }
             v
         };
-        let mut tdis = Tdis::new(c, n, &d);
+        let mut tdis = Tdis::new(c, n, TdisInit::FanIn, &d);
         tdis.spatial = Param::from_tensor(t2(column_major(n, 0), [n * c, n], &d));
         tdis.channel = Param::from_tensor(t2(column_major(c, n), [n * c, c], &d));
         tdis.global = Param::from_tensor(t2(column_major(1, n + c), [n * c, 1], &d));
@@ -156,11 +159,32 @@ mod tests {
     #[test]
     fn no_difference_no_supplement() {
         let d = Device::flex();
-        let tdis = Tdis::new(4, 8, &d);
+        let tdis = Tdis::new(4, 8, TdisInit::FanIn, &d);
         let x = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
         let out = tdis.forward(x.clone(), x.clone());
         let diff: f32 = (out - x).abs().max().into_scalar();
         assert!(diff < 1e-6);
         assert_eq!(tdis.multiply_adds_per_roi(), 32 * 13);
+    }
+
+    /// Zero-started TDIS passes F^S through whatever F^P is, and its weights still get a
+    /// gradient (F^D) from the first backward pass.
+    #[test]
+    fn zero_init_starts_as_identity_and_learns() {
+        let d = Device::flex();
+        let tdis = Tdis::new(4, 8, TdisInit::Zero, &d);
+        let fs = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
+        let fp = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
+        let out = tdis.forward(fs.clone(), fp.clone());
+        let diff: f32 = (out - fs).abs().max().into_scalar();
+        assert_eq!(diff, 0.0);
+
+        let ad = Device::flex().autodiff();
+        let tdis = Tdis::new(4, 8, TdisInit::Zero, &ad);
+        let fs = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &ad);
+        let fp = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &ad);
+        let grads = tdis.forward(fs, fp).sum().backward();
+        let g: f32 = tdis.spatial.grad(&grads).unwrap().abs().sum().into_scalar();
+        assert!(g > 0.0, "W^Sp got no gradient");
     }
 }
