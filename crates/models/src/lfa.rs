@@ -214,7 +214,6 @@ impl Lfa {
         let mut feats: Option<Tensor<2>> = None;
         for (stage, index) in self.stages.iter().zip(&inputs.stages) {
             let q = coords.clone().select(0, index.keep.clone()); // [M, 3]
-            let m = q.dims()[0];
             let (first, rest) = stage.local.split_first().expect("a local MLP has layers");
             let local = local_first_layer(first, inputs, &coords, feats.as_ref(), &q, index, k);
             // The local MLP's last ReLU after the max over the K neighbours: it commutes

@@ -71,7 +71,7 @@ mod tests {
 
     fn bits(t: Tensor<2>) -> Vec<u32> {
         t.into_data()
-            .into_vec::<f32>()
+            .try_into_vec::<f32>()
             .unwrap()
             .iter()
             .map(|v| v.to_bits())
@@ -118,7 +118,7 @@ mod tests {
             &device,
         );
         let out = runs_max(x, &[0, 3, 2, 4], &[3, 0, 1, 1]);
-        let v = out.into_data().into_vec::<f32>().unwrap();
+        let v = out.into_data().try_into_vec::<f32>().unwrap();
         assert_eq!(v, vec![3.0, 4.0, 0.0, 0.0, -1.0, 4.0, 0.0, -5.0]);
     }
 
