@@ -53,12 +53,8 @@ impl MlpLayer {
 
     /// Linear + BatchNorm, without the ReLU.
     pub fn forward_pre_activation(&self, x: Tensor<2>) -> Tensor<2> {
-        match &self.folded {
-            Some((weight, bias)) => {
-                burn::tensor::module::linear(x, weight.clone(), Some(bias.clone()))
-            }
-            None => self.norm.forward(self.linear.forward(x)),
-        }
+        let (weight, bias) = self.affine();
+        self.normalize(burn::tensor::module::linear(x, weight, bias))
     }
 
     /// The linear map the layer applies before its norm, (W [in, out], b): the folded one

@@ -19,8 +19,9 @@ use burn::tensor::IndexingUpdateOp;
 #[derive(Debug, Clone)]
 pub struct SegmentPool {
     pub buckets: Vec<PoolBucket>,
-    /// Each segment's (start row, row count), for the host path of inference.
-    pub runs: (Vec<usize>, Vec<usize>),
+    /// Each segment's start row and row count, for the host path of inference.
+    pub starts: Vec<usize>,
+    pub counts: Vec<usize>,
     /// [num_segments]: row of each segment in the concatenated bucket outputs; `None`
     /// when that is already segment order.
     pub restore: Option<Tensor<1, Int>>,
@@ -66,7 +67,8 @@ impl SegmentPool {
         let n = restore.len();
         Self {
             buckets,
-            runs: (starts[..counts.len()].to_vec(), counts.to_vec()),
+            starts: starts[..counts.len()].to_vec(),
+            counts: counts.to_vec(),
             restore: (!in_order).then(|| Tensor::from_data(TensorData::new(restore, [n]), device)),
         }
     }
@@ -80,7 +82,7 @@ impl SegmentPool {
     /// gives zeros.
     pub fn max_pool(&self, features: Tensor<2>) -> Tensor<2> {
         if host_max::host_path(&features) {
-            return host_max::runs_max(features, &self.runs.0, &self.runs.1);
+            return host_max::runs_max(features, &self.starts, &self.counts);
         }
         let c = features.dims()[1];
         let parts: Vec<Tensor<2>> = self
