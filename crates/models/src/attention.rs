@@ -19,6 +19,8 @@ use burn::nn::{Linear, LinearConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 use burn::tensor::activation::{relu, sigmoid, tanh};
+use fusiondet_nn::host_max::host_path;
+use rayon::prelude::*;
 
 /// A channel MLP C → C/r → C without biases (CBAM's shared MLP).
 #[derive(Module, Debug)]
@@ -77,9 +79,156 @@ impl Cbam {
 
     /// `x`: pair features [pairs, C] (non-negative: they follow a ReLU) → attended features.
     pub fn forward(&self, x: Tensor<2>, index: &AttentionIndex) -> Tensor<2> {
+        if host_path(&x) {
+            self.forward_on_host(x, index)
+        } else {
+            self.forward_by_tensors(x, index)
+        }
+    }
+
+    /// The spatial attention's k × k cross-correlation (2 → 1 channels, zero padding
+    /// k / 2) of the [B, 2, L, N] grid, row by row: burn-flex lowers a convolution to an
+    /// im2col matrix of [B · L · N, 2 · k²] (28 MB for FCAM's finest scale and 8
+    /// frustums) and a one-column product, which cost more than all the rest of CBAM.
+    fn spatial_logits_on_host(&self, grid: &[f32], b: usize, l: usize, n: usize) -> Vec<f32> {
+        let weight = self.spatial.weight.val();
+        let [_, channels, k, _] = weight.dims();
+        let w = weight
+            .into_data()
+            .try_into_vec::<f32>()
+            .expect("f32 convolution weights");
+        let bias = self.spatial.bias.as_ref().map_or(0.0, |bias| {
+            bias.val()
+                .into_data()
+                .try_into_vec::<f32>()
+                .expect("f32 bias")[0]
+        });
+        let r = (k / 2) as isize;
+        let mut out = vec![bias; b * l * n];
+        out.par_chunks_mut(n).enumerate().for_each(|(row, dst)| {
+            let (f, s) = (row / l, (row % l) as isize);
+            for ch in 0..channels {
+                for dy in 0..k {
+                    let y = s + dy as isize - r;
+                    if y < 0 || y >= l as isize {
+                        continue;
+                    }
+                    let src = &grid[((f * channels + ch) * l + y as usize) * n..][..n];
+                    for dx in 0..k {
+                        let wv = w[(ch * k + dy) * k + dx];
+                        let shift = dx as isize - r;
+                        let (j0, j1) = (
+                            (-shift).max(0) as usize,
+                            (n as isize - shift).min(n as isize) as usize,
+                        );
+                        for (d, &v) in dst[j0..j1]
+                            .iter_mut()
+                            .zip(&src[(j0 as isize + shift) as usize..])
+                        {
+                            *d += wv * v;
+                        }
+                    }
+                }
+            }
+        });
+        out
+    }
+
+    /// Burn's operations: differentiable, on any backend.
+    fn forward_by_tensors(&self, x: Tensor<2>, index: &AttentionIndex) -> Tensor<2> {
         let x = x.clone() * self.channel_weights(x, index);
         let s = self.spatial_weights(x.clone(), index);
         x * s
+    }
+
+    /// Inference on the flex CPU device, the same maps computed in three passes over the
+    /// pair rows, in place: the frustums' sums and maxima; the channel weights applied
+    /// with each row's max and mean taken; the spatial weights applied. The tensor path
+    /// gathers [pairs, C] weight maps, scatter-adds and reduces in separate passes, and
+    /// FCAM spent about a sixth of its forward pass there. The two MLPs still run as burn
+    /// operations on their small inputs; the 7 × 7
+    /// convolution run on the host too (`spatial_logits_on_host`). Rounding differs from
+    /// the tensor path in the order of the row sums and of the convolution's products.
+    fn forward_on_host(&self, x: Tensor<2>, index: &AttentionIndex) -> Tensor<2> {
+        let [_, c] = x.dims();
+        let device = x.device();
+        let (b, l, n) = (index.frustums, index.slices_per_frustum, index.cap);
+        let pool = &index.frustum_pool;
+        let mut data = x.into_data();
+        let rows = data
+            .as_mut_slice::<f32>()
+            .expect("an f32 tensor on the flex device");
+        // Channel attention: per frustum, the mean and max over its pairs.
+        let mut avg = vec![0f32; b * c];
+        let mut max = vec![0f32; b * c];
+        avg.par_chunks_mut(c)
+            .zip(max.par_chunks_mut(c))
+            .enumerate()
+            .for_each(|(f, (sum, top))| {
+                let (start, count) = (pool.starts[f], pool.counts[f]);
+                if count == 0 {
+                    return;
+                }
+                let frustum = &rows[start * c..(start + count) * c];
+                top.copy_from_slice(&frustum[..c]);
+                for row in frustum.chunks_exact(c) {
+                    for ((s, t), &v) in sum.iter_mut().zip(top.iter_mut()).zip(row) {
+                        *s += v;
+                        // Branch-free, so that it vectorises.
+                        *t = if v > *t || v.is_nan() { v } else { *t };
+                    }
+                }
+                let divisor = count as f32;
+                sum.iter_mut().for_each(|s| *s /= divisor);
+            });
+        let host_tensor = |v: Vec<f32>, shape: [usize; 2]| {
+            Tensor::<2>::from_data(TensorData::new(v, shape), &device)
+        };
+        let (avg, max) = (host_tensor(avg, [b, c]), host_tensor(max, [b, c]));
+        let mut logits = self.channel.forward(avg.clone()) + self.channel.forward(max.clone());
+        if let Some(t) = &self.channel_tanh {
+            logits = logits + t.forward(avg) + t.forward(max);
+        }
+        let weights = sigmoid(logits)
+            .into_data()
+            .try_into_vec::<f32>()
+            .expect("f32 channel weights");
+        // Apply them, taking each row's max and mean over channels for the spatial grid
+        // [B, 2, L, N] (empty cells stay zero).
+        let mut frustum_of_row = Vec::with_capacity(rows.len() / c.max(1));
+        for (f, &count) in pool.counts.iter().enumerate() {
+            frustum_of_row.extend(std::iter::repeat_n(f, count));
+        }
+        assert_eq!(
+            frustum_of_row.len() * c,
+            rows.len(),
+            "the frustums' pairs are contiguous and cover every row"
+        );
+        let mut maps = vec![[0f32; 2]; frustum_of_row.len()];
+        rows.par_chunks_mut(c)
+            .zip(maps.par_iter_mut())
+            .zip(frustum_of_row.par_iter())
+            .for_each(|((row, map), &f)| {
+                row.iter_mut()
+                    .zip(&weights[f * c..(f + 1) * c])
+                    .for_each(|(v, w)| *v *= w);
+                *map = [lanes_max(row), lanes_sum(row) / c as f32];
+            });
+        let mut grid = vec![0f32; b * 2 * l * n];
+        for (map, &cell) in maps.iter().zip(&index.pair_grid_cell_host) {
+            let (slice, j) = (cell as usize / n, cell as usize % n);
+            let (f, s) = (slice / l, slice % l);
+            grid[((f * 2) * l + s) * n + j] = map[0];
+            grid[((f * 2 + 1) * l + s) * n + j] = map[1];
+        }
+        let spatial = self.spatial_logits_on_host(&grid, b, l, n);
+        rows.par_chunks_mut(c)
+            .zip(index.pair_grid_cell_host.par_iter())
+            .for_each(|(row, &cell)| {
+                let s = 1.0 / (1.0 + (-spatial[cell as usize]).exp());
+                row.iter_mut().for_each(|v| *v *= s);
+            });
+        Tensor::from_data(data, &device)
     }
 
     /// M_c per pair, [pairs, C].
@@ -113,6 +262,36 @@ impl Cbam {
         let att = self.spatial.forward(grid).reshape([b * l * n, 1]);
         sigmoid(att.select(0, index.pair_grid_cell.clone()))
     }
+}
+
+/// Max of a row in eight lanes (so that it vectorises); NaN-free rows only, as CBAM's
+/// inputs follow a ReLU.
+fn lanes_max(row: &[f32]) -> f32 {
+    let mut lanes = [f32::NEG_INFINITY; 8];
+    let chunks = row.chunks_exact(8);
+    let tail = chunks.remainder();
+    for chunk in chunks {
+        for (m, &v) in lanes.iter_mut().zip(chunk) {
+            *m = if v > *m { v } else { *m };
+        }
+    }
+    lanes
+        .into_iter()
+        .chain(tail.iter().copied())
+        .fold(f32::NEG_INFINITY, f32::max)
+}
+
+/// Sum of a row in eight lanes (so that it vectorises).
+fn lanes_sum(row: &[f32]) -> f32 {
+    let mut lanes = [0f32; 8];
+    let chunks = row.chunks_exact(8);
+    let tail = chunks.remainder();
+    for chunk in chunks {
+        for (s, &v) in lanes.iter_mut().zip(chunk) {
+            *s += v;
+        }
+    }
+    lanes.iter().sum::<f32>() + tail.iter().sum::<f32>()
 }
 
 #[cfg(test)]
@@ -248,7 +427,9 @@ mod tests {
                 burn::tensor::Distribution::Uniform(0.0, 2.0),
                 &device,
             );
-            let got = host(cbam.forward(x.clone(), index));
+            assert!(host_path(&x), "the test runs the host path");
+            let on_host = host(cbam.forward(x.clone(), index));
+            let by_tensors = host(cbam.forward_by_tensors(x.clone(), index));
             let slice_start = scale.slice_start();
             let want = reference(
                 &host(x),
@@ -258,13 +439,18 @@ mod tests {
                 scale.slices_per_frustum,
                 scale.cap,
             );
-            assert_eq!(got.len(), want.len());
-            let worst = got
-                .iter()
-                .zip(&want)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0f32, f32::max);
-            assert!(worst < 1e-5, "{kind:?}: largest difference {worst}");
+            for (path, got) in [("host", on_host), ("tensors", by_tensors)] {
+                assert_eq!(got.len(), want.len());
+                let worst = got
+                    .iter()
+                    .zip(&want)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0f32, f32::max);
+                assert!(
+                    worst < 1e-5,
+                    "{kind:?} by {path}: largest difference {worst}"
+                );
+            }
         }
     }
 }

@@ -57,6 +57,8 @@ pub struct AttentionIndex {
     pub grid_cell_pair: Tensor<1, Int>,
     /// [pairs]: the grid cell of each pair.
     pub pair_grid_cell: Tensor<1, Int>,
+    /// The same cells on the host, for CBAM's host path in inference.
+    pub pair_grid_cell_host: Vec<u32>,
 }
 
 impl AttentionIndex {
@@ -98,6 +100,7 @@ impl AttentionIndex {
             frustum_counts: Tensor::from_data(TensorData::new(counts_f, [frustums, 1]), device),
             frustum_pool: SegmentPool::new(&counts, &starts, device),
             grid_cell_pair: ints(cell_pair),
+            pair_grid_cell_host: pair_cell.iter().map(|&c| c as u32).collect(),
             pair_grid_cell: ints(pair_cell),
         }
     }
