@@ -36,6 +36,8 @@ pub struct LfaStageIndex {
     pub keep: Tensor<1, Int>,
     /// [B · N_s / 2 · K]: rows of each survivor's K nearest neighbours.
     pub neighbours: Tensor<1, Int>,
+    /// The same rows on the host, for the first layer's host path in inference.
+    pub neighbours_host: Vec<u32>,
 }
 
 /// Everything LFA needs for a batch.
@@ -116,6 +118,7 @@ impl LfaInputs {
             stage_index.push(LfaStageIndex {
                 points: n,
                 keep: ints(keep),
+                neighbours_host: neighbours.iter().map(|&r| r as u32).collect(),
                 neighbours: ints(neighbours),
             });
             n = half;
@@ -265,7 +268,6 @@ fn local_first_layer(
     index: &LfaStageIndex,
     k: usize,
 ) -> Tensor<2> {
-    let m = q.dims()[0];
     let (a, b) = (inputs.position_gain, inputs.offset_gain);
     let (w, bias) = layer.affine();
     let [d_in, c1] = w.dims();
@@ -280,24 +282,111 @@ fn local_first_layer(
     if let Some(bias) = bias {
         per_query = per_query + bias.reshape([1, c1]);
     }
-    // ‖p_i − p_k‖ of the scaled offsets, [M·K, 1].
-    let nb = coords.clone().select(0, index.neighbours.clone()); // [M·K, 3]
-    let qk = q
-        .clone()
-        .reshape([m, 1, 3])
-        .expand([m, k, 3])
-        .reshape([m * k, 3]);
-    let dist = scaled(qk - nb, b)
-        .square()
-        .sum_dim(1)
-        .add_scalar(1e-12)
-        .sqrt();
-    let y = per_point
-        .select(0, index.neighbours.clone())
-        .reshape([m, k, c1])
-        + per_query.reshape([m, 1, c1])
-        + (dist * w_d).reshape([m, k, c1]);
-    layer.normalize(y.reshape([m * k, c1]))
+    let terms = FirstLayerTerms {
+        per_point,
+        per_query,
+        w_d,
+    };
+    let y = if host_max::host_path(&terms.per_point) {
+        terms.combine_on_host(coords, q, index, b, k)
+    } else {
+        terms.combine_by_tensors(coords, q, index, b, k)
+    };
+    layer.normalize(y)
+}
+
+/// The first local layer's parts: [N, C₁] per point of the stage, [M, C₁] per query and
+/// the distance's row of weights [1, C₁].
+struct FirstLayerTerms {
+    per_point: Tensor<2>,
+    per_query: Tensor<2>,
+    w_d: Tensor<2>,
+}
+
+impl FirstLayerTerms {
+    /// `y_ik = per_point_k + per_query_i + d_ik w_d`, [M·K, C₁], by burn's operations
+    /// (differentiable, any backend).
+    fn combine_by_tensors(
+        self,
+        coords: &Tensor<2>,
+        q: &Tensor<2>,
+        index: &LfaStageIndex,
+        offset_gain: f32,
+        k: usize,
+    ) -> Tensor<2> {
+        let [m, c1] = self.per_query.dims();
+        // ‖p_i − p_k‖ of the scaled offsets, [M·K, 1].
+        let nb = coords.clone().select(0, index.neighbours.clone()); // [M·K, 3]
+        let qk = q
+            .clone()
+            .reshape([m, 1, 3])
+            .expand([m, k, 3])
+            .reshape([m * k, 3]);
+        let dist = scaled(qk - nb, offset_gain)
+            .square()
+            .sum_dim(1)
+            .add_scalar(1e-12)
+            .sqrt();
+        let y = self
+            .per_point
+            .select(0, index.neighbours.clone())
+            .reshape([m, k, c1])
+            + self.per_query.reshape([m, 1, c1])
+            + (dist * self.w_d).reshape([m, k, c1]);
+        y.reshape([m * k, c1])
+    }
+
+    /// The same sum in one pass on the host, in parallel over the queries, for inference
+    /// on the flex CPU device: the tensor form gathers, broadcasts and adds [M·K, C₁]
+    /// matrices in about ten passes, and those element-wise passes were most of LFA's
+    /// time. The same operations in the same order, so the same bits.
+    fn combine_on_host(
+        self,
+        coords: &Tensor<2>,
+        q: &Tensor<2>,
+        index: &LfaStageIndex,
+        offset_gain: f32,
+        k: usize,
+    ) -> Tensor<2> {
+        let [m, c1] = self.per_query.dims();
+        let device = self.per_query.device();
+        let host = |t: Tensor<2>| {
+            t.into_data()
+                .try_into_vec::<f32>()
+                .expect("f32 on the host")
+        };
+        let (per_point, per_query, w_d) =
+            (host(self.per_point), host(self.per_query), host(self.w_d));
+        let (coords, q) = (host(coords.clone()), host(q.clone()));
+        let mut y = vec![0f32; m * k * c1];
+        y.par_chunks_mut(k * c1)
+            .zip(index.neighbours_host.par_chunks(k))
+            .enumerate()
+            .for_each(|(i, (rows, neighbours))| {
+                let query = &per_query[i * c1..(i + 1) * c1];
+                let p_i = &q[i * 3..i * 3 + 3];
+                for (row, &nb) in rows.chunks_exact_mut(c1).zip(neighbours) {
+                    let nb = nb as usize;
+                    let p_k = &coords[nb * 3..nb * 3 + 3];
+                    let mut squares = 0f32;
+                    for d in 0..3 {
+                        let offset = p_i[d] - p_k[d];
+                        let offset = if offset_gain == 1.0 {
+                            offset
+                        } else {
+                            offset * offset_gain
+                        };
+                        squares += offset * offset;
+                    }
+                    let distance = (squares + 1e-12).sqrt();
+                    let point = &per_point[nb * c1..(nb + 1) * c1];
+                    for (((out, &pk), &pi), &wd) in row.iter_mut().zip(point).zip(query).zip(&w_d) {
+                        *out = (pk + pi) + distance * wd;
+                    }
+                }
+            });
+        Tensor::from_data(TensorData::new(y, [m * k, c1]), &device)
+    }
 }
 
 #[cfg(test)]
@@ -462,6 +551,49 @@ mod tests {
                 stage.local.iter_mut().for_each(MlpLayer::fold_norm);
             }
             compare(&lfa, &device);
+        }
+    }
+
+    /// The first layer's host sum gives the tensor sum's bits, at unit and other offset
+    /// gains, over a real stage index.
+    #[test]
+    fn host_first_layer_sum_gives_the_tensor_bits() {
+        let device = Device::flex();
+        let (n0, k, c1) = (64, 4, 5);
+        let points: Vec<f32> = (0..2 * n0 * 3)
+            .map(|i| ((i * 37) % 89) as f32 * 0.17 - 7.0)
+            .collect();
+        let config = LfaConfig {
+            neighbours: k,
+            ..LfaConfig::default()
+        };
+        let inputs = LfaInputs::new(&points, 2, n0, &config, &device).unwrap();
+        let index = &inputs.stages[0];
+        let q = inputs.coords.clone().select(0, index.keep.clone());
+        let m = q.dims()[0];
+        let values = |rows: usize, seed: usize| {
+            let v: Vec<f32> = (0..rows * c1)
+                .map(|i| (((i + seed) * 7919) % 1000) as f32 / 333.0 - 1.5)
+                .collect();
+            Tensor::<2>::from_data(TensorData::new(v, [rows, c1]), &device)
+        };
+        let terms = || FirstLayerTerms {
+            per_point: values(2 * n0, 1),
+            per_query: values(m, 2),
+            w_d: values(1, 3),
+        };
+        let bits = |t: Tensor<2>| {
+            t.try_into_vec_as::<f32>()
+                .unwrap()
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>()
+        };
+        for gain in [1.0, 0.37] {
+            let by_tensors = terms().combine_by_tensors(&inputs.coords, &q, index, gain, k);
+            let on_host = terms().combine_on_host(&inputs.coords, &q, index, gain, k);
+            assert_eq!(by_tensors.dims(), [m * k, c1]);
+            assert_eq!(bits(by_tensors), bits(on_host), "offset gain {gain}");
         }
     }
 
