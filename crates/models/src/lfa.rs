@@ -287,12 +287,30 @@ fn local_first_layer(
         per_query,
         w_d,
     };
+    let at = Neighbourhood {
+        coords,
+        q,
+        index,
+        offset_gain: b,
+        k,
+    };
     let y = if host_max::host_path(&terms.per_point) {
-        terms.combine_on_host(coords, q, index, b, k)
+        terms.combine_on_host(&at)
     } else {
-        terms.combine_by_tensors(coords, q, index, b, k)
+        terms.combine_by_tensors(&at)
     };
     layer.normalize(y)
+}
+
+/// Where the first local layer's sum is taken: the stage's points [N, 3], its queries
+/// [M, 3], their neighbour rows, the offset gain and K.
+#[derive(Clone, Copy)]
+struct Neighbourhood<'a> {
+    coords: &'a Tensor<2>,
+    q: &'a Tensor<2>,
+    index: &'a LfaStageIndex,
+    offset_gain: f32,
+    k: usize,
 }
 
 /// The first local layer's parts: [N, C₁] per point of the stage, [M, C₁] per query and
@@ -306,23 +324,17 @@ struct FirstLayerTerms {
 impl FirstLayerTerms {
     /// `y_ik = per_point_k + per_query_i + d_ik w_d`, [M·K, C₁], by burn's operations
     /// (differentiable, any backend).
-    fn combine_by_tensors(
-        self,
-        coords: &Tensor<2>,
-        q: &Tensor<2>,
-        index: &LfaStageIndex,
-        offset_gain: f32,
-        k: usize,
-    ) -> Tensor<2> {
+    fn combine_by_tensors(self, at: &Neighbourhood) -> Tensor<2> {
+        let (index, k) = (at.index, at.k);
         let [m, c1] = self.per_query.dims();
         // ‖p_i − p_k‖ of the scaled offsets, [M·K, 1].
-        let nb = coords.clone().select(0, index.neighbours.clone()); // [M·K, 3]
-        let qk = q
-            .clone()
-            .reshape([m, 1, 3])
-            .expand([m, k, 3])
-            .reshape([m * k, 3]);
-        let dist = scaled(qk - nb, offset_gain)
+        let nb = at.coords.clone().select(0, index.neighbours.clone()); // [M·K, 3]
+        let qk =
+            at.q.clone()
+                .reshape([m, 1, 3])
+                .expand([m, k, 3])
+                .reshape([m * k, 3]);
+        let dist = scaled(qk - nb, at.offset_gain)
             .square()
             .sum_dim(1)
             .add_scalar(1e-12)
@@ -340,14 +352,8 @@ impl FirstLayerTerms {
     /// on the flex CPU device: the tensor form gathers, broadcasts and adds [M·K, C₁]
     /// matrices in about ten passes, and those element-wise passes were most of LFA's
     /// time. The same operations in the same order, so the same bits.
-    fn combine_on_host(
-        self,
-        coords: &Tensor<2>,
-        q: &Tensor<2>,
-        index: &LfaStageIndex,
-        offset_gain: f32,
-        k: usize,
-    ) -> Tensor<2> {
+    fn combine_on_host(self, at: &Neighbourhood) -> Tensor<2> {
+        let (offset_gain, k) = (at.offset_gain, at.k);
         let [m, c1] = self.per_query.dims();
         let device = self.per_query.device();
         let host = |t: Tensor<2>| {
@@ -357,10 +363,10 @@ impl FirstLayerTerms {
         };
         let (per_point, per_query, w_d) =
             (host(self.per_point), host(self.per_query), host(self.w_d));
-        let (coords, q) = (host(coords.clone()), host(q.clone()));
+        let (coords, q) = (host(at.coords.clone()), host(at.q.clone()));
         let mut y = vec![0f32; m * k * c1];
         y.par_chunks_mut(k * c1)
-            .zip(index.neighbours_host.par_chunks(k))
+            .zip(at.index.neighbours_host.par_chunks(k))
             .enumerate()
             .for_each(|(i, (rows, neighbours))| {
                 let query = &per_query[i * c1..(i + 1) * c1];
@@ -589,11 +595,18 @@ mod tests {
                 .map(|v| v.to_bits())
                 .collect::<Vec<_>>()
         };
-        for gain in [1.0, 0.37] {
-            let by_tensors = terms().combine_by_tensors(&inputs.coords, &q, index, gain, k);
-            let on_host = terms().combine_on_host(&inputs.coords, &q, index, gain, k);
+        for offset_gain in [1.0, 0.37] {
+            let at = Neighbourhood {
+                coords: &inputs.coords,
+                q: &q,
+                index,
+                offset_gain,
+                k,
+            };
+            let by_tensors = terms().combine_by_tensors(&at);
+            let on_host = terms().combine_on_host(&at);
             assert_eq!(by_tensors.dims(), [m * k, c1]);
-            assert_eq!(bits(by_tensors), bits(on_host), "offset gain {gain}");
+            assert_eq!(bits(by_tensors), bits(on_host), "offset gain {offset_gain}");
         }
     }
 
