@@ -89,7 +89,7 @@ impl Cbam {
     /// The spatial attention's k × k cross-correlation (2 → 1 channels, zero padding
     /// k / 2) of the [B, 2, L, N] grid, row by row: burn-flex lowers a convolution to an
     /// im2col matrix of [B · L · N, 2 · k²] (28 MB for FCAM's finest scale and 8
-    /// frustums) and a one-column product, which cost more than all the rest of CBAM.
+    /// frustums) written and read again for a product with one output column.
     fn spatial_logits_on_host(&self, grid: &[f32], b: usize, l: usize, n: usize) -> Vec<f32> {
         let weight = self.spatial.weight.val();
         let [_, channels, k, _] = weight.dims();
@@ -146,9 +146,9 @@ impl Cbam {
     /// with each row's max and mean taken; the spatial weights applied. The tensor path
     /// gathers [pairs, C] weight maps, scatter-adds and reduces in separate passes, and
     /// FCAM spent about a sixth of its forward pass there. The two MLPs still run as burn
-    /// operations on their small inputs; the 7 × 7
-    /// convolution run on the host too (`spatial_logits_on_host`). Rounding differs from
-    /// the tensor path in the order of the row sums and of the convolution's products.
+    /// operations on their small inputs; the 7 × 7 convolution runs on the host too
+    /// (`spatial_logits_on_host`). Rounding differs from the tensor path in the order of
+    /// the row sums and of the convolution's products.
     fn forward_on_host(&self, x: Tensor<2>, index: &AttentionIndex) -> Tensor<2> {
         let [_, c] = x.dims();
         let device = x.device();
