@@ -19,7 +19,7 @@ use burn::nn::{Linear, LinearConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 use burn::tensor::activation::{relu, sigmoid, tanh};
-use fusiondet_nn::host_max::host_path;
+use fusiondet_nn::host_max::{flex_max, host_path};
 use rayon::prelude::*;
 
 /// A channel MLP C → C/r → C without biases (CBAM's shared MLP).
@@ -174,8 +174,7 @@ impl Cbam {
                 for row in frustum.chunks_exact(c) {
                     for ((s, t), &v) in sum.iter_mut().zip(top.iter_mut()).zip(row) {
                         *s += v;
-                        // Branch-free, so that it vectorises.
-                        *t = if v > *t || v.is_nan() { v } else { *t };
+                        *t = flex_max(*t, v);
                     }
                 }
                 let divisor = count as f32;

@@ -20,6 +20,15 @@ pub fn host_path(x: &Tensor<2>) -> bool {
     !x.is_autodiff() && x.device() == Device::flex()
 }
 
+/// One step of burn-flex's max scan: `v` replaces the running maximum only when it is
+/// larger or NaN, so among equal values (+0 and −0) the first stays. Branch-free, so that
+/// loops over rows of it vectorise.
+#[inline]
+pub fn flex_max(best: f32, v: f32) -> f32 {
+    let replace = (v > best) | v.is_nan();
+    if replace { v } else { best }
+}
+
 /// Per-run max of `x` ([rows, C], on the flex device): run s covers rows
 /// `starts[s]..starts[s] + counts[s]`; an empty run gives zeros. [runs, C].
 pub fn runs_max(x: Tensor<2>, starts: &[usize], counts: &[usize]) -> Tensor<2> {
@@ -42,9 +51,7 @@ pub fn runs_max(x: Tensor<2>, starts: &[usize], counts: &[usize]) -> Tensor<2> {
                 dst.copy_from_slice(&data[start * c..(start + 1) * c]);
                 for row in data[(start + 1) * c..(start + n) * c].chunks_exact(c) {
                     for (best, &v) in dst.iter_mut().zip(row) {
-                        // Branch-free, so that it vectorises.
-                        let replace = (v > *best) | v.is_nan();
-                        *best = if replace { v } else { *best };
+                        *best = flex_max(*best, v);
                     }
                 }
             });
