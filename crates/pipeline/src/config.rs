@@ -1068,14 +1068,17 @@ mod shipped_configs {
                 );
                 assert_eq!(c.model.lfa.is_some(), lfa, "{stem}: lfa");
                 assert_eq!(c.loss.projection_weight > 0.0, pl, "{stem}: pl");
-                let encoder = if variant == "fcam-cbam" {
-                    SliceEncoderKind::Cbam
-                } else if variant == "fcam" {
-                    SliceEncoderKind::ImprovedCbam
-                } else {
-                    SliceEncoderKind::PointNet
+                let encoder = match (parts[0], parts.get(1)) {
+                    ("fcam", Some(&"cbam")) => SliceEncoderKind::Cbam,
+                    ("fcam", _) => SliceEncoderKind::ImprovedCbam,
+                    _ => SliceEncoderKind::PointNet,
                 };
                 assert_eq!(c.model.slice_encoder, encoder, "{stem}: encoder");
+                // `-r<N>`: both channel MLPs at reduction N.
+                if let Some(r) = parts.iter().find_map(|p| p.strip_prefix('r')?.parse().ok()) {
+                    let a = &c.model.attention;
+                    assert_eq!((a.channel_reduction, a.tanh_reduction), (r, r), "{stem}");
+                }
                 let refine = parts.contains(&"refine");
                 assert_eq!(c.refine.is_some(), refine, "{stem}: refine");
                 assert_eq!(c.frustum.proposal_crop.is_some(), refine, "{stem}: crop");
