@@ -19,7 +19,11 @@ fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
         for entry in std::fs::read_dir(&dir).unwrap().flatten() {
             let path = entry.path();
             let name = path.strip_prefix(root).unwrap().display().to_string();
-            if name.starts_with(".fusiondet-shards") || name == ".fusiondet-sim.lock" {
+            // The records and the writers' locks are bookkeeping, not output.
+            if name.starts_with(".fusiondet-shards")
+                || name == ".fusiondet-sim.lock"
+                || name == fusiondet_kitti::atomic::WRITER_LOCK_FILE
+            {
                 continue;
             }
             if path.is_dir() {
@@ -192,7 +196,7 @@ fn sharded_runs_equal_one_unsharded_run_and_merge_names_what_is_missing() {
             .unwrap()
             .flatten()
             .map(|e| e.path())
-            .find(|p| p.is_file())
+            .find(|p| p.is_file() && !p.file_name().unwrap().to_string_lossy().starts_with('.'))
             .unwrap();
         std::fs::remove_file(&lost).unwrap();
         let stem = lost.file_stem().unwrap().to_str().unwrap().to_string();

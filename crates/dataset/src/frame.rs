@@ -71,6 +71,11 @@ impl SensorFrame {
             Vec::new()
         };
         let image = dir.image(id);
+        // A frame may come without its image; one that is there but is a pipe, a device or
+        // a folder is an error, never waited on or passed over.
+        if std::fs::symlink_metadata(&image).is_ok() {
+            fusiondet_kitti::error::open_regular(&image, fusiondet_kitti::error::MAX_IMAGE_BYTES)?;
+        }
         let image_size = png_size(&image).unwrap_or(DEFAULT_IMAGE_SIZE);
         let mut frame = SensorFrame::new(id, calib, lidar, image_size, objects)?;
         frame.image_path = image.is_file().then_some(image);
@@ -110,7 +115,10 @@ pub fn scan_in_rect(velodyne: &Path, calib: &Path) -> Result<Vec<[f64; 3]>> {
 pub fn png_size(path: &Path) -> Option<[f64; 2]> {
     use std::io::Read;
     let mut head = [0u8; 24];
-    std::fs::File::open(path).ok()?.read_exact(&mut head).ok()?;
+    // A pipe or device in the image's place is passed over, never waited on.
+    let (mut file, _) =
+        fusiondet_kitti::error::open_regular(path, fusiondet_kitti::error::MAX_IMAGE_BYTES).ok()?;
+    file.read_exact(&mut head).ok()?;
     if head[..8] != *b"\x89PNG\r\n\x1a\n" || head[12..16] != *b"IHDR" {
         return None;
     }

@@ -107,15 +107,15 @@ fn camera_object(o: &fusiondet_sunrgbd::Object) -> Object {
     }
 }
 
-/// Width and height from an image file's header (JPEG or PNG), if readable.
-fn image_size(path: &Path) -> Option<[f64; 2]> {
-    let (w, h) = image::ImageReader::open(path)
-        .ok()?
-        .with_guessed_format()
-        .ok()?
-        .into_dimensions()
-        .ok()?;
-    (w > 0 && h > 0).then_some([w as f64, h as f64])
+/// Width and height from an image file's header (JPEG or PNG); `None` where the scene has
+/// no image. One that is there but cannot be read (a pipe or a device in its place, a file
+/// that is no image) is an error, never waited on or passed over.
+fn image_size(path: &Path) -> Result<Option<[f64; 2]>> {
+    if std::fs::symlink_metadata(path).is_err() {
+        return Ok(None);
+    }
+    let (w, h) = fusiondet_kitti::image::image_size(path)?;
+    Ok((w > 0 && h > 0).then_some([w as f64, h as f64]))
 }
 
 /// Reads scene `id` of a prepared SUN RGB-D directory as a frame: its points (colour as
@@ -138,7 +138,7 @@ pub fn load_scene(dir: &SunRgbdDir, id: &str, with_labels: bool) -> Result<Senso
         (Vec::new(), Vec::new())
     };
     let image = dir.image(id);
-    let size = image_size(&image).unwrap_or(DEFAULT_INDOOR_IMAGE_SIZE);
+    let size = image_size(&image)?.unwrap_or(DEFAULT_INDOOR_IMAGE_SIZE);
     let mut frame = SensorFrame::new(id, calib, lidar, size, objects)?;
     frame.classes = classes;
     frame.image_path = image.is_file().then_some(image);

@@ -7,6 +7,8 @@ use crate::project::project_scan;
 use crate::pseudo::{Thinning, pseudo_points, write_pseudo_points};
 use crate::{DepthError, Result};
 use fusiondet_dataset::SensorFrame;
+use fusiondet_kitti::DepthMap;
+use fusiondet_kitti::paths::{Inputs, check_output_dir};
 use fusiondet_kitti::{FormatError, FrameDir};
 use fusiondet_kitti::{read_depth_png, write_depth_png};
 use rayon::prelude::*;
@@ -21,22 +23,28 @@ pub struct BatchSummary {
     pub dense_pixels: usize,
 }
 
-fn same_dir(a: &Path, b: &Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => a == b,
-    }
+/// Refuses an output directory that is, lies inside or contains one of `inputs` or the
+/// data set they belong to ([`fusiondet_kitti::paths`]), then creates it.
+fn refuse_input_dir(out_dir: &Path, inputs: &Inputs) -> Result<()> {
+    check_output_dir("--out-dir", out_dir, inputs)
+        .map_err(|e| DepthError::Mismatch(e.to_string()))?;
+    std::fs::create_dir_all(out_dir).map_err(|e| FormatError::io(out_dir, e))?;
+    Ok(())
 }
 
-fn refuse_input_dir(out_dir: &Path, inputs: &[&Path]) -> Result<()> {
-    if let Some(input) = inputs.iter().find(|i| same_dir(out_dir, i)) {
+/// Refuses a frame whose scan puts no point into its image (an `image_2` of another size
+/// than the calibration's camera, or the wrong file): nothing could be completed, and a
+/// map or cloud of nothing would pass for a result.
+fn refuse_empty_projection(frames: &FrameDir, id: &str, sparse: &DepthMap) -> Result<()> {
+    if sparse.valid_count() == 0 {
         return Err(DepthError::Mismatch(format!(
-            "{}: the output directory is an input directory ({}); choose another",
-            out_dir.display(),
-            input.display()
+            "{}: no LiDAR point of the frame falls inside this {}×{} image; is it the frame's \
+             image, at the calibration's size?",
+            frames.image(id).display(),
+            sparse.width,
+            sparse.height
         )));
     }
-    std::fs::create_dir_all(out_dir).map_err(|e| FormatError::io(out_dir, e))?;
     Ok(())
 }
 
@@ -69,7 +77,10 @@ pub fn complete_dir(
             sparse_dir.display()
         )));
     }
-    refuse_input_dir(out_dir, &[sparse_dir])?;
+    refuse_input_dir(
+        out_dir,
+        &Inputs::new().with("--sparse-dir", Some(sparse_dir)),
+    )?;
     let results = inputs
         .par_iter()
         .map(|input| {
@@ -91,12 +102,16 @@ pub fn complete_frames(
     completer: &(dyn DepthCompleter + Sync),
 ) -> Result<BatchSummary> {
     let ids = frame_ids(frames, ids)?;
-    refuse_input_dir(out_dir, &[&frames.root, &frames.root.join("image_2")])?;
+    refuse_input_dir(
+        out_dir,
+        &Inputs::new().with("--data-dir", Some(&frames.root)),
+    )?;
     let results = ids
         .par_iter()
         .map(|id| {
             let frame = SensorFrame::load(frames, id, false)?;
             let sparse = project_scan(&frame);
+            refuse_empty_projection(frames, id, &sparse)?;
             let dense = completer.complete(&sparse);
             write_depth_png(&out_dir.join(format!("{id}.png")), &dense)?;
             Ok((sparse.valid_count(), dense.valid_count()))
@@ -124,8 +139,9 @@ pub fn pseudo_frames(
     thinning: Option<Thinning>,
 ) -> Result<PseudoSummary> {
     let ids = frame_ids(frames, ids)?;
-    let mut inputs = vec![frames.root.as_path()];
-    inputs.extend(depth_dir);
+    let inputs = Inputs::new()
+        .with("--data-dir", Some(&frames.root))
+        .with("--depth-dir", depth_dir);
     refuse_input_dir(out_dir, &inputs)?;
     let counts: Vec<Result<usize>> = ids
         .par_iter()
@@ -137,7 +153,11 @@ pub fn pseudo_frames(
                     let path = dir.join(format!("{id}.png"));
                     (read_depth_png(&path)?, Some(path))
                 }
-                None => (completer.complete(&project_scan(&frame)), None),
+                None => {
+                    let sparse = project_scan(&frame);
+                    refuse_empty_projection(frames, id, &sparse)?;
+                    (completer.complete(&sparse), None)
+                }
             };
             // A given map of another size than image_2 is refused naming its file.
             let points =
@@ -159,14 +179,20 @@ pub fn pseudo_frames(
     Ok(summary)
 }
 
-/// The ids given, or every frame with a `velodyne/*.bin`; none is an error.
+/// The ids given (each checked to be a frame id and padded to six digits, so that none can
+/// lead outside the folders), or every frame with a `velodyne/*.bin`; none is an error.
 pub fn frame_ids(frames: &FrameDir, ids: &[String]) -> Result<Vec<String>> {
     let ids = if ids.is_empty() {
         let velodyne = frames.root.join("velodyne");
         fusiondet_kitti::layout::list_frame_ids(&velodyne, "bin")
             .map_err(|e| FormatError::io(&velodyne, e))?
     } else {
-        ids.to_vec()
+        ids.iter()
+            .map(|id| {
+                fusiondet_kitti::parse_frame_id(id)
+                    .map_err(|e| DepthError::Mismatch(format!("--ids: {e}")))
+            })
+            .collect::<Result<Vec<_>>>()?
     };
     if ids.is_empty() {
         return Err(DepthError::Mismatch(format!(

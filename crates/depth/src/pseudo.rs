@@ -95,7 +95,8 @@ pub fn write_pseudo_points(path: &Path, points: &[PseudoPoint]) -> Result<()> {
 /// Reads a pseudo-point file; a size that is not a whole number of points, or a value
 /// that is not finite, is an error naming the file and the point.
 pub fn read_pseudo_points(path: &Path) -> Result<Vec<PseudoPoint>> {
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let bytes =
+        fusiondet_kitti::error::read_regular(path, fusiondet_kitti::error::MAX_BINARY_BYTES)?;
     if bytes.len() % 32 != 0 {
         return Err(FormatError::file(
             path,

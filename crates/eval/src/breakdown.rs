@@ -203,16 +203,20 @@ fn mask_for(
     let gt_out = (0..cf.n_gt()).map(|gi| gbin(gi) != Some(bin)).collect();
     let (ng, nd) = (cf.n_gt(), cf.n_det());
     let det_exempt = std::array::from_fn(|m| {
+        // The ground-truth box each detection overlaps most, if any (the first in file
+        // order of equals).
+        let mut best_of = vec![(0.0, usize::MAX); nd];
+        for gi in 0..ng {
+            for &(j, ov) in cf.pairs_of(gi) {
+                let best = &mut best_of[j as usize];
+                if ov[m] > best.0 {
+                    *best = (ov[m], gi);
+                }
+            }
+        }
         (0..nd)
             .map(|j| {
-                // The ground-truth box this detection overlaps most, if any.
-                let mut best = (0.0, usize::MAX);
-                for gi in 0..ng {
-                    let o = cf.ov[m][gi * nd + j];
-                    if o > best.0 {
-                        best = (o, gi);
-                    }
-                }
+                let best = best_of[j];
                 let charge = if best.1 != usize::MAX {
                     Charge::Bin(gbin(best.1))
                 } else {
@@ -259,7 +263,7 @@ pub fn evaluate_breakdown(
     }
     let metrics = [Metric::Bev, Metric::ThreeD];
     let (tasks, rows) = tasks_for(cfg, &metrics);
-    let prepared = engine::prepare(gt, det, &cfg.classes);
+    let prepared = engine::prepare(gt, det, &cfg.classes)?;
     let mut out = Vec::new();
     for axis in BreakdownAxis::ALL {
         if axis == BreakdownAxis::LidarPoints && points.is_none() {

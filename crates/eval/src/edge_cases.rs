@@ -420,3 +420,35 @@ fn second_pass_prefers_a_valid_detection_over_an_ignored_one() {
         );
     }
 }
+
+/// A dense scene: one frame with 20,000 boxes and 20,000 detections (each on its own box).
+/// The overlaps are kept for the pairs that touch only, so the frame is scored in memory
+/// proportional to them (a dense matrix of three measures would take 9.6 GB) and every box
+/// is found.
+#[test]
+fn twenty_thousand_boxes_in_one_frame_are_scored_in_bounded_memory() {
+    let n = 20_000;
+    let boxes: Vec<fusiondet_kitti::Object> = (0..n)
+        .map(|i| {
+            let (col, row) = ((i % 200) as f64, (i / 200) as f64);
+            let mut o = gt(
+                Car,
+                [col * 60.0, row * 60.0, col * 60.0 + 50.0, row * 60.0 + 50.0],
+            );
+            o.box3d.x = col * 10.0;
+            o.box3d.z = 10.0 + row * 10.0;
+            o
+        })
+        .collect();
+    let dets = boxes
+        .iter()
+        .enumerate()
+        .map(|(i, o)| fusiondet_kitti::Object {
+            score: Some(1.0 - i as f64 / n as f64),
+            ..o.clone()
+        })
+        .collect();
+    let r = eval1(boxes, dets);
+    assert_eq!(r.n_gt(Car), [n, n, n]);
+    assert_ap(&r, Car, Metric::ThreeD, [100.0; 3], [100.0; 3]);
+}

@@ -58,8 +58,14 @@ pub(crate) struct ClassFrame {
     pub det_ig: [Vec<i8>; 3],
     pub det_score: Vec<f64>,
     pub det_alpha: Vec<f64>,
-    /// Per measure (bbox, bev, 3d): overlap(det j, gt g) over the union at `g * n_det + j`.
-    pub ov: [Vec<f64>; 3],
+    /// The (detection, overlaps) pairs that overlap at all, grouped by ground-truth box in
+    /// detection order: ground-truth box g's are `pairs[pair_start[g]..pair_start[g + 1]]`,
+    /// each with its overlap over the union per measure (bbox, bev, 3d). Kept sparse, not
+    /// as an n_gt × n_det matrix: every pair left out has overlap 0 in every measure, which
+    /// no devkit branch selects (the minimum overlaps are positive), and a dense indoor
+    /// scene of 20,000 boxes a side would need gigabytes for the matrix.
+    pub pairs: Vec<(u32, [f64; 3])>,
+    pub pair_start: Vec<u32>,
     /// Per measure: the detection's largest overlap with a DontCare region, over its own area.
     pub dc: [Vec<f64>; 3],
 }
@@ -67,6 +73,10 @@ pub(crate) struct ClassFrame {
 impl ClassFrame {
     pub fn n_gt(&self) -> usize {
         self.gt_obj.len()
+    }
+    /// The overlapping (detection, overlaps) pairs of ground-truth box `g`, by detection.
+    pub fn pairs_of(&self, g: usize) -> &[(u32, [f64; 3])] {
+        &self.pairs[self.pair_start[g] as usize..self.pair_start[g + 1] as usize]
     }
     pub fn n_det(&self) -> usize {
         self.det_obj.len()
@@ -146,12 +156,29 @@ fn overlap(m: usize, det: &Object, other: &Object, norm: Normalization) -> f64 {
     }
 }
 
+/// The most overlapping (ground truth, detection) pairs one frame and class may hold: at
+/// 32 bytes a pair, about 1.6 GB. Only boxes piled on each other reach it.
+pub(crate) const MAX_PAIRS: usize = 50_000_000;
+
+/// Half the diagonal of a box's footprint: no footprint reaches further from its centre.
+fn footprint_radius(b: &fusiondet_geometry::Box3d) -> f64 {
+    0.5 * b.l.hypot(b.w)
+}
+
+/// Whether two boxes' footprints cannot intersect (their enclosing circles are apart), so
+/// that their bird's-eye and 3D overlaps are 0 without clipping polygons.
+fn footprints_apart(a: &fusiondet_geometry::Box3d, b: &fusiondet_geometry::Box3d) -> bool {
+    let reach = footprint_radius(a) + footprint_radius(b);
+    // The margin keeps the test conservative against rounding: it may only let pairs through.
+    (a.x - b.x).hypot(a.z - b.z) > reach * (1.0 + 1e-9) + 1e-9
+}
+
 fn prepare_class(
     gt: &[Object],
     det: &[Object],
     dontcare: &[&Object],
     class: ObjectClass,
-) -> ClassFrame {
+) -> Result<ClassFrame, usize> {
     let neighbour = neighbour_class(class);
     let mut cf = ClassFrame {
         gt_obj: Vec::new(),
@@ -161,7 +188,8 @@ fn prepare_class(
         det_ig: Default::default(),
         det_score: Vec::new(),
         det_alpha: Vec::new(),
-        ov: Default::default(),
+        pairs: Vec::new(),
+        pair_start: Vec::new(),
         dc: Default::default(),
     };
     for (i, o) in gt.iter().enumerate() {
@@ -198,27 +226,37 @@ fn prepare_class(
         cf.det_score.push(o.score.unwrap_or(f64::NEG_INFINITY));
         cf.det_alpha.push(o.alpha);
     }
-    let (ng, nd) = (cf.n_gt(), cf.n_det());
+    let nd = cf.n_det();
     for m in 0..3 {
-        cf.ov[m] = vec![0.0; ng * nd];
         cf.dc[m] = vec![0.0; nd];
     }
-    for (g, &gi) in cf.gt_obj.iter().enumerate() {
+    for &gi in &cf.gt_obj {
         let gobj = &gt[gi as usize];
+        cf.pair_start.push(cf.pairs.len() as u32);
         for (j, &dj) in cf.det_obj.iter().enumerate() {
             let dobj = &det[dj as usize];
-            let k = g * nd + j;
-            cf.ov[0][k] = overlap(0, dobj, gobj, Normalization::Union);
-            let bev = overlap(1, dobj, gobj, Normalization::Union);
-            cf.ov[1][k] = bev;
-            // No footprint intersection means no volume intersection either.
-            cf.ov[2][k] = if bev > 0.0 {
-                overlap(2, dobj, gobj, Normalization::Union)
+            let bbox = overlap(0, dobj, gobj, Normalization::Union);
+            let (bev, volume) = if footprints_apart(&dobj.box3d, &gobj.box3d) {
+                (0.0, 0.0)
             } else {
-                0.0
+                let bev = overlap(1, dobj, gobj, Normalization::Union);
+                // No footprint intersection means no volume intersection either.
+                let volume = if bev > 0.0 {
+                    overlap(2, dobj, gobj, Normalization::Union)
+                } else {
+                    0.0
+                };
+                (bev, volume)
             };
+            if bbox > 0.0 || bev > 0.0 || volume > 0.0 {
+                if cf.pairs.len() == MAX_PAIRS {
+                    return Err(cf.pairs.len());
+                }
+                cf.pairs.push((j as u32, [bbox, bev, volume]));
+            }
         }
     }
+    cf.pair_start.push(cf.pairs.len() as u32);
     for (j, &dj) in cf.det_obj.iter().enumerate() {
         let dobj = &det[dj as usize];
         for m in 0..3 {
@@ -228,11 +266,16 @@ fn prepare_class(
                 .fold(0.0, f64::max);
         }
     }
-    cf
+    Ok(cf)
 }
 
-/// Prepares every frame for every class (in parallel over frames).
-pub(crate) fn prepare(gt: &[FrameGt], det: &[FrameDet], classes: &[ObjectClass]) -> Prepared {
+/// Prepares every frame for every class (in parallel over frames). A frame whose boxes
+/// of one class overlap in more than [`MAX_PAIRS`] pairs is refused, naming it.
+pub(crate) fn prepare(
+    gt: &[FrameGt],
+    det: &[FrameDet],
+    classes: &[ObjectClass],
+) -> Result<Prepared, crate::EvalError> {
     let frames = gt
         .par_iter()
         .zip(det.par_iter())
@@ -244,11 +287,19 @@ pub(crate) fn prepare(gt: &[FrameGt], det: &[FrameDet], classes: &[ObjectClass])
                 .collect();
             classes
                 .iter()
-                .map(|&c| prepare_class(&g.objects, &d.objects, &dontcare, c))
+                .map(|&c| {
+                    prepare_class(&g.objects, &d.objects, &dontcare, c).map_err(|pairs| {
+                        crate::EvalError::TooManyOverlaps {
+                            frame: g.id.clone(),
+                            class: c.to_string(),
+                            pairs,
+                        }
+                    })
+                })
                 .collect()
         })
-        .collect();
-    Prepared { frames }
+        .collect::<Result<Vec<Vec<ClassFrame>>, _>>()?;
+    Ok(Prepared { frames })
 }
 
 /// Ground-truth status with the bin filter applied: out-of-bin boxes become ignored.
@@ -292,17 +343,18 @@ impl Scratch {
     /// influence the matching: it is simply a false positive (or not) on its own.
     fn build(&mut self, cf: &ClassFrame, task: &Task) {
         let nd = cf.n_det();
-        let ov = &cf.ov[task.overlap];
         self.cand.clear();
         self.cand_start.clear();
         self.is_cand.clear();
         self.is_cand.resize(nd, false);
         for g in 0..cf.n_gt() {
             self.cand_start.push(self.cand.len() as u32);
-            for (j, &o) in ov[g * nd..(g + 1) * nd].iter().enumerate() {
+            // Pairs left out of `pairs` overlap by 0, never above a (positive) minimum.
+            for &(j, ov) in cf.pairs_of(g) {
+                let o = ov[task.overlap];
                 if o > task.min_overlap {
-                    self.cand.push((j as u32, o));
-                    self.is_cand[j] = true;
+                    self.cand.push((j, o));
+                    self.is_cand[j as usize] = true;
                 }
             }
         }

@@ -38,6 +38,17 @@ pub enum EvalError {
     /// A class the benchmark does not evaluate, or an unknown class name.
     #[error("{0}")]
     Class(String),
+    /// One frame's boxes of one class are piled on each other beyond what fits in memory.
+    #[error(
+        "frame `{frame}`: its {class} ground truth and detections overlap in more than {pairs} \
+         pairs, more than one evaluation holds in memory; are the results of this frame \
+         duplicated many times over?"
+    )]
+    TooManyOverlaps {
+        frame: String,
+        class: String,
+        pairs: usize,
+    },
     /// Nothing to evaluate.
     #[error("no frames to evaluate: {0}")]
     NoFrames(String),

@@ -135,7 +135,7 @@ pub fn evaluate(
     };
     // AOS rows reuse the bbox matching (with similarity accumulated).
     let (tasks, rows) = tasks_for(cfg, metrics);
-    let prepared = engine::prepare(gt, det, &cfg.classes);
+    let prepared = engine::prepare(gt, det, &cfg.classes)?;
     let counts = engine::run(&prepared, &tasks, None, aos_computed);
     let results = rows
         .iter()

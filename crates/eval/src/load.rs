@@ -43,11 +43,12 @@ pub fn frame_ids(label_dir: &Path, split: Option<&Path>) -> Result<Vec<String>, 
 
 /// Reads a result file: `Ok(None)` if it does not exist; every line must have a score.
 pub fn read_result_file(path: &Path) -> Result<Option<Vec<fusiondet_kitti::Object>>, FormatError> {
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
+    match std::fs::symlink_metadata(path) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(FormatError::io(path, e)),
-    };
+        _ => {}
+    }
+    // Read as every reader reads: a pipe or a device in a result's place is refused.
+    let text = fusiondet_kitti::error::read_text(path)?;
     let objects = parse_objects(&text, path)?;
     if let Some(k) = objects.iter().position(|o| o.score.is_none()) {
         // parse_objects skips blank lines: object k is the k-th non-blank line.

@@ -255,7 +255,7 @@ fn optimised_engine_makes_the_devkits_decisions() {
     let classes = ObjectClass::EVALUATED;
     for seed in [1, 2, 3] {
         let (gt, det) = synthetic::generate(150, seed);
-        let prepared = engine::prepare(&gt, &det, &classes);
+        let prepared = engine::prepare(&gt, &det, &classes).unwrap();
         let mut tasks = vec![];
         for (ci, &class) in classes.iter().enumerate() {
             for setting in [OverlapSetting::STRICT, OverlapSetting::LOOSE] {

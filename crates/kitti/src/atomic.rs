@@ -93,9 +93,54 @@ pub fn try_lock_file(path: &Path) -> std::io::Result<Option<std::fs::File>> {
     }
 }
 
+/// The lock file that every command writing frames into a directory (detect's results,
+/// depth maps, pseudo points) holds while it writes.
+pub const WRITER_LOCK_FILE: &str = ".fusiondet.lock";
+
+/// A held writer lock on a directory ([`lock_dir`]); released when dropped.
+#[derive(Debug)]
+pub struct DirLock {
+    _file: std::fs::File,
+}
+
+/// Takes the writer lock of `dir` (which must exist): `shared` for one shard of a sharded
+/// run (shards of one run write disjoint frames side by side), exclusive otherwise. `None`
+/// when another writer holds it in a conflicting way: two runs never mix their files.
+pub fn lock_dir(dir: &Path, shared: bool) -> std::io::Result<Option<DirLock>> {
+    let file = std::fs::File::options()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(dir.join(WRITER_LOCK_FILE))?;
+    let taken = if shared {
+        file.try_lock_shared()
+    } else {
+        file.try_lock()
+    };
+    match taken {
+        Ok(()) => Ok(Some(DirLock { _file: file })),
+        Err(std::fs::TryLockError::WouldBlock) => Ok(None),
+        Err(std::fs::TryLockError::Error(e)) => Err(e),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn writers_of_one_directory_exclude_each_other_and_shards_share() {
+        let dir = tempfile::tempdir().unwrap();
+        let whole = lock_dir(dir.path(), false).unwrap().expect("free");
+        assert!(lock_dir(dir.path(), false).unwrap().is_none());
+        assert!(lock_dir(dir.path(), true).unwrap().is_none());
+        drop(whole);
+        let a = lock_dir(dir.path(), true).unwrap().expect("free");
+        let b = lock_dir(dir.path(), true).unwrap().expect("shards share");
+        assert!(lock_dir(dir.path(), false).unwrap().is_none());
+        drop((a, b));
+        assert!(lock_dir(dir.path(), false).unwrap().is_some());
+    }
 
     /// A written file is as readable as one `File::create` makes (not tempfile's 0600), so
     /// result files and pages can be shared or served.

@@ -40,10 +40,7 @@ impl DepthMap {
 
 /// Reads a depth PNG; anything but a 16-bit single-channel PNG is an error naming the file.
 pub fn read_depth_png(path: &Path) -> Result<DepthMap> {
-    let reader = image::ImageReader::open(path).map_err(|e| FormatError::io(path, e))?;
-    let decoded = reader
-        .with_guessed_format()
-        .map_err(|e| FormatError::io(path, e))?
+    let decoded = crate::image::image_reader(path)?
         .decode()
         .map_err(|e| FormatError::file(path, format!("cannot decode the PNG: {e}")))?;
     let image::DynamicImage::ImageLuma16(gray) = decoded else {

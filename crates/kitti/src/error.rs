@@ -78,11 +78,13 @@ pub const MAX_TEXT_BYTES: u64 = 256 << 20;
 /// The largest binary file a reader takes (a LiDAR scan is about 2 MB).
 pub const MAX_BINARY_BYTES: u64 = 1 << 30;
 
-/// Reads a whole regular file of at most `cap` bytes, naming the file on failure. A FIFO,
-/// a device (`/dev/zero`) or a directory is refused before reading: reading one would block
-/// or grow without bound.
-pub(crate) fn read_regular(path: &Path, cap: u64) -> Result<Vec<u8>> {
-    use std::io::Read;
+/// The largest image a reader takes (a KITTI PNG is under 1 MB; SUN RGB-D's JPEGs less).
+pub const MAX_IMAGE_BYTES: u64 = 64 << 20;
+
+/// Opens a regular file of at most `cap` bytes for reading, naming the file on failure. A
+/// FIFO, a device (`/dev/zero`, also through a link) or a directory is refused before it is
+/// opened: opening or reading one would block or grow without bound.
+pub fn open_regular(path: &Path, cap: u64) -> Result<(std::fs::File, u64)> {
     let meta = std::fs::metadata(path).map_err(|e| FormatError::io(path, e))?;
     if !meta.is_file() {
         return Err(FormatError::file(
@@ -100,7 +102,22 @@ pub(crate) fn read_regular(path: &Path, cap: u64) -> Result<Vec<u8>> {
         ));
     }
     let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    // The file opened may not be the one looked at (replaced in between): look again.
+    let opened = file.metadata().map_err(|e| FormatError::io(path, e))?;
+    if !opened.is_file() || opened.len() > cap {
+        return Err(FormatError::file(
+            path,
+            "changed while it was opened (now not a regular file within its size cap)",
+        ));
+    }
+    Ok((file, opened.len()))
+}
+
+/// Reads a whole regular file of at most `cap` bytes (see [`open_regular`]).
+pub fn read_regular(path: &Path, cap: u64) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let (file, len) = open_regular(path, cap)?;
+    let mut bytes = Vec::with_capacity(len as usize);
     // `take` guards against a file that grows while it is read.
     file.take(cap + 1)
         .read_to_end(&mut bytes)
@@ -114,10 +131,15 @@ pub(crate) fn read_regular(path: &Path, cap: u64) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
-/// Reads a whole text file, naming the file on failure.
-pub(crate) fn read_text(path: &Path) -> Result<String> {
-    String::from_utf8(read_regular(path, MAX_TEXT_BYTES)?).map_err(|e| {
+/// Reads a whole text file, naming the file on failure. A UTF-8 byte-order mark (which
+/// some editors add) is dropped, so that it does not become part of the first field.
+pub fn read_text(path: &Path) -> Result<String> {
+    let text = String::from_utf8(read_regular(path, MAX_TEXT_BYTES)?).map_err(|e| {
         FormatError::file(path, format!("not UTF-8 text ({e}); is it the right file?"))
+    })?;
+    Ok(match text.strip_prefix('\u{feff}') {
+        Some(rest) => rest.to_string(),
+        None => text,
     })
 }
 

@@ -1,17 +1,30 @@
 //! `image_2/NNNNNN.png`: the left colour camera image.
 
-use crate::error::{FormatError, Result};
+use crate::error::{FormatError, MAX_IMAGE_BYTES, Result, read_regular};
 use image::RgbImage;
 use std::path::Path;
 
 pub fn read_image(path: &Path) -> Result<RgbImage> {
-    let reader = image::ImageReader::open(path).map_err(|e| FormatError::io(path, e))?;
-    let img = reader
-        .with_guessed_format()
-        .map_err(|e| FormatError::io(path, e))?
+    let img = image_reader(path)?
         .decode()
         .map_err(|e| FormatError::file(path, format!("cannot decode image: {e}")))?;
     Ok(img.to_rgb8())
+}
+
+/// A reader over an image file's bytes, read whole as a regular file within
+/// [`MAX_IMAGE_BYTES`] (a pipe or device in the image's place is refused, never waited on).
+pub fn image_reader(path: &Path) -> Result<image::ImageReader<std::io::Cursor<Vec<u8>>>> {
+    let bytes = read_regular(path, MAX_IMAGE_BYTES)?;
+    image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| FormatError::io(path, e))
+}
+
+/// Width and height from an image file's header, read as [`image_reader`] reads.
+pub fn image_size(path: &Path) -> Result<(u32, u32)> {
+    image_reader(path)?
+        .into_dimensions()
+        .map_err(|e| FormatError::file(path, format!("cannot read the image's size: {e}")))
 }
 
 /// Encodes `image` as PNG and writes it atomically.

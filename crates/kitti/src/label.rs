@@ -148,6 +148,22 @@ pub fn parse_objects(text: &str, path: &Path) -> Result<Vec<Object>> {
                 format!("`{}` is not one of -1, 0, 1, 2, 3", cols[2]),
             ));
         }
+        // A box of negative size has no volume to overlap: evaluation would match it in
+        // bird's-eye view but never in 3D, and a database would store it. Only DontCare
+        // regions carry KITTI's -1 placeholders.
+        if class != ObjectClass::DontCare
+            && let Some(k) = (8..=10).find(|&k| num[k] < 0.0)
+        {
+            return Err(FormatError::field(
+                path,
+                line_no,
+                FIELDS[k],
+                format!(
+                    "`{}` is negative; a box's height, width and length are sizes in metres (≥ 0)",
+                    cols[k]
+                ),
+            ));
+        }
         objects.push(Object {
             class,
             truncation: num[1],
@@ -228,6 +244,25 @@ fn first_non_finite_field(o: &Object) -> Option<(&'static str, f64)> {
         .chain(box_fields(o))
         .chain(o.score.map(|v| ("score", v)))
         .find(|(_, v)| !v.is_finite())
+}
+
+#[cfg(test)]
+mod negative_size_tests {
+    use super::*;
+
+    #[test]
+    fn negative_sizes_are_refused_except_for_dont_care() {
+        let path = Path::new("r/000001.txt");
+        let line = |h: &str| format!("Car 0 0 0 0 0 10 10 {h} 1.6 3.9 1 1.5 10 0 0.9\n");
+        let err = parse_objects(&line("-1.5"), path).unwrap_err().to_string();
+        assert!(err.contains("r/000001.txt:1: field `height`"), "{err}");
+        parse_objects(&line("1.5"), path).unwrap();
+        parse_objects(
+            "DontCare -1 -1 -10 503 169 590 190 -1 -1 -1 -1000 -1000 -1000 -10\n",
+            path,
+        )
+        .unwrap();
+    }
 }
 
 #[cfg(test)]

@@ -62,6 +62,19 @@ pub fn frame_id(index: usize) -> String {
     format!("{index:06}")
 }
 
+/// A frame id as a user gives it (`4`, `000004`): digits only, zero-padded to KITTI's six,
+/// so that every command names a frame the same way; anything else (`../evil`, `4.bin`) is
+/// refused before it can become part of a path.
+pub fn parse_frame_id(text: &str) -> std::result::Result<String, String> {
+    let id = text.trim();
+    if id.is_empty() || id.len() > 10 || !id.bytes().all(|b| b.is_ascii_digit()) {
+        return Err(format!(
+            "`{text}` is not a frame id (digits only, e.g. 4 or 000004)"
+        ));
+    }
+    Ok(format!("{id:0>6}"))
+}
+
 /// Lists the frame ids present in a directory (files `NNNNNN.<ext>`), sorted.
 pub fn list_frame_ids(dir: &Path, ext: &str) -> std::io::Result<Vec<String>> {
     let mut ids = Vec::new();
@@ -78,4 +91,19 @@ pub fn list_frame_ids(dir: &Path, ext: &str) -> std::io::Result<Vec<String>> {
     }
     ids.sort();
     Ok(ids)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_frame_id;
+
+    #[test]
+    fn frame_ids_are_digits_padded_to_six() {
+        assert_eq!(parse_frame_id("4").unwrap(), "000004");
+        assert_eq!(parse_frame_id("000004").unwrap(), "000004");
+        assert_eq!(parse_frame_id("1234567").unwrap(), "1234567");
+        for bad in ["", "../evil", "4.bin", "-1", "00/1", "12345678901"] {
+            assert!(parse_frame_id(bad).is_err(), "{bad}");
+        }
+    }
 }

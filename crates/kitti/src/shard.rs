@@ -115,6 +115,27 @@ pub fn fingerprint(parts: &[&[u8]]) -> String {
         .collect()
 }
 
+/// What a run reads of each frame, for its fingerprint: every file's size (`-` where it is
+/// missing) and every small text file's bytes (calibrations). Shards that read two
+/// different data sets through the same split and 2D detections then never share a
+/// directory, while looking at the files costs one `stat` each (a scan is not read whole).
+pub fn frame_inputs_summary(files: impl IntoIterator<Item = std::path::PathBuf>) -> Vec<u8> {
+    let mut summary = Vec::new();
+    for path in files {
+        match std::fs::metadata(&path) {
+            Ok(meta) => {
+                summary.extend_from_slice(format!("{}\n", meta.len()).as_bytes());
+                let small_text = path.extension().is_some_and(|e| e == "txt") && meta.len() < 4096;
+                if small_text && let Ok(bytes) = crate::error::read_regular(&path, 4096) {
+                    summary.extend_from_slice(&bytes);
+                }
+            }
+            Err(_) => summary.extend_from_slice(b"-\n"),
+        }
+    }
+    summary
+}
+
 /// Writes a shard record atomically (creating the records folder).
 pub fn write_record(dir: &Path, record: &ShardRecord) -> Result<()> {
     let folder = shards_dir(dir);
@@ -447,6 +468,24 @@ mod tests {
         .unwrap();
         let err = run_records(dir.path(), "detect").unwrap_err().to_string();
         assert!(err.contains("two different `detect` runs"), "{err}");
+    }
+
+    #[test]
+    fn frame_summaries_tell_data_sets_apart() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+        for (root, scan, calib) in [(&a, 10, "P2: 1"), (&b, 12, "P2: 2")] {
+            std::fs::create_dir_all(root).unwrap();
+            std::fs::write(root.join("000001.bin"), vec![0u8; scan]).unwrap();
+            std::fs::write(root.join("000001.txt"), calib).unwrap();
+        }
+        let of =
+            |root: &Path| frame_inputs_summary([root.join("000001.bin"), root.join("000001.txt")]);
+        assert_ne!(of(&a), of(&b));
+        std::fs::write(b.join("000001.bin"), vec![1u8; 10]).unwrap();
+        std::fs::write(b.join("000001.txt"), "P2: 1").unwrap();
+        assert_eq!(of(&a), of(&b));
+        assert_ne!(of(&a), frame_inputs_summary([a.join("missing.bin")]));
     }
 
     #[test]

@@ -174,7 +174,24 @@ pub fn first_non_finite_parameter<M: Module>(module: &M) -> Option<String> {
 }
 
 /// The configuration (JSON) stored in a checkpoint of family `kind`; refuses other families.
+/// Refuses a checkpoint path that is no regular file within the binary size cap (a pipe or
+/// a device would hang or flood the reader), before any reader opens it.
+fn check_checkpoint_file(path: &Path) -> Result<(), ModelError> {
+    fusiondet_kitti::error::open_regular(path, fusiondet_kitti::error::MAX_BINARY_BYTES)
+        .map(drop)
+        .map_err(|e| {
+            // The message without the path, which `ckpt_err` names once.
+            let message = match e {
+                fusiondet_kitti::FormatError::Io { source, .. } => source.to_string(),
+                fusiondet_kitti::FormatError::File { message, .. } => message,
+                other => other.to_string(),
+            };
+            ckpt_err(path, message)
+        })
+}
+
 pub(crate) fn read_tagged_config(path: &Path, kind: DetectorKind) -> Result<String, ModelError> {
+    check_checkpoint_file(path)?;
     let reader =
         Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
     let meta = reader.metadata();
@@ -192,6 +209,7 @@ pub(crate) fn read_tagged_config(path: &Path, kind: DetectorKind) -> Result<Stri
 
 /// Loads the weights of `path` into `model`, refusing a file with tensors it lacks.
 pub(crate) fn load_weights<M: ModuleSnapshot>(mut model: M, path: &Path) -> Result<M, ModelError> {
+    check_checkpoint_file(path)?;
     let mut store = BurnpackStore::from_file(path).auto_extension(false);
     let result = model
         .load_from(&mut store)
@@ -269,6 +287,7 @@ where
 
 /// The family a checkpoint belongs to, from its metadata.
 pub fn read_checkpoint_kind(path: &Path) -> Result<DetectorKind, ModelError> {
+    check_checkpoint_file(path)?;
     let reader =
         Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
     kind_of(path, reader.metadata())

@@ -388,10 +388,9 @@ impl ExperimentConfig {
     }
 
     pub fn from_file(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| PipelineError::Config {
-            path: path.to_path_buf(),
-            message: format!("cannot read: {e}"),
-        })?;
+        // Read as every reader reads (a pipe or device is refused, not waited on); the
+        // error names the file.
+        let text = fusiondet_kitti::error::read_text(path)?;
         Self::from_toml_str(&text, path)
     }
 
@@ -884,6 +883,64 @@ mod tests {
             ),
         ] {
             let err = ExperimentConfig::from_toml_str(&with_kind(toml), Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(says), "{toml}: {err}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod size_ranges {
+    use super::*;
+
+    /// Sizes that would make an allocation fail (the process aborting) or a value no
+    /// schedule can use are refused with their key, before anything is allocated.
+    #[test]
+    fn voxel_family_sizes_are_bounded_before_allocation() {
+        let level = |samples: &str, radius: &str| {
+            format!(
+                "[[voxel_rcnn.network.roi.levels]]\nstage = 2\nmid_channels = 32\n\
+                 out_channels = 32\nquery_range = [4, 4, 4]\nradius = {radius}\n\
+                 samples = {samples}\n"
+            )
+        };
+        for (kind, toml, says) in [
+            (
+                "voxel_rcnn",
+                "[voxel_rcnn.network.roi]\ngrid_size = 100000\n".to_string(),
+                "grid_size 100000 must be at most 32",
+            ),
+            (
+                "voxel_rcnn",
+                "[voxel_rcnn.roi_targets]\nrois_per_frame = 1000000000\n".to_string(),
+                "`rois_per_frame` 1000000000 must be in 1..=4096",
+            ),
+            (
+                "voxel_rcnn",
+                "[voxel_rcnn.voxels]\nvoxel_size = [1e-4, 1e-4, 1e-4]\n".to_string(),
+                "at most 8192 are allowed",
+            ),
+            (
+                "voxel_rcnn",
+                level("1000000000", "0.4"),
+                "samples at most 1024",
+            ),
+            ("voxel_rcnn", level("16", "nan"), "radius NaN"),
+            (
+                "dasanet",
+                "[dasanet.modules.stca_shape]\ngrid = 100000\n".to_string(),
+                "grid must be in 2..=32",
+            ),
+            (
+                "voxel_rcnn",
+                "[train]\none_cycle = { max_lr = 1e30, div_factor = 10.0, pct_start = 0.4 }\n"
+                    .to_string(),
+                "max_lr in (0, 10]",
+            ),
+        ] {
+            let text = format!("[detector]\nkind = \"{kind}\"\n{toml}");
+            let err = ExperimentConfig::from_toml_str(&text, Path::new("c.toml"))
                 .unwrap_err()
                 .to_string();
             assert!(err.contains(says), "{toml}: {err}");

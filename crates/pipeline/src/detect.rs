@@ -11,6 +11,7 @@ use crate::voxel_rcnn::VoxelRcnnDetector;
 use burn::prelude::*;
 use fusiondet_dataset::SensorFrame;
 use fusiondet_frustum::{FrameSource, InMemoryFrames, SkipCounts};
+use fusiondet_kitti::atomic::DirLock;
 use fusiondet_kitti::shard::{self, ShardRecord};
 use fusiondet_kitti::{
     DatasetDir, Detection2d, Object, ResultsManifest, Shard, read_detections2d, read_manifest,
@@ -390,7 +391,7 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
         return crate::frustum::indoor::detect_scenes(options, chunk_frames);
     }
     // Before anything is loaded: a refused --out should not cost a model load.
-    refuse_input_dir(&options.out_dir, &options.data_dir)?;
+    refuse_input_dir(options)?;
     if options.shard.is_none() {
         check_result_dir(&options.out_dir, options.replace)?;
     }
@@ -468,7 +469,8 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
 }
 
 /// What defines a sharded detect run, so that shards of different runs never share a
-/// result directory: the weights, the configuration, the split and its 2D detections,
+/// result directory: the weights, the configuration, the split, what its frames' files
+/// are ([`shard::frame_inputs_summary`]) and its 2D detections,
 /// the completed depth maps' folder and the shard count.
 fn run_fingerprint(
     options: &DetectOptions,
@@ -476,8 +478,16 @@ fn run_fingerprint(
     detections: &[Detection2d],
     shard: Shard,
 ) -> Result<String> {
-    let weights = std::fs::read(&options.checkpoint)
-        .map_err(|e| fusiondet_kitti::FormatError::io(&options.checkpoint, e))?;
+    let weights = fusiondet_kitti::error::read_regular(
+        &options.checkpoint,
+        fusiondet_kitti::error::MAX_BINARY_BYTES,
+    )?;
+    let frames = fusiondet_kitti::FrameDir::new(options.data_dir.join("training"));
+    let frames_summary = shard::frame_inputs_summary(
+        split_ids
+            .iter()
+            .flat_map(|id| [frames.velodyne(id), frames.image(id), frames.calib(id)]),
+    );
     let depth_dir = options
         .depth_dir
         .as_ref()
@@ -488,6 +498,7 @@ fn run_fingerprint(
         &weights,
         options.config.to_toml_string().as_bytes(),
         split_ids.join("\n").as_bytes(),
+        &frames_summary,
         format!("{detections:?}").as_bytes(),
         depth_dir.as_bytes(),
         shard.count.to_string().as_bytes(),
@@ -531,27 +542,18 @@ fn out_err(path: &Path, message: impl Into<String>) -> PipelineError {
     }
 }
 
-/// Refuses a result directory inside the data set's `training/` or `testing/` folders:
-/// results written there would overwrite its labels (`--out DATA/training/label_2`).
-pub(crate) fn refuse_input_dir(out_dir: &Path, data_dir: &Path) -> Result<()> {
-    // The nearest existing ancestor stands for a directory not made yet.
-    let existing = out_dir.ancestors().find(|a| a.exists()).unwrap_or(out_dir);
-    let (Ok(out), Ok(data)) = (existing.canonicalize(), data_dir.canonicalize()) else {
-        return Ok(());
-    };
-    for inputs in ["training", "testing"].map(|d| data.join(d)) {
-        if out.starts_with(&inputs) {
-            return Err(out_err(
-                out_dir,
-                format!(
-                    "is inside the data set's {} folder: results there would overwrite its \
-                     inputs; choose an --out outside it",
-                    inputs.display()
-                ),
-            ));
-        }
-    }
-    Ok(())
+/// Refuses a result directory that is, lies inside or contains anything detect reads: the
+/// data set (`--out DATA/training/label_2` would overwrite its labels), the checkpoint, the
+/// 2D detections, the completed depth maps (see [`fusiondet_kitti::paths`]).
+pub(crate) fn refuse_input_dir(options: &DetectOptions) -> Result<()> {
+    use fusiondet_kitti::paths::{Inputs, check_output_dir};
+    let inputs = Inputs::new()
+        .with("--data", Some(&options.data_dir))
+        .with("--checkpoint", Some(&options.checkpoint))
+        .with("--detections", options.detections.as_deref())
+        .with("--depth-dir", options.depth_dir.as_deref());
+    check_output_dir("--out", &options.out_dir, &inputs)
+        .map_err(|e| PipelineError::Invalid(e.to_string()))
 }
 
 /// A result directory must be new, empty, or an earlier detect's: one that finished only
@@ -569,10 +571,12 @@ pub fn check_result_dir(out_dir: &Path, replace: bool) -> Result<()> {
     let sharded = shard::read_records(out_dir)?
         .iter()
         .any(|r| r.command == DETECT);
-    // The records folder alone is what a shard starting here makes first.
-    let others = entries
-        .flatten()
-        .any(|e| e.file_name() != shard::SHARDS_DIR);
+    // The records folder and the writer lock alone are what a shard starting here makes
+    // first.
+    let others = entries.flatten().any(|e| {
+        e.file_name() != shard::SHARDS_DIR
+            && e.file_name() != fusiondet_kitti::atomic::WRITER_LOCK_FILE
+    });
     if !others && !sharded {
         return Ok(());
     }
@@ -643,6 +647,8 @@ fn remove_if_present(path: &Path) -> Result<()> {
 pub struct ResultWriter {
     out_dir: PathBuf,
     manifest: ResultsManifest,
+    /// Held until the writer is dropped: a second detect into the same directory is refused.
+    _lock: DirLock,
 }
 
 impl ResultWriter {
@@ -652,6 +658,9 @@ impl ResultWriter {
         check_result_dir(out_dir, replace)?;
         std::fs::create_dir_all(out_dir)
             .map_err(|e| out_err(out_dir, format!("cannot create the result directory: {e}")))?;
+        let lock = lock_results(out_dir, false)?;
+        // Again under the lock: another detect may have begun since the first look.
+        check_result_dir(out_dir, replace)?;
         // Temporary files that killed writes of detect's own files left behind.
         fusiondet_kitti::atomic::remove_temp_files(out_dir, is_result_file);
         remove_earlier_results(out_dir)?;
@@ -663,6 +672,7 @@ impl ResultWriter {
         Ok(ResultWriter {
             out_dir: out_dir.to_path_buf(),
             manifest,
+            _lock: lock,
         })
     }
 
@@ -686,6 +696,19 @@ impl ResultWriter {
     }
 }
 
+/// Takes the result directory's writer lock ([`fusiondet_kitti::atomic::lock_dir`]).
+fn lock_results(out_dir: &Path, shared: bool) -> Result<DirLock> {
+    fusiondet_kitti::atomic::lock_dir(out_dir, shared)
+        .map_err(|e| out_err(out_dir, format!("cannot lock the result directory: {e}")))?
+        .ok_or_else(|| {
+            out_err(
+                out_dir,
+                "another detect is writing into this directory now; wait for it to end, or \
+                 choose another --out",
+            )
+        })
+}
+
 /// The command name in a result directory's shard records.
 const DETECT: &str = "detect";
 
@@ -695,6 +718,9 @@ const DETECT: &str = "detect";
 pub struct ShardWriter {
     out_dir: PathBuf,
     record: ShardRecord,
+    /// Shared with the other shards of the run, held until the writer is dropped: an
+    /// unsharded detect into the same directory meanwhile is refused.
+    _lock: DirLock,
 }
 
 impl ShardWriter {
@@ -711,6 +737,7 @@ impl ShardWriter {
     ) -> Result<ShardWriter> {
         std::fs::create_dir_all(out_dir)
             .map_err(|e| out_err(out_dir, format!("cannot create the result directory: {e}")))?;
+        let writer_lock = lock_results(out_dir, true)?;
         // Shards starting together take turns to look at and prepare the directory.
         let _lock = shard::lock_records(out_dir)?;
         let earlier = shard::run_records(out_dir, DETECT);
@@ -743,6 +770,7 @@ impl ShardWriter {
         Ok(ShardWriter {
             out_dir: out_dir.to_path_buf(),
             record,
+            _lock: writer_lock,
         })
     }
 

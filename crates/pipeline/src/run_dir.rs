@@ -29,6 +29,18 @@ pub struct RunState {
     /// Relative to the run directory.
     pub model: String,
     pub optimizer: String,
+    /// A checksum of the optimizer file's bytes ([`file_checksum`]), so that a damaged
+    /// optimizer state is refused on resume as damaged weights are (absent in runs
+    /// written before it was kept).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub optimizer_checksum: Option<String>,
+}
+
+/// A checksum of a file's bytes: 16 hex digits of SHA-256.
+pub fn file_checksum(path: &Path) -> Result<String> {
+    let bytes =
+        fusiondet_kitti::error::read_regular(path, fusiondet_kitti::error::MAX_BINARY_BYTES)?;
+    Ok(fusiondet_kitti::shard::fingerprint(&[&bytes]))
 }
 
 #[derive(Debug, Clone)]
@@ -116,8 +128,7 @@ impl RunDir {
             .map_err(|e| self.err(&self.root, format!("cannot create: {e}")))?;
         self.remove_stale_temp_files();
         if resume && self.config().exists() {
-            let stored = std::fs::read_to_string(self.config())
-                .map_err(|e| self.err(&self.config(), format!("cannot read: {e}")))?;
+            let stored = fusiondet_kitti::error::read_text(&self.config())?;
             if !compatible(&stored) {
                 return Err(self.err(
                     &self.config(),
@@ -129,8 +140,7 @@ impl RunDir {
         if !resume || !self.state().exists() {
             return Ok((lock, None));
         }
-        let text = std::fs::read_to_string(self.state())
-            .map_err(|e| self.err(&self.state(), format!("cannot read: {e}")))?;
+        let text = fusiondet_kitti::error::read_text(&self.state())?;
         let state: RunState = serde_json::from_str(&text).map_err(|e| {
             self.err(
                 &self.state(),
@@ -140,6 +150,20 @@ impl RunDir {
         for file in [&state.model, &state.optimizer] {
             if !self.root.join(file).is_file() {
                 return Err(self.err(&self.root.join(file), "named by state.json but missing"));
+            }
+        }
+        if let Some(stored) = &state.optimizer_checksum {
+            let path = self.root.join(&state.optimizer);
+            let found = file_checksum(&path)?;
+            if found != *stored {
+                return Err(self.err(
+                    &path,
+                    format!(
+                        "the optimizer state is damaged (its checksum is {found}, the run wrote \
+                         {stored}); restore the file, or resume from an earlier epoch by \
+                         starting a new run"
+                    ),
+                ));
             }
         }
         Ok((lock, Some(state)))
@@ -243,15 +267,28 @@ mod tests {
         }
         let users = run.checkpoints().join("best.bpk");
         std::fs::write(&users, b"a copy the user made").unwrap();
+        let optimizer = run.root.join(run.epoch_optimizer(2));
         let state = RunState {
             epochs_done: 2,
             model: run.epoch_model(2),
             optimizer: run.epoch_optimizer(2),
+            optimizer_checksum: Some(file_checksum(&optimizer).unwrap()),
         };
         run.commit(&state).unwrap();
         assert_eq!(std::fs::read_dir(run.checkpoints()).unwrap().count(), 3);
         assert!(users.is_file());
-        assert_eq!(run.open("x\n", true, &|_| true).unwrap().1, Some(state));
+        assert_eq!(
+            run.open("x\n", true, &|_| true).unwrap().1,
+            Some(state.clone())
+        );
+        // A flipped bit in the optimizer state is refused on resume, naming the file.
+        std::fs::write(&optimizer, b"O").unwrap();
+        let err = run.open("x\n", true, &|_| true).unwrap_err().to_string();
+        assert!(
+            err.contains("optimizer state is damaged") && err.contains("epoch-0002.optim.bpk"),
+            "{err}"
+        );
+        std::fs::write(&optimizer, b"o").unwrap();
         std::fs::remove_file(run.root.join(run.epoch_optimizer(2))).unwrap();
         let err = run.open("x\n", true, &|_| true).unwrap_err().to_string();
         assert!(err.contains("missing"), "{err}");

@@ -73,16 +73,20 @@ impl OneCycle {
     }
 
     pub fn validate(&self) -> Result<(), String> {
+        // NaN fails every test; a rate above 10 would only diverge.
         let ok = self.max_lr > 0.0
+            && self.max_lr <= 10.0
             && self.div_factor >= 1.0
+            && self.div_factor <= 1e6
             && self.final_div_factor >= 1.0
+            && self.final_div_factor <= 1e9
             && (0.0..1.0).contains(&self.pct_start);
         if ok {
             Ok(())
         } else {
             Err(format!(
-                "train.one_cycle {self:?}: needs max_lr > 0, div_factor and final_div_factor ≥ 1, \
-                 pct_start in [0, 1)"
+                "train.one_cycle {self:?}: needs max_lr in (0, 10], div_factor in [1, 1e6], \
+                 final_div_factor in [1, 1e9], pct_start in [0, 1)"
             ))
         }
     }

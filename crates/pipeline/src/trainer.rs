@@ -287,10 +287,11 @@ pub fn run_training<T: TrainingTask>(
         model = slot.expect("the model is put back after every step");
 
         let done = epoch + 1;
-        let state = RunState {
+        let mut state = RunState {
             epochs_done: done,
             model: run.epoch_model(done),
             optimizer: run.epoch_optimizer(done),
+            optimizer_checksum: None,
         };
         task.save_model(&model, &run.root.join(&state.model))?;
         optim
@@ -300,6 +301,9 @@ pub fn run_training<T: TrainingTask>(
                 path: run.root.join(&state.optimizer),
                 message: format!("cannot write the optimizer state: {e}"),
             })?;
+        state.optimizer_checksum = Some(crate::run_dir::file_checksum(
+            &run.root.join(&state.optimizer),
+        )?);
         task.save_inference_model(&model, &run.model())?;
 
         // The metrics line goes first and the state commit last: a kill between the two

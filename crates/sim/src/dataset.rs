@@ -382,19 +382,27 @@ mod tests {
         .unwrap();
         std::fs::write(root.join("training/velodyne/notes.txt"), b"mine").unwrap();
         std::fs::write(root.join("keep.txt"), b"mine").unwrap();
-        // A linked label folder leads outside: its files stay.
-        let outside = tempfile::tempdir().unwrap();
-        std::fs::write(outside.path().join("000001.txt"), b"real labels").unwrap();
-        #[cfg(unix)]
-        std::os::unix::fs::symlink(outside.path(), root.join("training/label_2")).unwrap();
         let mut o = opts(root, 1);
         o.force = true;
+        // A linked label folder leads outside: the run is refused and nothing is removed,
+        // here or there.
+        #[cfg(unix)]
+        {
+            let outside = tempfile::tempdir().unwrap();
+            std::fs::write(outside.path().join("000001.txt"), b"real labels").unwrap();
+            let link = root.join("training/label_2");
+            std::os::unix::fs::symlink(outside.path(), &link).unwrap();
+            let err = prepare_dir(&o).err().expect("refused").to_string();
+            assert!(err.contains("is a symbolic link"), "{err}");
+            assert!(outside.path().join("000001.txt").exists());
+            assert!(root.join("training/velodyne/000007.bin").exists());
+            std::fs::remove_file(&link).unwrap();
+        }
         drop(prepare_dir(&o).unwrap());
         assert!(!root.join("training/velodyne/000007.bin").exists());
         assert!(root.join("training/velodyne/000012.bin").exists());
         assert!(root.join("training/velodyne/notes.txt").exists());
         assert!(root.join("keep.txt").exists());
-        assert!(outside.path().join("000001.txt").exists());
         assert!(root.join("training/image_2").is_dir());
         assert_eq!(read_marker(root), Some(1));
     }

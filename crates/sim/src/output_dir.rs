@@ -67,6 +67,7 @@ pub(crate) fn claim(
             earlier_frames = Some(frames);
         }
     }
+    refuse_linked_folders(root)?;
     std::fs::create_dir_all(root).map_err(io_err(root))?;
     let lock_path = root.join(LOCK_FILE);
     let Some(lock) =
@@ -81,6 +82,21 @@ pub(crate) fn claim(
         lock,
         earlier_frames,
     })
+}
+
+/// Refuses an output directory with a folder inside that is a symbolic link (`training` ->
+/// someone's data set): every frame would be written, and `--force` would remove files,
+/// outside the directory.
+pub(crate) fn refuse_linked_folders(root: &Path) -> Result<(), SimError> {
+    match fusiondet_kitti::paths::linked_folder_below(root, 3) {
+        Some(link) => Err(SimError::InvalidArgument(format!(
+            "{}: is a symbolic link to {}; a simulator writes only inside its own output \
+             directory: remove the link or choose another directory",
+            link.display(),
+            fusiondet_kitti::paths::resolve(&link).display()
+        ))),
+        None => Ok(()),
+    }
 }
 
 /// Is `name` `<6 digits>.<ext>`, a file of a frame below `frames`? Returns the extension

@@ -101,6 +101,7 @@ fn prepare_shard_dir(
             root.display()
         )));
     }
+    crate::output_dir::refuse_linked_folders(root)?;
     std::fs::create_dir_all(root).map_err(io_err(root))?;
     // Shards starting together take turns to look at and prepare the directory.
     let _lock = shard::lock_records(root)?;

@@ -1,51 +1,11 @@
-//! Reading whole files the way the `kitti` readers do (regular files only, within a size
-//! cap), and the one number parser every text reader uses. The `kitti` crate keeps its own
-//! helpers private, so the few lines are repeated here rather than widening its API.
+//! Reading whole files the way the `kitti` readers do (its `read_regular` and `read_text`:
+//! regular files only, within a size cap, a byte-order mark dropped), and the one number
+//! parser every text reader uses.
 
 use fusiondet_kitti::{FormatError, Result};
 use std::path::Path;
 
-pub(crate) use fusiondet_kitti::error::{MAX_BINARY_BYTES, MAX_TEXT_BYTES};
-
-/// Reads a whole regular file of at most `cap` bytes. A FIFO, a device or a directory is
-/// refused before reading: reading one would block or grow without bound.
-pub(crate) fn read_regular(path: &Path, cap: u64) -> Result<Vec<u8>> {
-    use std::io::Read;
-    let meta = std::fs::metadata(path).map_err(|e| FormatError::io(path, e))?;
-    if !meta.is_file() {
-        return Err(FormatError::file(
-            path,
-            "not a regular file (a directory, pipe or device); give the file itself",
-        ));
-    }
-    if meta.len() > cap {
-        return Err(FormatError::file(
-            path,
-            format!(
-                "{} bytes is more than such a file can hold ({cap} at most)",
-                meta.len()
-            ),
-        ));
-    }
-    let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    file.take(cap + 1)
-        .read_to_end(&mut bytes)
-        .map_err(|e| FormatError::io(path, e))?;
-    if bytes.len() as u64 > cap {
-        return Err(FormatError::file(
-            path,
-            "grew beyond its size cap while read",
-        ));
-    }
-    Ok(bytes)
-}
-
-pub(crate) fn read_text(path: &Path) -> Result<String> {
-    String::from_utf8(read_regular(path, MAX_TEXT_BYTES)?).map_err(|e| {
-        FormatError::file(path, format!("not UTF-8 text ({e}); is it the right file?"))
-    })
-}
+pub(crate) use fusiondet_kitti::error::{MAX_BINARY_BYTES, read_regular, read_text};
 
 /// Parses one finite number: NaN and infinities would break every IoU and projection later.
 pub(crate) fn parse_finite(path: &Path, line: usize, field: &str, text: &str) -> Result<f64> {

@@ -390,6 +390,19 @@ bed -0.013872 2.993747 -0.561364 2.292754 1.5798 1.277272 -1.1051997599457748 17
         assert!(objects.iter().all(|o| o.score.is_none()));
     }
 
+    /// A byte-order mark (some editors write one) is not part of the first class name:
+    /// the first box is read, not dropped.
+    #[test]
+    fn a_byte_order_mark_does_not_drop_the_first_box() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("000001.txt");
+        let first = GT.lines().find(|l| !l.starts_with('#')).unwrap();
+        std::fs::write(&path, format!("\u{feff}{first}\n")).unwrap();
+        let objects = read_labels(&path).unwrap();
+        assert_eq!(objects.len(), 1);
+        assert_eq!(objects[0].sun_class(), Some(SunClass::NightStand));
+    }
+
     #[test]
     fn labels_and_results_round_trip_bit_for_bit() {
         let dir = tempfile::tempdir().unwrap();

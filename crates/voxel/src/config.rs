@@ -19,6 +19,15 @@ fn finite_in(name: &str, value: f64, lo: f64, hi: f64) -> Result<()> {
     Ok(())
 }
 
+/// Bounds on the sizes the configuration sets, so that a mistyped value is refused with its
+/// key instead of exhausting memory: far above the published configurations (1,408 × 1,600
+/// × 40 voxels, 16,000 / 40,000 voxels, 5 points each, 128 RoIs).
+pub const MAX_GRID_CELLS_PER_AXIS: usize = 8192;
+pub const MAX_BEV_CELLS: usize = 1 << 24;
+pub const MAX_VOXELS: usize = 2_000_000;
+pub const MAX_POINTS_PER_VOXEL: usize = 256;
+pub const MAX_ROIS_PER_FRAME: usize = 4096;
+
 /// The point-cloud range and the voxel grid.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -103,17 +112,37 @@ impl VoxelConfig {
                      whole number of voxels ({n}); change the range or the size"
                 ));
             }
-            if n.round() > i32::MAX as f64 {
+            // Every dense map (the BEV, the anchors) is sized by the grid: bounded before
+            // anything is allocated from it.
+            if n.round() > MAX_GRID_CELLS_PER_AXIS as f64 {
                 return bad(format!(
-                    "{axis}: {n} voxels are too many for i32 coordinates"
+                    "`voxel_size` {axis} {size} makes {n:.0} voxels along {axis} over [{lo}, {hi}]; \
+                     at most {MAX_GRID_CELLS_PER_AXIS} are allowed (KITTI's published grid has \
+                     1,600): make the voxels larger or the range smaller"
                 ));
             }
         }
-        if self.max_points_per_voxel == 0 {
-            return bad("`max_points_per_voxel` must be at least 1".into());
+        if !(1..=MAX_POINTS_PER_VOXEL).contains(&self.max_points_per_voxel) {
+            return bad(format!(
+                "`max_points_per_voxel` {} must be in 1..={MAX_POINTS_PER_VOXEL}",
+                self.max_points_per_voxel
+            ));
         }
-        if self.max_voxels_train == 0 || self.max_voxels_test == 0 {
-            return bad("`max_voxels_train` and `max_voxels_test` must be at least 1".into());
+        for (name, v) in [
+            ("max_voxels_train", self.max_voxels_train),
+            ("max_voxels_test", self.max_voxels_test),
+        ] {
+            if !(1..=MAX_VOXELS).contains(&v) {
+                return bad(format!("`{name}` {v} must be in 1..={MAX_VOXELS}"));
+            }
+        }
+        let [nx, ny, _] = self.grid_size();
+        if nx * ny > MAX_BEV_CELLS {
+            return bad(format!(
+                "the grid is {nx} × {ny} voxels in bird's-eye view; at most {MAX_BEV_CELLS} cells \
+                 are allowed (KITTI's published grid has 2,252,800): make the voxels larger or \
+                 the range smaller"
+            ));
         }
         Ok(())
     }
@@ -314,8 +343,11 @@ impl RoiTargetConfig {
     }
 
     pub fn validate(&self) -> Result<()> {
-        if self.rois_per_frame == 0 {
-            return bad("`rois_per_frame` must be at least 1".into());
+        if !(1..=MAX_ROIS_PER_FRAME).contains(&self.rois_per_frame) {
+            return bad(format!(
+                "`rois_per_frame` {} must be in 1..={MAX_ROIS_PER_FRAME}",
+                self.rois_per_frame
+            ));
         }
         finite_in("fg_fraction", self.fg_fraction, 0.0, 1.0)?;
         finite_in("hard_bg_fraction", self.hard_bg_fraction, 0.0, 1.0)?;

@@ -280,8 +280,7 @@ impl GtDatabase {
     /// the points agree.
     pub fn load(dir: &Path) -> Result<GtDatabase> {
         let index_path = dir.join(INDEX_FILE);
-        let text = std::fs::read_to_string(&index_path)
-            .map_err(|e| db_error(&index_path, format!("cannot read: {e}")))?;
+        let text = fusiondet_kitti::error::read_text(&index_path)?;
         let index: IndexFile = serde_json::from_str(&text)
             .map_err(|e| db_error(&index_path, format!("not a database index: {e}")))?;
         if index.format != FORMAT || index.version != VERSION {
@@ -294,8 +293,10 @@ impl GtDatabase {
             ));
         }
         let points_path = dir.join(POINTS_FILE);
-        let bytes = std::fs::read(&points_path)
-            .map_err(|e| db_error(&points_path, format!("cannot read: {e}")))?;
+        let bytes = fusiondet_kitti::error::read_regular(
+            &points_path,
+            fusiondet_kitti::error::MAX_BINARY_BYTES,
+        )?;
         let points = parse_velodyne(&bytes, &points_path)?;
         if points.len() != index.total_points {
             return Err(db_error(
@@ -356,7 +357,8 @@ impl GtDatabase {
 
 /// `pseudo.bin`: float32 × 6 per point, `expected` of them.
 fn read_pseudo(path: &Path, expected: usize) -> Result<Vec<PseudoPoint>> {
-    let bytes = std::fs::read(path).map_err(|e| db_error(path, format!("cannot read: {e}")))?;
+    let bytes =
+        fusiondet_kitti::error::read_regular(path, fusiondet_kitti::error::MAX_BINARY_BYTES)?;
     if bytes.len() != expected * 24 {
         return Err(db_error(
             path,

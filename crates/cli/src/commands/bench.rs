@@ -17,9 +17,16 @@ pub struct BenchArgs {
     pub max_frames: usize,
 }
 
+/// The most timed runs `bench` takes (a median of a thousand is as good as of more).
+const MAX_REPEATS: usize = 1000;
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    if args.repeats == 0 {
-        anyhow::bail!("--repeats must be at least 1");
+    // Each run's times are kept: a count past this would only exhaust memory.
+    if !(1..=MAX_REPEATS).contains(&args.repeats) {
+        anyhow::bail!(
+            "--repeats must be in 1..={MAX_REPEATS}, got {}",
+            args.repeats
+        );
     }
     let config = args.input.experiment_config()?;
     let name = config.name.clone();

@@ -6,6 +6,7 @@ use fusiondet_depth::{
     Blur, DepthCompleter, DepthErrors, DepthMap, IpBasic, read_depth_png, write_depth_png,
 };
 use fusiondet_kitti::FrameDir;
+use fusiondet_kitti::paths::{Inputs, check_output_dir, check_output_file};
 use fusiondet_workflows::outln;
 use std::path::PathBuf;
 
@@ -101,9 +102,8 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
         let Some(out) = &args.out else {
             bail!("--sparse needs --out FILE.png");
         };
-        if out == sparse {
-            bail!("{}: --out is the input; choose another file", out.display());
-        }
+        let inputs = Inputs::new().with("--sparse", Some(sparse));
+        check_output_file("--out", out, &inputs)?;
         let map = read_depth_png(sparse)?;
         let dense = completer.complete(&map);
         write_depth_png(out, &dense)?;
@@ -151,13 +151,20 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
         (Some(dir), None) => fusiondet_depth::complete_dir(dir, out_dir, &completer)?,
         (None, Some(dir)) => {
             let frames = FrameDir::new(dir);
+            // Before anything is made or locked: the output may not touch what is read.
+            check_output_dir(
+                "--out-dir",
+                out_dir,
+                &Inputs::new().with("--data-dir", Some(dir)),
+            )?;
             let ids = fusiondet_depth::frame_ids(&frames, &args.ids)?;
+            let inputs_summary = super::shards::frames_summary(&frames, &ids);
             let run = format!("{:?} {}", completer, super::shards::canonical(dir));
             super::shards::run_frames(
                 "depth-complete",
                 out_dir,
                 args.shard,
-                &[run.as_bytes()],
+                &[run.as_bytes(), &inputs_summary],
                 ids,
                 |ids| {
                     Ok(fusiondet_depth::complete_frames(

@@ -145,6 +145,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 ("--result-dir", Some(args.result_dir.as_path())),
                 ("--velodyne-dir", args.velodyne_dir.as_deref()),
                 ("--calib-dir", args.calib_dir.as_deref()),
+                ("--split", args.split.as_deref()),
             ],
         )?;
     }
@@ -231,6 +232,7 @@ fn run_sunrgbd(args: EvalArgs) -> anyhow::Result<()> {
             &[
                 ("--label-dir", Some(args.label_dir.as_path())),
                 ("--result-dir", Some(args.result_dir.as_path())),
+                ("--split", args.split.as_deref()),
             ],
         )?;
     }

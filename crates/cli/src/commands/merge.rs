@@ -56,9 +56,22 @@ pub fn run(args: MergeArgs) -> anyhow::Result<()> {
                 "detect" => fusiondet_pipeline::complete_sharded_results(&args.dir)?,
                 _ => {
                     let records = shard::run_records(&args.dir, command)?.unwrap_or_default();
-                    shard::progress(&args.dir, &records, &|id| {
+                    let progress = shard::progress(&args.dir, &records, &|id| {
                         super::shards::frame_file(command, id).unwrap_or_default()
-                    })
+                    });
+                    // Every shard finished: the temporary files that killed writes left
+                    // behind go, unless a shard is running again (it holds the writer lock).
+                    if progress.is_whole()
+                        && let Ok(Some(_writer)) =
+                            fusiondet_kitti::atomic::lock_dir(&args.dir, false)
+                    {
+                        let ids: Vec<String> = records
+                            .iter()
+                            .flat_map(|r| r.frames.iter().cloned())
+                            .collect();
+                        super::shards::remove_stale_temp_files(command, &args.dir, &ids);
+                    }
+                    progress
                 }
             }
         };

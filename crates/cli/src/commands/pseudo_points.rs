@@ -3,6 +3,7 @@
 
 use fusiondet_depth::{IpBasic, Thinning};
 use fusiondet_kitti::FrameDir;
+use fusiondet_kitti::paths::{Inputs, check_output_dir};
 use fusiondet_workflows::outln;
 use std::path::PathBuf;
 
@@ -38,7 +39,13 @@ pub struct PseudoPointsArgs {
 
 pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
     let frames = FrameDir::new(&args.data_dir);
+    // Before anything is made or locked: the output may not touch what is read.
+    let inputs = Inputs::new()
+        .with("--data-dir", Some(&args.data_dir))
+        .with("--depth-dir", args.depth_dir.as_deref());
+    check_output_dir("--out-dir", &args.out_dir, &inputs)?;
     let ids = fusiondet_depth::frame_ids(&frames, &args.ids)?;
+    let inputs_summary = super::shards::frames_summary(&frames, &ids);
     let completer = IpBasic {
         extrapolate: false,
         ..IpBasic::measured_best()
@@ -56,7 +63,7 @@ pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
         "pseudo-points",
         &args.out_dir,
         args.shard,
-        &[run.as_bytes()],
+        &[run.as_bytes(), &inputs_summary],
         ids,
         |ids| {
             Ok(fusiondet_depth::pseudo_frames(

@@ -23,7 +23,10 @@ pub fn frame_file(command: &str, id: &str) -> Option<PathBuf> {
 
 /// Runs `work` on shard `shard` of `ids` (all of them without a shard), recording the
 /// shard in `out_dir` before and after; `run` lists what defines the run (options, inputs),
-/// so that another run's shards are never mixed into the same directory.
+/// so that another run's shards are never mixed into the same directory. The directory's
+/// writer lock is held throughout (shared between the shards of a run, exclusive for an
+/// unsharded one), and the temporary files that killed writes of this run's frames left
+/// behind are removed first.
 pub fn run_frames<T>(
     command: &str,
     out_dir: &Path,
@@ -33,6 +36,8 @@ pub fn run_frames<T>(
     work: impl FnOnce(&[String]) -> anyhow::Result<T>,
 ) -> anyhow::Result<T> {
     let Some(shard) = shard else {
+        let _lock = lock_out_dir(command, out_dir, false)?;
+        remove_stale_temp_files(command, out_dir, &ids);
         return work(&ids);
     };
     let fingerprint = {
@@ -43,7 +48,7 @@ pub fn run_frames<T>(
         shard::fingerprint(&parts)
     };
     let mine = shard.select(&ids);
-    std::fs::create_dir_all(out_dir)?;
+    let _writer_lock = lock_out_dir(command, out_dir, true)?;
     let mut record = ShardRecord {
         command: command.to_string(),
         shard,
@@ -64,6 +69,7 @@ pub fn run_frames<T>(
         }
         shard::write_record(out_dir, &record)?;
     }
+    remove_stale_temp_files(command, out_dir, &mine);
     let result = work(&mine)?;
     record.complete = true;
     shard::write_record(out_dir, &record)?;
@@ -73,6 +79,44 @@ pub fn run_frames<T>(
     });
     report(shard, out_dir, &progress);
     Ok(result)
+}
+
+/// Creates `out_dir` and takes its writer lock ([`fusiondet_kitti::atomic::lock_dir`]).
+fn lock_out_dir(
+    command: &str,
+    out_dir: &Path,
+    shared: bool,
+) -> anyhow::Result<fusiondet_kitti::atomic::DirLock> {
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| anyhow::anyhow!("{}: cannot create: {e}", out_dir.display()))?;
+    match fusiondet_kitti::atomic::lock_dir(out_dir, shared) {
+        Ok(Some(lock)) => Ok(lock),
+        Ok(None) => bail!(
+            "{}: another `fusiondet {command}` (or another shard count's run) is writing into \
+             this directory now; wait for it to end, or choose another --out-dir",
+            out_dir.display()
+        ),
+        Err(e) => bail!("{}: cannot lock: {e}", out_dir.display()),
+    }
+}
+
+/// Removes the temporary files that killed writes of the frames `ids` left in `out_dir`
+/// (the caller owns those frames: no other writer is writing them).
+pub fn remove_stale_temp_files(command: &str, out_dir: &Path, ids: &[String]) {
+    let mine: std::collections::HashSet<PathBuf> = ids
+        .iter()
+        .filter_map(|id| frame_file(command, id))
+        .collect();
+    fusiondet_kitti::atomic::remove_temp_files(out_dir, |target| mine.contains(Path::new(target)));
+}
+
+/// What the frames `ids` of `frames` are, for a run's fingerprint
+/// ([`shard::frame_inputs_summary`]).
+pub fn frames_summary(frames: &fusiondet_kitti::FrameDir, ids: &[String]) -> Vec<u8> {
+    shard::frame_inputs_summary(
+        ids.iter()
+            .flat_map(|id| [frames.velodyne(id), frames.image(id), frames.calib(id)]),
+    )
 }
 
 /// A path as one string for a run's fingerprint, links resolved where it exists.

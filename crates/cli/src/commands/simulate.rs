@@ -87,6 +87,19 @@ fn run_indoor(args: SimulateArgs) -> anyhow::Result<()> {
         anyhow::bail!("--traffic-scale applies to street scenes, not to --indoor");
     }
     let defaults = fusiondet_sim::indoor::IndoorConfig::default();
+    // A scene has at most one point per camera pixel: more cannot be written, and fewer
+    // than asked would be written silently.
+    let pixels = defaults.camera.width as usize * defaults.camera.height as usize;
+    if let Some(points) = args.points
+        && !(1..=pixels).contains(&points)
+    {
+        anyhow::bail!(
+            "--points must be in 1..={pixels} (one point per pixel of the {}×{} camera at most), \
+             got {points}",
+            defaults.camera.width,
+            defaults.camera.height
+        );
+    }
     let opts = fusiondet_sim::indoor::IndoorOptions {
         out: args.out.clone(),
         frames: args.frames,

@@ -201,8 +201,7 @@ fn claim_out_dir(dir: &Path, force: bool) -> anyhow::Result<Vec<String>> {
             dir.display()
         );
     }
-    let listed = std::fs::read_to_string(&marker)
-        .with_context(|| format!("cannot read {}", marker.display()))?;
+    let listed = fusiondet_kitti::error::read_text(&marker)?;
     // Only plain page names are ever removed, whatever the marker says.
     Ok(listed
         .lines()

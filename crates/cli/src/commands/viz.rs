@@ -61,6 +61,27 @@ pub(crate) fn frame_id(id: &str) -> anyhow::Result<String> {
     Ok(format!("{id:0>6}"))
 }
 
+/// The bird's-eye view's extent: each side at least 1 m and at most 500 m (a map of
+/// nanometres would never finish its grid), and the picture at most 20 times taller than
+/// wide or wider than tall (its height follows from the aspect; a needle of a map would not
+/// fit in memory).
+pub(crate) fn check_bev_extent(forward: f64, side: f64) -> anyhow::Result<()> {
+    for (name, v) in [("--bev-forward", forward), ("--bev-side", side)] {
+        if !(v.is_finite() && (1.0..=500.0).contains(&v)) {
+            bail!("{name} must be in [1, 500] metres, got {v}");
+        }
+    }
+    let aspect = forward / (2.0 * side);
+    if !(0.05..=20.0).contains(&aspect) {
+        bail!(
+            "--bev-forward {forward} against --bev-side {side} (both sides: {}) makes a map {aspect:.3} \
+             times as tall as wide; keep the ratio within 1/20 to 20",
+            2.0 * side
+        );
+    }
+    Ok(())
+}
+
 /// `--score-threshold`, where given, must be a number (`viz` and `view`).
 pub(crate) fn check_score_threshold(threshold: Option<f64>) -> anyhow::Result<()> {
     if let Some(t) = threshold
@@ -81,11 +102,7 @@ pub fn run(args: VizArgs) -> anyhow::Result<()> {
     };
     let bev_forward = args.bev_forward.unwrap_or(forward);
     let bev_side = args.bev_side.unwrap_or(side);
-    for (name, v) in [("--bev-forward", bev_forward), ("--bev-side", bev_side)] {
-        if !(v.is_finite() && v > 0.0 && v <= 500.0) {
-            bail!("{name} must be in (0, 500] metres, got {v}");
-        }
-    }
+    check_bev_extent(bev_forward, bev_side)?;
     super::outputs::refuse_output_in_inputs(
         "--out",
         &args.out,

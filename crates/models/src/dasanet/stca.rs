@@ -64,10 +64,30 @@ impl Default for StcaConfig {
 
 impl StcaConfig {
     pub fn validate(&self) -> Result<(), String> {
-        if self.grid < 2 || self.max_points == 0 || self.reduction == 0 {
-            return Err(
-                "[dasanet.stca]: grid must be at least 2, max_points and reduction positive".into(),
-            );
+        // The crop is a grid³ sparse volume a RoI, bounded before anything is allocated.
+        if !(2..=32).contains(&self.grid)
+            || !(1..=65_536).contains(&self.max_points)
+            || self.reduction == 0
+        {
+            return Err(format!(
+                "[dasanet.stca]: grid must be in 2..=32 (the paper's is 8), max_points in \
+                 1..=65536, reduction positive; got grid {}, max_points {}",
+                self.grid, self.max_points
+            ));
+        }
+        if self
+            .point_mlp
+            .iter()
+            .chain([&self.encoder_channels, &self.output_channels])
+            .any(|&w| w > 4096)
+        {
+            return Err("[dasanet.stca]: channel widths must be at most 4096".into());
+        }
+        if !(self.margin <= 10.0) {
+            return Err(format!(
+                "[dasanet.stca] margin {} must be at most 10 m",
+                self.margin
+            ));
         }
         if self.point_mlp.contains(&0) || self.encoder_channels == 0 || self.output_channels == 0 {
             return Err("[dasanet.stca]: channel widths must be positive".into());

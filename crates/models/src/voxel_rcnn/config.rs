@@ -6,6 +6,13 @@
 use fusiondet_nn::NormConfig;
 use serde::{Deserialize, Serialize};
 
+/// Bounds on the network's sizes, so that a mistyped value is refused with its key instead
+/// of exhausting memory (far above the published network: 6³ grid, 16–32 samples, widths
+/// up to 256).
+pub const MAX_ROI_GRID: usize = 32;
+pub const MAX_POOL_SAMPLES: usize = 1024;
+pub const MAX_CHANNELS: usize = 4096;
+
 /// OpenPCDet's batch-norm momentum in the sparse backbone and the BEV network.
 pub const BACKBONE_NORM_MOMENTUM: f64 = 0.01;
 
@@ -191,11 +198,39 @@ impl VoxelRcnnNetConfig {
         {
             return Err("[voxel_rcnn]: channel widths must be positive".into());
         }
+        let widths = self
+            .backbone_channels
+            .iter()
+            .chain([&self.backbone_out_channels, &self.input_channels])
+            .chain(&b.num_filters)
+            .chain(&b.num_upsample_filters);
+        if let Some(w) = widths.into_iter().find(|&&w| w > MAX_CHANNELS) {
+            return Err(format!(
+                "[voxel_rcnn]: a channel width of {w} is more than {MAX_CHANNELS}"
+            ));
+        }
+        if b.layer_nums.iter().any(|&l| l > 64)
+            || b.layer_strides
+                .iter()
+                .chain(&b.upsample_strides)
+                .any(|&s| s > 16)
+        {
+            return Err(
+                "[voxel_rcnn.bev]: layer_nums must be at most 64 and strides at most 16".into(),
+            );
+        }
         let r = &self.roi;
         if r.grid_size == 0 || r.levels.is_empty() {
             return Err(
                 "[voxel_rcnn.roi]: grid_size and at least one pooling level are needed".into(),
             );
+        }
+        // The pooled grid is grid_size³ points a RoI: bounded before anything is allocated.
+        if r.grid_size > MAX_ROI_GRID {
+            return Err(format!(
+                "[voxel_rcnn.roi] grid_size {} must be at most {MAX_ROI_GRID} (the paper's is 6)",
+                r.grid_size
+            ));
         }
         for (i, level) in r.levels.iter().enumerate() {
             if !(1..=4).contains(&level.stage) {
@@ -204,15 +239,38 @@ impl VoxelRcnnNetConfig {
                     level.stage
                 ));
             }
+            // NaN fails the range test, so it is refused too.
             if level.samples == 0
-                || level.radius <= 0.0
+                || !(level.radius > 0.0 && level.radius <= 100.0)
                 || level.mid_channels == 0
                 || level.out_channels == 0
             {
                 return Err(format!(
-                    "[voxel_rcnn.roi.levels[{i}]]: samples, radius and channels must be positive"
+                    "[voxel_rcnn.roi.levels[{i}]]: samples, radius (at most 100 m) and channels \
+                     must be positive, got samples {}, radius {}",
+                    level.samples, level.radius
                 ));
             }
+            if level.samples > MAX_POOL_SAMPLES
+                || level.mid_channels.max(level.out_channels) > MAX_CHANNELS
+                || level.query_range.iter().any(|&q| q > 16)
+            {
+                return Err(format!(
+                    "[voxel_rcnn.roi.levels[{i}]]: samples at most {MAX_POOL_SAMPLES}, channels at \
+                     most {MAX_CHANNELS}, query_range at most 16 (got samples {}, query_range {:?})",
+                    level.samples, level.query_range
+                ));
+            }
+        }
+        if r.shared_fc
+            .iter()
+            .chain(&r.cls_fc)
+            .chain(&r.reg_fc)
+            .any(|&w| w > MAX_CHANNELS)
+        {
+            return Err(format!(
+                "[voxel_rcnn.roi]: fully connected widths must be at most {MAX_CHANNELS}"
+            ));
         }
         if zero(&r.shared_fc) || zero(&r.cls_fc) || zero(&r.reg_fc) || r.shared_fc.is_empty() {
             return Err(

@@ -87,8 +87,21 @@ impl DasanetSection {
                     .into(),
             );
         }
-        if p.pixel_stride == 0 {
-            return Err("[dasanet.pseudo] pixel_stride must be at least 1".into());
+        if p.max_points_per_voxel > fusiondet_voxel::config::MAX_POINTS_PER_VOXEL
+            || p.max_voxels_train.max(p.max_voxels_test) > fusiondet_voxel::config::MAX_VOXELS
+        {
+            return Err(format!(
+                "[dasanet.pseudo]: max_points_per_voxel must be at most {}, max_voxels_train and \
+                 max_voxels_test at most {}",
+                fusiondet_voxel::config::MAX_POINTS_PER_VOXEL,
+                fusiondet_voxel::config::MAX_VOXELS
+            ));
+        }
+        if !(1..=64).contains(&p.pixel_stride) {
+            return Err(format!(
+                "[dasanet.pseudo] pixel_stride {} must be in 1..=64",
+                p.pixel_stride
+            ));
         }
         if !(self.giou_weight.is_finite() && self.giou_weight >= 0.0) {
             return Err(format!(

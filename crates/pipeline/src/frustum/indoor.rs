@@ -39,7 +39,7 @@ fn scene_detections(
 
 /// [`crate::detect::detect_in_chunks`] for SUN RGB-D data (whole splits only).
 pub fn detect_scenes(options: &DetectOptions, chunk_frames: usize) -> Result<DetectSummary> {
-    refuse_input_dir(&options.out_dir, &options.data_dir)?;
+    refuse_input_dir(options)?;
     if options.shard.is_some() {
         return Err(PipelineError::Invalid(
             "--shard: sharded detection reads KITTI data only for now; run SUN RGB-D splits \

@@ -83,10 +83,10 @@ impl TrainingTask for FrustumTask<'_> {
 /// Copies the first stage named by `refine` into the run directory (atomically).
 fn copy_first_stage(refine: &RefineConfig, run: &RunDir) -> Result<()> {
     let first = ExperimentConfig::for_checkpoint(&refine.first_stage, None)?;
-    let bytes = std::fs::read(&refine.first_stage).map_err(|e| PipelineError::RunDir {
-        path: refine.first_stage.clone(),
-        message: format!("cannot read the first-stage checkpoint: {e}"),
-    })?;
+    let bytes = fusiondet_kitti::error::read_regular(
+        &refine.first_stage,
+        fusiondet_kitti::error::MAX_BINARY_BYTES,
+    )?;
     let dest = run.root.join(FIRST_STAGE_FILE);
     write_atomic(&dest, &bytes)?;
     write_atomic(
