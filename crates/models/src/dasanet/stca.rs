@@ -83,7 +83,7 @@ impl StcaConfig {
         {
             return Err("[dasanet.stca]: channel widths must be at most 4096".into());
         }
-        if !(self.margin <= 10.0) {
+        if self.margin > 10.0 {
             return Err(format!(
                 "[dasanet.stca] margin {} must be at most 10 m",
                 self.margin
