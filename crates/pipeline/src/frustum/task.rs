@@ -2,7 +2,7 @@
 //! around its first stage's boxes), F-ConvNet's loss.
 
 use crate::config::{DatasetFormat, ExperimentConfig, RefineConfig};
-use crate::detect::{FrameResults, StageTimes};
+use crate::detection::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use crate::frustum::FrustumDetector;
 use crate::run_dir::RunDir;
