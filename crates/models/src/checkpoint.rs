@@ -175,8 +175,7 @@ pub fn first_non_finite_parameter<M: Module>(module: &M) -> Option<String> {
 
 /// The configuration (JSON) stored in a checkpoint of family `kind`; refuses other families.
 pub(crate) fn read_tagged_config(path: &Path, kind: DetectorKind) -> Result<String, ModelError> {
-    let reader =
-        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
+    let reader = open_checkpoint(path)?;
     let meta = reader.metadata();
     let found = kind_of(path, meta)?;
     if found != kind {
@@ -269,9 +268,24 @@ where
 
 /// The family a checkpoint belongs to, from its metadata.
 pub fn read_checkpoint_kind(path: &Path) -> Result<DetectorKind, ModelError> {
-    let reader =
-        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
-    kind_of(path, reader.metadata())
+    kind_of(path, open_checkpoint(path)?.metadata())
+}
+
+/// Opens a checkpoint file, saying plainly when there is none at `path` and when the file
+/// is not a burnpack file at all (a user's first mistakes: a typo, the wrong file).
+fn open_checkpoint(path: &Path) -> Result<Reader, ModelError> {
+    if !path.exists() {
+        return Err(ckpt_err(
+            path,
+            "checkpoint not found (a run's model.bpk, or a shipped models/<name>.bpk)",
+        ));
+    }
+    Reader::from_file_exact(path).map_err(|e| {
+        ckpt_err(
+            path,
+            format!("not a fusiondet checkpoint (not a burnpack file: {e})"),
+        )
+    })
 }
 
 fn kind_of(
