@@ -52,10 +52,13 @@ fn summarise(results: Vec<Result<(usize, usize)>>) -> Result<BatchSummary> {
 }
 
 /// Completes every `*.png` of `sparse_dir` into `out_dir` (same file names).
+/// `frame_done` is called once per map written, here and in the other batch functions (a
+/// progress bar's tick).
 pub fn complete_dir(
     sparse_dir: &Path,
     out_dir: &Path,
     completer: &(dyn DepthCompleter + Sync),
+    frame_done: &(dyn Fn() + Sync),
 ) -> Result<BatchSummary> {
     let mut inputs: Vec<PathBuf> = std::fs::read_dir(sparse_dir)
         .map_err(|e| FormatError::io(sparse_dir, e))?
@@ -76,6 +79,7 @@ pub fn complete_dir(
             let sparse = read_depth_png(input)?;
             let dense = completer.complete(&sparse);
             write_depth_png(&out_dir.join(input.file_name().expect("a file")), &dense)?;
+            frame_done();
             Ok((sparse.valid_count(), dense.valid_count()))
         })
         .collect();
@@ -89,6 +93,7 @@ pub fn complete_frames(
     ids: &[String],
     out_dir: &Path,
     completer: &(dyn DepthCompleter + Sync),
+    frame_done: &(dyn Fn() + Sync),
 ) -> Result<BatchSummary> {
     let ids = frame_ids(frames, ids)?;
     refuse_input_dir(out_dir, &[&frames.root, &frames.root.join("image_2")])?;
@@ -99,6 +104,7 @@ pub fn complete_frames(
             let sparse = project_scan(&frame);
             let dense = completer.complete(&sparse);
             write_depth_png(&out_dir.join(format!("{id}.png")), &dense)?;
+            frame_done();
             Ok((sparse.valid_count(), dense.valid_count()))
         })
         .collect();
@@ -122,6 +128,7 @@ pub fn pseudo_frames(
     out_dir: &Path,
     completer: &(dyn DepthCompleter + Sync),
     thinning: Option<Thinning>,
+    frame_done: &(dyn Fn() + Sync),
 ) -> Result<PseudoSummary> {
     let ids = frame_ids(frames, ids)?;
     let mut inputs = vec![frames.root.as_path()];
@@ -148,6 +155,7 @@ pub fn pseudo_frames(
                     },
                 )?;
             write_pseudo_points(&out_dir.join(format!("{id}.bin")), &points)?;
+            frame_done();
             Ok(points.len())
         })
         .collect();

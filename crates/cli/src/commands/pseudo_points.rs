@@ -37,6 +37,7 @@ pub struct PseudoPointsArgs {
 }
 
 pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
+    super::data_root::check_frames("--data-dir", &args.data_dir)?;
     let frames = FrameDir::new(&args.data_dir);
     let ids = fusiondet_depth::frame_ids(&frames, &args.ids)?;
     let completer = IpBasic {
@@ -59,14 +60,18 @@ pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
         &[run.as_bytes()],
         ids,
         |ids| {
-            Ok(fusiondet_depth::pseudo_frames(
+            let bar = super::progress::bar("pseudo-points", ids.len(), "frames");
+            let summary = fusiondet_depth::pseudo_frames(
                 &frames,
                 ids,
                 args.depth_dir.as_deref(),
                 &args.out_dir,
                 &completer,
                 thinning,
-            )?)
+                &|| bar.inc(1),
+            )?;
+            bar.finish_and_clear();
+            Ok(summary)
         },
     )?;
     outln!(
