@@ -304,7 +304,9 @@ fn eval_frames(
             match root {
                 Some(root) => split_file(&root.join(lists), split),
                 None => bail!(
-                    "--split {split}: a split name is looked up in the data set's {lists}/, but                      --label-dir {} is not a data set's {label_sub}/; give the split as a file                      (e.g. --split DATA/{lists}/{split}.txt)",
+                    "--split {split}: a split name is looked up in the data set's {lists}/, but \
+                     --label-dir {} is not a data set's {label_sub}/; give the split as a file \
+                     (e.g. --split DATA/{lists}/{split}.txt)",
                     args.label_dir.display()
                 ),
             }
@@ -347,7 +349,8 @@ fn refuse_non_results(dir: &Path) -> anyhow::Result<()> {
     ];
     if let Some(found) = data_set.iter().find(|d| dir.join(d).is_dir()) {
         bail!(
-            "--result-dir {}: holds {found}/, so it is a data set, not detection results; give              the --out of `fusiondet detect` (and the data set's training/label_2 as --label-dir)",
+            "--result-dir {}: holds {found}/, so it is a data set, not detection results; give \
+             the --out of `fusiondet detect` (and the data set's training/label_2 as --label-dir)",
             dir.display()
         );
     }
@@ -357,7 +360,8 @@ fn refuse_non_results(dir: &Path) -> anyhow::Result<()> {
         .any(|e| e.file_name().to_str().is_some_and(|n| n.ends_with(".txt")));
     if !has_results && read_manifest(dir)?.is_none() {
         bail!(
-            "--result-dir {}: holds no result files (NNNNNN.txt) and no detect manifest; run              `fusiondet detect --out {}` first",
+            "--result-dir {}: holds no result files (NNNNNN.txt) and no detect manifest; run \
+             `fusiondet detect --out {}` first",
             dir.display(),
             dir.display()
         );
