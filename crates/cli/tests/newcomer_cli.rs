@@ -439,3 +439,24 @@ fn help_texts_say_what_the_commands_need() {
         "{eval}"
     );
 }
+
+#[test]
+fn eval_of_an_unfinished_sharded_run_names_the_real_merge_flag() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = kitti_copy(tmp.path());
+    let out = tmp.path().join("sharded");
+    let o = detect(&data, "val", &out, &["--shard", "0/2"]);
+    assert!(o.status.success(), "{}", all_output(&o));
+    common::assert_fails_with(
+        "eval",
+        &[
+            "--label-dir",
+            s(&data.join("training/label_2")),
+            "--result-dir",
+            s(&out),
+        ],
+        "`fusiondet merge --dir DIR` says which shards or frames are missing",
+    );
+    // The flag it names is merge's.
+    common::assert_fails_with("merge", &["--dir", s(&out)], "shards not started: 1/2");
+}

@@ -314,13 +314,13 @@ fn eval_frames(
         let ids = frame_ids(&args.label_dir, Some(&path))?;
         return Ok((ids, format!("split {}", path.display())));
     }
-    if let Some(manifest) = read_manifest(&args.result_dir)? {
-        if !manifest.frames.is_empty() {
-            return Ok((
-                manifest.frames,
-                "the frames the results' manifest lists".into(),
-            ));
-        }
+    if let Some(manifest) = read_manifest(&args.result_dir)?
+        && !manifest.frames.is_empty()
+    {
+        return Ok((
+            manifest.frames,
+            "the frames the results' manifest lists".into(),
+        ));
     }
     let ids = frame_ids(&args.label_dir, None)?;
     Ok((
