@@ -8,7 +8,7 @@ use std::process::ExitCode;
 /// mimalloc instead of the system allocator: the networks allocate and free many
 /// multi-megabyte tensors per frustum batch, which glibc's malloc serves with fresh
 /// mmap/munmap pairs and page faults (a third of SAF's detection time went to the kernel;
-/// see the README's speed section). mimalloc keeps such blocks for reuse.
+/// see docs/performance.md). mimalloc keeps such blocks for reuse.
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
@@ -20,7 +20,7 @@ const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 /// (mimalloc 3's default purge delay): a training step frees and allocates the same large tensors every
 /// step, and each return made the next step fault and zero those pages again. Measured on
 /// a DASANet training process: 15% less wall time, a third of the system time, 5% more peak
-/// memory (README, speed section). `MIMALLOC_PURGE_DELAY` in the environment still decides.
+/// memory (docs/performance.md). `MIMALLOC_PURGE_DELAY` in the environment still decides.
 fn keep_freed_memory() {
     if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
         // SAFETY: sets one of mimalloc's options; any value is valid for this one.
@@ -41,8 +41,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Run the whole pipeline on the bundled data: simulate, train, detect, evaluate, draw
-    /// (--indoor: simulated rooms and a real SUN RGB-D scene).
+    /// Run the whole pipeline on data built into the binary: simulate street frames, detect
+    /// with a shipped model (training a tiny one only with --train-tiny), evaluate, draw;
+    /// --indoor: simulated rooms (trains the tiny indoor network) and a real SUN RGB-D scene.
     Demo(commands::demo::DemoArgs),
     /// Train a detector (the frustum family, Voxel R-CNN or DASANet) from a TOML experiment
     /// configuration, on KITTI-format data or (frustum family) prepared SUN RGB-D scenes.
@@ -102,15 +103,62 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            eprintln!("error: {}", error_message(&err));
             ExitCode::FAILURE
         }
     }
 }
 
+/// The error and its causes on one line, `a: b: c`, leaving out a cause whose text the
+/// line already holds: an error that prints its source (`path: No such file (os error
+/// 2)`) would otherwise be followed by that source again.
+fn error_message(err: &anyhow::Error) -> String {
+    let mut message = String::new();
+    for cause in err.chain() {
+        let text = cause.to_string();
+        if message.contains(&text) {
+            continue;
+        }
+        if !message.is_empty() {
+            message.push_str(": ");
+        }
+        message.push_str(&text);
+    }
+    message
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_cause_already_in_the_message_is_not_repeated() {
+        #[derive(Debug)]
+        struct WithSource {
+            path: String,
+            source: std::io::Error,
+        }
+        impl std::fmt::Display for WithSource {
+            fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "{}: {}", self.path, self.source)
+            }
+        }
+        impl std::error::Error for WithSource {
+            fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+                Some(&self.source)
+            }
+        }
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "gone (os error 2)");
+        let err = anyhow::Error::new(WithSource {
+            path: "a.txt".into(),
+            source: io,
+        })
+        .context("cannot read the split");
+        assert_eq!(
+            error_message(&err),
+            "cannot read the split: a.txt: gone (os error 2)"
+        );
+    }
 
     /// The option index is mimalloc's purge delay: its default in mimalloc 3.3's
     /// `options.c` is 1,000 ms (the header's comment still says 10), and setting it reads

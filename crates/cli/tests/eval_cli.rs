@@ -237,13 +237,16 @@ fn missing_result_files_are_counted_and_reported() {
     assert!(err.contains("2 of 307 frames have no result file"), "{err}");
     assert!(err.contains("000001, 100010"), "{err}");
 
-    // An empty result directory: everything missing, every AP 0, still success.
+    // An empty result directory is refused rather than scored as zeros.
     let empty = tmp.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
     let out = run(&["--label-dir", s(&gt), "--result-dir", s(&empty)]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    assert!(text(&out.stderr).contains("307 of 307 frames have no result file"));
-    assert!(text(&out.stdout).contains("3d   AP:0.0000, 0.0000, 0.0000"));
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("holds no result files"),
+        "{}",
+        text(&out.stderr)
+    );
 }
 
 #[test]

@@ -146,8 +146,13 @@ fn hand_made_case_through_the_binary() {
         stdout.contains("SUN RGB-D 3D detection: 4 scenes, 5 ground-truth boxes of the 10 classes"),
         "{stdout}"
     );
-    // Papers' column order (alphabetical), the mean last.
-    let header = stdout.lines().nth(1).unwrap();
+    // The first line says which scenes and classes; then the papers' column order
+    // (alphabetical), the mean last.
+    assert!(
+        stdout.starts_with("evaluating 4 scenes (split "),
+        "{stdout}"
+    );
+    let header = stdout.lines().nth(2).unwrap();
     let columns: Vec<&str> = header.split_whitespace().collect();
     assert_eq!(
         columns,

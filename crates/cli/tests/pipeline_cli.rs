@@ -43,6 +43,12 @@ fn demo_runs_the_shipped_model_and_can_be_rerun() {
     assert!(t.contains("simulated 8 frames"), "{t}");
     assert!(t.contains("the shipped F-ConvNet Car model"), "{t}");
     assert!(t.contains("Car AP_R40@0.70, 0.70, 0.70"), "{t}");
+    // One closing line with the 3D AP of both evaluations, as the indoor demo has.
+    let summary = t
+        .lines()
+        .find(|l| l.starts_with("3D AP_R40 easy / moderate / hard: simulated val Car "))
+        .unwrap_or_else(|| panic!("no summary line in\n{t}"));
+    assert!(summary.contains("; bundled KITTI frames Car "), "{summary}");
     for f in [
         "model/fconvnet-car.bpk",
         "model/fconvnet-car.toml",
@@ -213,7 +219,7 @@ fn train_and_detect_report_bad_input_clearly() {
     ]);
     assert!(!o.status.success());
     assert!(
-        text(&o).contains("no configuration found for /no/model.bpk"),
+        text(&o).contains("checkpoint /no/model.bpk: checkpoint not found"),
         "{}",
         text(&o)
     );

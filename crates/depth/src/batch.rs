@@ -60,10 +60,13 @@ fn summarise(results: Vec<Result<(usize, usize)>>) -> Result<BatchSummary> {
 }
 
 /// Completes every `*.png` of `sparse_dir` into `out_dir` (same file names).
+/// `frame_done` is called once per map written, here and in the other batch functions (a
+/// progress bar's tick).
 pub fn complete_dir(
     sparse_dir: &Path,
     out_dir: &Path,
     completer: &(dyn DepthCompleter + Sync),
+    frame_done: &(dyn Fn() + Sync),
 ) -> Result<BatchSummary> {
     let mut inputs: Vec<PathBuf> = std::fs::read_dir(sparse_dir)
         .map_err(|e| FormatError::io(sparse_dir, e))?
@@ -87,6 +90,7 @@ pub fn complete_dir(
             let sparse = read_depth_png(input)?;
             let dense = completer.complete(&sparse);
             write_depth_png(&out_dir.join(input.file_name().expect("a file")), &dense)?;
+            frame_done();
             Ok((sparse.valid_count(), dense.valid_count()))
         })
         .collect();
@@ -100,6 +104,7 @@ pub fn complete_frames(
     ids: &[String],
     out_dir: &Path,
     completer: &(dyn DepthCompleter + Sync),
+    frame_done: &(dyn Fn() + Sync),
 ) -> Result<BatchSummary> {
     let ids = frame_ids(frames, ids)?;
     refuse_input_dir(
@@ -114,6 +119,7 @@ pub fn complete_frames(
             refuse_empty_projection(frames, id, &sparse)?;
             let dense = completer.complete(&sparse);
             write_depth_png(&out_dir.join(format!("{id}.png")), &dense)?;
+            frame_done();
             Ok((sparse.valid_count(), dense.valid_count()))
         })
         .collect();
@@ -137,6 +143,7 @@ pub fn pseudo_frames(
     out_dir: &Path,
     completer: &(dyn DepthCompleter + Sync),
     thinning: Option<Thinning>,
+    frame_done: &(dyn Fn() + Sync),
 ) -> Result<PseudoSummary> {
     let ids = frame_ids(frames, ids)?;
     let inputs = Inputs::new()
@@ -168,6 +175,7 @@ pub fn pseudo_frames(
                     },
                 )?;
             write_pseudo_points(&out_dir.join(format!("{id}.bin")), &points)?;
+            frame_done();
             Ok(points.len())
         })
         .collect();

@@ -31,7 +31,7 @@
 //!
 //! Both follow IP-Basic's published code (`depth_map_utils.py`) step for step, with
 //! OpenCV's definitions of each filter (`image_ops`); `scripts/ip_basic_reference.py`
-//! runs their code on our inputs for the comparison in the README.
+//! runs their code on our inputs for the comparison in docs/depth.md.
 
 use crate::image_ops::{
     Kernel, bilateral, close, dilate, fill_where, gaussian5, median5, replace_where,
@@ -86,7 +86,7 @@ impl Default for IpBasic {
 
 impl IpBasic {
     /// The setting that measured best here, on both the simulated dense truth and the
-    /// held-out KITTI returns (README): the fast pipeline, the Gaussian, extrapolation.
+    /// held-out KITTI returns (docs/depth.md): the fast pipeline, the Gaussian, extrapolation.
     pub fn measured_best() -> IpBasic {
         IpBasic {
             method: Method::Fast,

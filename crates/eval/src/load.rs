@@ -93,7 +93,7 @@ pub fn load_dirs(
         return Err(EvalError::Dir {
             path: result_dir.to_path_buf(),
             message: "holds a sharded `fusiondet detect` that has not finished (its manifest \
-                      is written when every shard has): `fusiondet merge --results DIR` says \
+                      is written when every shard has): `fusiondet merge --dir DIR` says \
                       which shards or frames are missing"
                 .into(),
         });

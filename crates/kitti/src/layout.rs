@@ -1,7 +1,8 @@
 //! Where the files of a KITTI-format dataset live:
 //! `ROOT/training/{velodyne,calib,label_2,image_2}/NNNNNN.*` (and `depth_2/` in simulated
 //! data sets), `ROOT/ImageSets/*.txt`,
-//! `ROOT/rgb_detections/rgb_detection_{split}.txt`.
+//! `ROOT/rgb_detections/rgb_detection_{split}.txt`. A split is given by name or as a
+//! file, the same in every command ([`split_file`]).
 
 use std::path::{Path, PathBuf};
 
@@ -47,13 +48,46 @@ impl DatasetDir {
     pub fn training(&self) -> FrameDir {
         FrameDir::new(self.root.join("training"))
     }
-    pub fn split(&self, name: &str) -> PathBuf {
-        self.root.join("ImageSets").join(format!("{name}.txt"))
+    /// The id list of `--split`: a name (`val` is `ImageSets/val.txt`) or a file (see
+    /// [`split_file`]).
+    pub fn split(&self, split: &str) -> PathBuf {
+        split_file(&self.root.join("ImageSets"), split)
     }
+    /// The 2D detections of a split: `rgb_detections/rgb_detection_<name>.txt`, with the
+    /// name of a split file its stem (`ImageSets/val.txt` or `my/val.txt` → `val`).
     pub fn rgb_detections(&self, split: &str) -> PathBuf {
         self.root
             .join("rgb_detections")
-            .join(format!("rgb_detection_{split}.txt"))
+            .join(format!("rgb_detection_{}.txt", split_name(split)))
+    }
+}
+
+/// Whether `--split` names a file rather than a list of the data set: it has a path
+/// separator or ends in `.txt`. One rule for every command, so `val` and
+/// `DATA/ImageSets/val.txt` mean the same frames everywhere.
+pub fn split_is_file(split: &str) -> bool {
+    split.contains('/') || split.contains(std::path::MAIN_SEPARATOR) || split.ends_with(".txt")
+}
+
+/// The file `--split` stands for: itself if it names a file, else `<lists>/<split>.txt`
+/// (`lists`: KITTI's `ImageSets/`, SUN RGB-D's `splits/`).
+pub fn split_file(lists: &Path, split: &str) -> PathBuf {
+    if split_is_file(split) {
+        PathBuf::from(split)
+    } else {
+        lists.join(format!("{split}.txt"))
+    }
+}
+
+/// A split's name: itself, or a split file's stem.
+pub fn split_name(split: &str) -> &str {
+    if split_is_file(split) {
+        Path::new(split)
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or(split)
+    } else {
+        split
     }
 }
 
@@ -95,7 +129,24 @@ pub fn list_frame_ids(dir: &Path, ext: &str) -> std::io::Result<Vec<String>> {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_frame_id;
+    use super::*;
+
+    #[test]
+    fn a_split_is_a_name_or_a_file() {
+        let ds = DatasetDir::new("/data/kitti");
+        assert_eq!(ds.split("val"), Path::new("/data/kitti/ImageSets/val.txt"));
+        assert_eq!(ds.split("lists/mine.txt"), Path::new("lists/mine.txt"));
+        assert_eq!(ds.split("mine.txt"), Path::new("mine.txt"));
+        assert_eq!(
+            ds.rgb_detections("/data/kitti/ImageSets/val.txt"),
+            Path::new("/data/kitti/rgb_detections/rgb_detection_val.txt")
+        );
+        assert_eq!(
+            ds.rgb_detections("train"),
+            Path::new("/data/kitti/rgb_detections/rgb_detection_train.txt")
+        );
+        assert_eq!(split_name("a/b/trainval.txt"), "trainval");
+    }
 
     #[test]
     fn frame_ids_are_digits_padded_to_six() {

@@ -21,7 +21,9 @@ pub use depth::{DepthMap, read_depth_png, write_depth_png};
 pub use detections2d::{Detection2d, read_detections2d, write_detections2d};
 pub use error::{FormatError, Result};
 pub use label::{Box2d, Box3d, Object, ObjectClass, read_objects, write_objects};
-pub use layout::{DatasetDir, FrameDir, frame_id, parse_frame_id};
+pub use layout::{
+    DatasetDir, FrameDir, frame_id, parse_frame_id, split_file, split_is_file, split_name,
+};
 pub use results::{ResultsManifest, read_manifest, write_manifest};
 pub use shard::Shard;
 pub use split::{read_split, write_split};

@@ -173,7 +173,6 @@ pub fn first_non_finite_parameter<M: Module>(module: &M) -> Option<String> {
     scan_tensors(module).non_finite
 }
 
-/// The configuration (JSON) stored in a checkpoint of family `kind`; refuses other families.
 /// Refuses a checkpoint path that is no regular file within the binary size cap (a pipe or
 /// a device would hang or flood the reader), before any reader opens it.
 fn check_checkpoint_file(path: &Path) -> Result<(), ModelError> {
@@ -190,10 +189,9 @@ fn check_checkpoint_file(path: &Path) -> Result<(), ModelError> {
         })
 }
 
+/// The configuration (JSON) stored in a checkpoint of family `kind`; refuses other families.
 pub(crate) fn read_tagged_config(path: &Path, kind: DetectorKind) -> Result<String, ModelError> {
-    check_checkpoint_file(path)?;
-    let reader =
-        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
+    let reader = open_checkpoint(path)?;
     let meta = reader.metadata();
     let found = kind_of(path, meta)?;
     if found != kind {
@@ -287,10 +285,25 @@ where
 
 /// The family a checkpoint belongs to, from its metadata.
 pub fn read_checkpoint_kind(path: &Path) -> Result<DetectorKind, ModelError> {
+    kind_of(path, open_checkpoint(path)?.metadata())
+}
+
+/// Opens a checkpoint file, saying plainly when there is none at `path` and when the file
+/// is not a burnpack file at all (a user's first mistakes: a typo, the wrong file).
+fn open_checkpoint(path: &Path) -> Result<Reader, ModelError> {
+    if !path.exists() {
+        return Err(ckpt_err(
+            path,
+            "checkpoint not found (a run's model.bpk, or a shipped models/<name>.bpk)",
+        ));
+    }
     check_checkpoint_file(path)?;
-    let reader =
-        Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
-    kind_of(path, reader.metadata())
+    Reader::from_file_exact(path).map_err(|e| {
+        ckpt_err(
+            path,
+            format!("not a fusiondet checkpoint (not a burnpack file: {e})"),
+        )
+    })
 }
 
 fn kind_of(

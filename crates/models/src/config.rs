@@ -76,7 +76,7 @@ pub struct LfaConfig {
     /// Metres that divide the centroid-relative positions p_k and p_i of the local encoding
     /// and the point MLP's input (1 = the paper's raw metres). With raw metres a point's
     /// position (metres from the centroid) dwarfs its neighbour offsets (decimetres), so
-    /// the first layer learns mostly where a point is; see the README's SAF section.
+    /// the first layer learns mostly where a point is; see docs/frustum.md.
     pub position_scale_m: f64,
     /// Metres that divide the neighbour offsets p_i − p_k and their length (1 = raw).
     pub offset_scale_m: f64,

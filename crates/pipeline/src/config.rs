@@ -367,6 +367,9 @@ impl ExperimentConfig {
     /// The configuration that belongs to a checkpoint: `explicit` if given, else
     /// `<checkpoint>.toml` (a shipped model), else `config.toml` beside it (a run).
     pub fn for_checkpoint(checkpoint: &Path, explicit: Option<&Path>) -> Result<Self> {
+        // The checkpoint first: a missing or foreign file is the mistake to name, not the
+        // configuration that would be looked for beside it.
+        fusiondet_models::read_checkpoint_kind(checkpoint)?;
         if let Some(path) = explicit {
             return Self::from_file(path);
         }

@@ -25,6 +25,17 @@ pub enum PipelineError {
     RunDir { path: PathBuf, message: String },
     #[error("{0}")]
     Invalid(String),
+    /// The user stopped a training (Ctrl-C); `epochs_done` epochs are committed.
+    #[error("{}", interrupted_message(*epochs_done))]
+    Interrupted { epochs_done: usize },
+}
+
+fn interrupted_message(epochs_done: usize) -> String {
+    if epochs_done == 0 {
+        "interrupted before the first epoch finished; nothing was kept".into()
+    } else {
+        format!("interrupted after epoch {epochs_done}; rerun with --resume to continue")
+    }
 }
 
 pub type Result<T> = std::result::Result<T, PipelineError>;

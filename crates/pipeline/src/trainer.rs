@@ -26,7 +26,8 @@ pub struct TrainOptions {
     pub data_dir: PathBuf,
     pub run_dir: PathBuf,
     pub resume: bool,
-    /// Show a progress bar on stderr.
+    /// Show a progress bar on stderr; without it each epoch is one line on stdout (a log
+    /// file or a pipe then shows the training advance).
     pub progress: bool,
     /// Where the network trains.
     pub device: ComputeDevice,
@@ -106,13 +107,30 @@ pub trait TrainingTask: Sync {
     fn loss(&self, model: &Self::Model, batch: Self::Batch, device: &Device) -> Result<StepLoss>;
 }
 
-/// Trains the family named by the configuration.
+/// Trains the family named by the configuration. A training that fails before its first
+/// epoch is committed removes the run directory it created, so that the corrected command
+/// can be run again as it was (a resumed run's directory is never removed).
 pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
-    match options.config.kind() {
+    let creates_run = !options.resume && !options.run_dir.exists();
+    let result = match options.config.kind() {
         DetectorKind::Frustum => crate::frustum::train(options),
         DetectorKind::VoxelRcnn => crate::voxel_rcnn::train(options),
         DetectorKind::Dasanet => crate::dasanet::train(options),
+    };
+    if result.is_err() && creates_run && !RunDir::new(&options.run_dir).state().exists() {
+        // Best effort: the error being returned is what the user needs to read.
+        let _ = std::fs::remove_dir_all(&options.run_dir);
     }
+    result
+}
+
+/// Set when the user asks a training to stop (Ctrl-C, through the binary's signal
+/// handler): the loop stops at the next step and reports the last committed epoch.
+pub static STOP_REQUESTED: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
+
+fn stop_requested() -> bool {
+    STOP_REQUESTED.load(std::sync::atomic::Ordering::Relaxed)
 }
 
 fn bar(len: usize, enabled: bool) -> indicatif::ProgressBar {
@@ -253,6 +271,9 @@ pub fn run_training<T: TrainingTask>(
                 }
             });
             for prepared in rx {
+                if stop_requested() {
+                    return Err(PipelineError::Interrupted { epochs_done: epoch });
+                }
                 let batch = prepared?;
                 let net = slot.take().expect("the model is put back after every step");
                 lr = cfg.train.lr_at(epoch, steps, steps_per_epoch);
@@ -322,13 +343,19 @@ pub fn run_training<T: TrainingTask>(
         final_loss = sums.first().map(|(_, s)| s / steps.max(1) as f64);
         log.append(&record)?;
         run.commit(&state)?;
+        let line = format!(
+            "epoch {done}/{}: loss {:.4}, lr {lr:.1e}, {:.1} s",
+            cfg.train.epochs,
+            final_loss.unwrap_or(f64::NAN),
+            started.elapsed().as_secs_f64()
+        );
         if options.progress {
-            eprintln!(
-                "epoch {done}/{}: loss {:.4}, lr {lr:.1e}, {:.1} s",
-                cfg.train.epochs,
-                final_loss.unwrap_or(f64::NAN),
-                started.elapsed().as_secs_f64()
-            );
+            eprintln!("{line}");
+        } else {
+            use std::io::Write;
+            // A reader that left is no reason to stop training.
+            let mut out = std::io::stdout().lock();
+            let _ = writeln!(out, "{line}").and_then(|()| out.flush());
         }
     }
     Ok(TrainSummary {

@@ -43,9 +43,9 @@ impl SunRgbdDir {
         self.root.join("det_2d").join(format!("{id}.txt"))
     }
 
-    /// `splits/<name>.txt` (`train`, `val`).
+    /// `splits/<name>.txt` (`train`, `val`), or a split file ([`fusiondet_kitti::split_file`]).
     pub fn split(&self, name: &str) -> PathBuf {
-        self.root.join("splits").join(format!("{name}.txt"))
+        fusiondet_kitti::split_file(&self.root.join("splits"), name)
     }
 
     /// The ids a split lists (digits, each once; the KITTI split reader's rules).

@@ -113,20 +113,37 @@ pub fn draw_grid(img: &mut RgbImage, map: &BevMap, step: f64, text_scale: u32) {
             text_scale,
         );
     }
-    for x in
-        ticks(r.lateral.0, r.lateral.1).filter(|&x| x != 0.0 && x > r.lateral.0 && x < r.lateral.1)
-    {
-        let text = format!("{x:+.0} m");
-        let (col, _) = map.to_pixel(x, r.forward.0);
+    let lateral: Vec<(i32, String)> = ticks(r.lateral.0, r.lateral.1)
+        .filter(|&x| x != 0.0 && x > r.lateral.0 && x < r.lateral.1)
+        .map(|x| {
+            let (col, _) = map.to_pixel(x, r.forward.0);
+            (col as i32 + pad, format!("{x:+.0} m"))
+        })
+        .collect();
+    for (col, text) in spaced_labels(&lateral, text_scale, pad) {
         draw_text(
             img,
-            col as i32 + pad,
+            col,
             map.height as i32 - th as i32 - pad,
-            &text,
+            text,
             TEXT,
             text_scale,
         );
     }
+}
+
+/// The labels of a row, left to right, that fit: one that would touch the last one kept
+/// is left out (a room-sized map has a metre every few dozen pixels, narrower than "-4 m").
+fn spaced_labels(labels: &[(i32, String)], text_scale: u32, gap: i32) -> Vec<(i32, &str)> {
+    let mut kept = Vec::new();
+    let mut free_from = i32::MIN;
+    for (col, text) in labels {
+        if *col >= free_from {
+            kept.push((*col, text.as_str()));
+            free_from = col + text_size(text, text_scale).0 as i32 + gap;
+        }
+    }
+    kept
 }
 
 /// The left and right edges of the camera's field of view, dashed, so one can see
@@ -295,6 +312,23 @@ mod tests {
 
     fn map() -> BevMap {
         BevMap::new(BevRange::default(), 800)
+    }
+
+    #[test]
+    fn crowded_side_labels_skip_rather_than_overlap() {
+        let labels: Vec<(i32, String)> = [-4, -3, -2, -1, 1, 2]
+            .iter()
+            .enumerate()
+            .map(|(k, x)| (k as i32 * 30, format!("{x:+} m")))
+            .collect();
+        let kept = spaced_labels(&labels, 2, 4);
+        assert!(kept.len() < labels.len() && kept.len() >= 2, "{kept:?}");
+        for pair in kept.windows(2) {
+            let end = pair[0].0 + text_size(pair[0].1, 2).0 as i32;
+            assert!(end < pair[1].0, "{kept:?}");
+        }
+        let roomy: Vec<(i32, String)> = labels.iter().map(|(c, t)| (c * 10, t.clone())).collect();
+        assert_eq!(spaced_labels(&roomy, 2, 4).len(), labels.len());
     }
 
     #[test]

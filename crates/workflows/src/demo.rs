@@ -210,7 +210,7 @@ fn detect_and_evaluate(
     data: &Path,
     results: &Path,
     json: &Path,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<fusiondet_eval::EvalReport> {
     detect_val(title, "frames", config, model, data, results)?;
     let dataset = DatasetDir::new(data);
     let eval_config = EvalConfig {
@@ -225,7 +225,22 @@ fn detect_and_evaluate(
     )?;
     out!("{}", report.table());
     fusiondet_eval::write_json(json, &report, Default::default())?;
-    Ok(())
+    Ok(report)
+}
+
+/// 3D AP_R40 at the official overlap of each evaluated class, easy / moderate / hard, for
+/// the demo's closing line.
+fn ap3d_summary(report: &fusiondet_eval::EvalReport) -> String {
+    report
+        .classes
+        .iter()
+        .filter_map(|&class| {
+            let row = report.get(class, fusiondet_eval::Metric::ThreeD, 0)?;
+            let [e, m, h] = row.ap40;
+            Some(format!("{} {e:.1} / {m:.1} / {h:.1}", class.as_str()))
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// Draws the first `n` frames of the val split with their detections.
@@ -289,7 +304,7 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
 
     // 3. Detect and evaluate: simulated val split, then the real KITTI frames.
     let results = out.join("results");
-    detect_and_evaluate(
+    let sim_report = detect_and_evaluate(
         "simulated val split",
         &config,
         &model,
@@ -297,7 +312,7 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
         &results.join("sim"),
         &out.join("eval-sim.json"),
     )?;
-    detect_and_evaluate(
+    let kitti_report = detect_and_evaluate(
         match config.kind() {
             DetectorKind::Frustum => "bundled KITTI frames (val split, F-PointNet 2D detections)",
             DetectorKind::VoxelRcnn | DetectorKind::Dasanet => "bundled KITTI frames (val split)",
@@ -327,7 +342,12 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
         )
     };
     outln!(
-        "\ndemo finished in {:.1} s ({what})",
+        "\n3D AP_R40 easy / moderate / hard: simulated val {}; bundled KITTI frames {}",
+        ap3d_summary(&sim_report),
+        ap3d_summary(&kitti_report)
+    );
+    outln!(
+        "demo finished in {:.1} s ({what})",
         started.elapsed().as_secs_f64()
     );
     Ok(())

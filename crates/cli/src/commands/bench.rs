@@ -29,6 +29,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         );
     }
     let config = args.input.experiment_config()?;
+    super::data_root::check_root("--data", &args.input.data)?;
     let name = config.name.clone();
     let kind = config.kind();
     let input = args.input;

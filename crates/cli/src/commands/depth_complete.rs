@@ -50,7 +50,7 @@ pub struct DepthCompleteArgs {
     /// Frame ids for --data-dir (default: every frame with a velodyne scan).
     #[arg(long, value_delimiter = ',')]
     pub ids: Vec<String>,
-    /// The pipeline (default: the one that measured best here; see the README).
+    /// The pipeline (default: the one that measured best here; see docs/depth.md).
     #[arg(long, value_enum, default_value = "fast")]
     pub method: Method,
     /// The last smoothing step.
@@ -118,6 +118,7 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     if let Some(dir) = &args.data_dir {
+        super::data_root::check_frames("--data-dir", dir)?;
         let frames = FrameDir::new(dir);
         if let Some(fraction) = args.holdout {
             if !(fraction > 0.0 && fraction < 1.0) {
@@ -148,7 +149,13 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
         (Some(_), None) if args.shard.is_some() => {
             bail!("--shard splits the frames of --data-dir; complete a --sparse-dir unsharded")
         }
-        (Some(dir), None) => fusiondet_depth::complete_dir(dir, out_dir, &completer)?,
+        (Some(dir), None) => {
+            let maps = std::fs::read_dir(dir).map_or(0, |d| d.count());
+            let bar = super::progress::bar("depth-complete", maps, "maps");
+            let summary = fusiondet_depth::complete_dir(dir, out_dir, &completer, &|| bar.inc(1))?;
+            bar.finish_and_clear();
+            summary
+        }
         (None, Some(dir)) => {
             let frames = FrameDir::new(dir);
             // Before anything is made or locked: the output may not touch what is read.
@@ -167,9 +174,16 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
                 &[run.as_bytes(), &inputs_summary],
                 ids,
                 |ids| {
-                    Ok(fusiondet_depth::complete_frames(
-                        &frames, ids, out_dir, &completer,
-                    )?)
+                    let bar = super::progress::bar("depth-complete", ids.len(), "frames");
+                    let summary = fusiondet_depth::complete_frames(
+                        &frames,
+                        ids,
+                        out_dir,
+                        &completer,
+                        &|| bar.inc(1),
+                    )?;
+                    bar.finish_and_clear();
+                    Ok(summary)
                 },
             )?
         }

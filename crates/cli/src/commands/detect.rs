@@ -21,9 +21,12 @@ pub struct ModelOnSplit {
     /// model, a prepared SUN RGB-D directory (points/, calib/, det_2d/, splits/).
     #[arg(long)]
     pub data: PathBuf,
-    #[arg(long, default_value = "val")]
+    /// Frames to run on: a split name (DATA/ImageSets/<name>.txt; SUN RGB-D:
+    /// DATA/splits/<name>.txt) or a file of frame ids, one per line.
+    #[arg(long, default_value = "val", value_name = "NAME|FILE")]
     pub split: String,
-    /// 2D detections (F-PointNet format); default DATA/rgb_detections/rgb_detection_<split>.txt.
+    /// 2D detections (F-PointNet format); default DATA/rgb_detections/rgb_detection_<split>.txt
+    /// (a split file's name without .txt).
     /// SUN RGB-D: a directory of `<id>.txt` files as in DATA/det_2d/ (the default).
     #[arg(long)]
     pub detections: Option<PathBuf>,
@@ -74,6 +77,7 @@ pub struct DetectArgs {
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     let config = args.input.experiment_config()?;
+    super::data_root::check_root("--data", &args.input.data)?;
     let kind = config.kind();
     let input = args.input;
     let s = detect(&DetectOptions {

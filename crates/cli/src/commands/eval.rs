@@ -11,8 +11,9 @@ use fusiondet_eval::{
     EvalConfig, JsonExtras, breakdown_table, count_lidar_points, errors_table, evaluate,
     evaluate_breakdown, frame_ids, load_dirs, parse_classes, true_positive_errors, write_json,
 };
-use fusiondet_workflows::out;
-use std::path::PathBuf;
+use fusiondet_kitti::{ObjectClass, read_manifest, split_file, split_is_file};
+use fusiondet_workflows::{out, outln};
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 const AFTER_HELP: &str = "\
@@ -59,9 +60,6 @@ ground truth (a class without is `-`, null in JSON). VoteNet's eval_det.py, exce
 IoU is exact. --json OUT writes {\"results\": [{\"class\", \"iou\", \"ap\"}, ...], \"map\":
 {\"0.25\": m, \"0.5\": m}}, AP in percent.";
 
-/// `--classes`' default: the classes the KITTI benchmark evaluates.
-const KITTI_CLASSES: &str = "Car,Pedestrian,Cyclist";
-
 /// Which data set's files and protocol `eval` uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 enum Dataset {
@@ -86,13 +84,15 @@ pub struct EvalArgs {
     /// A missing file is a frame without detections (the count is reported).
     #[arg(long, value_name = "DIR")]
     result_dir: PathBuf,
-    /// Frame ids to evaluate, one per line (e.g. ImageSets/val.txt); default: every
-    /// label file in --label-dir.
-    #[arg(long, value_name = "IDS_FILE")]
-    split: Option<PathBuf>,
-    /// Classes to evaluate, comma-separated, KITTI spelling.
-    #[arg(long, value_name = "LIST", default_value = KITTI_CLASSES)]
-    classes: String,
+    /// Frames to evaluate: a split name (`val`: ImageSets/val.txt of the data set whose
+    /// training/label_2 is --label-dir; SUN RGB-D: splits/val.txt) or a file of ids. Default:
+    /// the frames of the results' manifest (what `detect` wrote), else every label file.
+    #[arg(long, value_name = "NAME|FILE")]
+    split: Option<String>,
+    /// Classes to evaluate, comma-separated, KITTI spelling. Default: those of Car,
+    /// Pedestrian, Cyclist that occur in the results (all three if none does).
+    #[arg(long, value_name = "LIST")]
+    classes: Option<String>,
     /// Also write the results as JSON to this file (atomically).
     #[arg(long, value_name = "OUT")]
     json: Option<PathBuf>,
@@ -118,11 +118,6 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if args.dataset == Dataset::Sunrgbd {
         return run_sunrgbd(args);
     }
-    let classes = parse_classes(&args.classes).map_err(|m| anyhow::anyhow!("--classes: {m}"))?;
-    let cfg = EvalConfig {
-        classes,
-        ..EvalConfig::default()
-    };
     let lidar = match (args.breakdown, &args.velodyne_dir, &args.calib_dir) {
         (true, Some(v), Some(c)) => Some((v.clone(), c.clone())),
         (true, _, _) => bail!(
@@ -145,13 +140,34 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 ("--result-dir", Some(args.result_dir.as_path())),
                 ("--velodyne-dir", args.velodyne_dir.as_deref()),
                 ("--calib-dir", args.calib_dir.as_deref()),
-                ("--split", args.split.as_deref()),
+                (
+                    "--split",
+                    split_input(&args, "training/label_2", "ImageSets").as_deref(),
+                ),
             ],
         )?;
     }
     let start = Instant::now();
-    let ids = frame_ids(&args.label_dir, args.split.as_deref())?;
+    refuse_non_results(&args.result_dir)?;
+    let (ids, frames_from) = eval_frames(&args, "training/label_2", "ImageSets")?;
     let frames = load_dirs(&args.label_dir, &args.result_dir, &ids)?;
+    let (classes, classes_from) = match &args.classes {
+        Some(list) => (
+            parse_classes(list).map_err(|m| anyhow::anyhow!("--classes: {m}"))?,
+            "--classes",
+        ),
+        None => classes_in_results(&frames.det),
+    };
+    let names: Vec<&str> = classes.iter().map(|c| c.as_str()).collect();
+    outln!(
+        "evaluating {} frames ({frames_from}) for {} ({classes_from}); --split and --classes choose others",
+        ids.len(),
+        names.join(", ")
+    );
+    let cfg = EvalConfig {
+        classes,
+        ..EvalConfig::default()
+    };
     let missing = &frames.missing_results;
     if !missing.is_empty() {
         let shown: Vec<&str> = missing.iter().take(5).map(String::as_str).collect();
@@ -218,7 +234,7 @@ fn run_sunrgbd(args: EvalArgs) -> anyhow::Result<()> {
         ("--errors", args.errors),
         ("--velodyne-dir", args.velodyne_dir.is_some()),
         ("--calib-dir", args.calib_dir.is_some()),
-        ("--classes", args.classes != KITTI_CLASSES),
+        ("--classes", args.classes.is_some()),
     ];
     if let Some((flag, _)) = kitti_only.iter().find(|(_, given)| *given) {
         bail!(
@@ -232,12 +248,17 @@ fn run_sunrgbd(args: EvalArgs) -> anyhow::Result<()> {
             &[
                 ("--label-dir", Some(args.label_dir.as_path())),
                 ("--result-dir", Some(args.result_dir.as_path())),
-                ("--split", args.split.as_deref()),
+                ("--split", split_input(&args, "label", "splits").as_deref()),
             ],
         )?;
     }
     let start = Instant::now();
-    let ids = frame_ids(&args.label_dir, args.split.as_deref())?;
+    refuse_non_results(&args.result_dir)?;
+    let (ids, frames_from) = eval_frames(&args, "label", "splits")?;
+    outln!(
+        "evaluating {} scenes ({frames_from}) for the 10 SUN RGB-D classes; --split chooses others",
+        ids.len()
+    );
     let loaded = load_indoor_dirs(&args.label_dir, &args.result_dir, &ids)?;
     let missing = &loaded.missing_results;
     if !missing.is_empty() {
@@ -267,4 +288,117 @@ fn run_sunrgbd(args: EvalArgs) -> anyhow::Result<()> {
         start.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// The split file `--split` reads, for the check that `--json` does not replace it: the file
+/// given, or the named list beside `--label-dir` (`label_sub` below the data set's root).
+fn split_input(args: &EvalArgs, label_sub: &str, lists: &str) -> Option<PathBuf> {
+    let split = args.split.as_deref()?;
+    if split_is_file(split) {
+        return Some(PathBuf::from(split));
+    }
+    let depth = Path::new(label_sub).components().count();
+    let root = args.label_dir.ancestors().nth(depth)?;
+    Some(split_file(&root.join(lists), split))
+}
+
+/// The frames to evaluate and where they came from: `--split` (a name is looked up in the
+/// `lists` folder of the data set whose `label_sub` is --label-dir, e.g. `ImageSets/` for
+/// `training/label_2`), else the frames the results' manifest lists, else every label file.
+fn eval_frames(
+    args: &EvalArgs,
+    label_sub: &str,
+    lists: &str,
+) -> anyhow::Result<(Vec<String>, String)> {
+    if let Some(split) = &args.split {
+        let path = if split_is_file(split) {
+            PathBuf::from(split)
+        } else {
+            let depth = Path::new(label_sub).components().count();
+            let root = args.label_dir.ancestors().nth(depth).filter(|root| {
+                root.join(label_sub).canonicalize().ok() == args.label_dir.canonicalize().ok()
+            });
+            match root {
+                Some(root) => split_file(&root.join(lists), split),
+                None => bail!(
+                    "--split {split}: a split name is looked up in the data set's {lists}/, but \
+                     --label-dir {} is not a data set's {label_sub}/; give the split as a file \
+                     (e.g. --split DATA/{lists}/{split}.txt)",
+                    args.label_dir.display()
+                ),
+            }
+        };
+        let ids = frame_ids(&args.label_dir, Some(&path))?;
+        return Ok((ids, format!("split {}", path.display())));
+    }
+    if let Some(manifest) = read_manifest(&args.result_dir)?
+        && !manifest.frames.is_empty()
+    {
+        return Ok((
+            manifest.frames,
+            "the frames the results' manifest lists".into(),
+        ));
+    }
+    let ids = frame_ids(&args.label_dir, None)?;
+    Ok((
+        ids,
+        "every label file; the results have no detect manifest".into(),
+    ))
+}
+
+/// Refuses a result directory that cannot be one: a data set root (or one of its folders)
+/// or a folder with neither result files nor a detect manifest, which would be scored as
+/// zeros.
+fn refuse_non_results(dir: &Path) -> anyhow::Result<()> {
+    if !dir.is_dir() {
+        bail!(
+            "--result-dir {}: no such directory (give the --out of `fusiondet detect`)",
+            dir.display()
+        );
+    }
+    let data_set = [
+        "training",
+        "ImageSets",
+        "label_2",
+        "velodyne",
+        "calib",
+        "points",
+    ];
+    if let Some(found) = data_set.iter().find(|d| dir.join(d).is_dir()) {
+        bail!(
+            "--result-dir {}: holds {found}/, so it is a data set, not detection results; give \
+             the --out of `fusiondet detect` (and the data set's training/label_2 as --label-dir)",
+            dir.display()
+        );
+    }
+    let has_results = std::fs::read_dir(dir)
+        .map_err(|e| anyhow::anyhow!("--result-dir {}: {e}", dir.display()))?
+        .filter_map(|e| e.ok())
+        .any(|e| e.file_name().to_str().is_some_and(|n| n.ends_with(".txt")));
+    if !has_results && read_manifest(dir)?.is_none() {
+        bail!(
+            "--result-dir {}: holds no result files (NNNNNN.txt) and no detect manifest; run \
+             `fusiondet detect --out {}` first",
+            dir.display(),
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// The evaluated classes (Car, Pedestrian, Cyclist) that occur in the results, in that
+/// order; all three when none does, so an empty result set still reports every class.
+fn classes_in_results(det: &[fusiondet_eval::FrameDet]) -> (Vec<ObjectClass>, &'static str) {
+    let found: Vec<ObjectClass> = ObjectClass::EVALUATED
+        .into_iter()
+        .filter(|c| det.iter().any(|f| f.objects.iter().any(|o| o.class == *c)))
+        .collect();
+    if found.is_empty() {
+        (
+            ObjectClass::EVALUATED.to_vec(),
+            "no evaluated class in the results, so all three",
+        )
+    } else {
+        (found, "the classes in the results")
+    }
 }

@@ -34,10 +34,11 @@ pub struct GtDatabaseArgs {
 }
 
 pub fn run(args: GtDatabaseArgs) -> anyhow::Result<()> {
+    super::data_root::check_root("--data", &args.data)?;
     let out = if args.pseudo {
-        data_pseudo_gt_database_dir(&args.data, &args.split)
+        data_pseudo_gt_database_dir(&args.data, fusiondet_kitti::split_name(&args.split))
     } else {
-        data_gt_database_dir(&args.data, &args.split)
+        data_gt_database_dir(&args.data, fusiondet_kitti::split_name(&args.split))
     };
     if out.join("index.json").exists() && !args.force {
         anyhow::bail!(
@@ -46,6 +47,11 @@ pub fn run(args: GtDatabaseArgs) -> anyhow::Result<()> {
         );
     }
     let frames = fusiondet_dataset::load_split(&args.data, &args.split, 0, true)?;
+    let bar = super::progress::bar(
+        "gt-database",
+        fusiondet_dataset::FrameSource::len(&frames),
+        "frames",
+    );
     let db = if args.pseudo {
         let (settings, range) = match &args.config {
             Some(path) => {
@@ -62,10 +68,13 @@ pub fn run(args: GtDatabaseArgs) -> anyhow::Result<()> {
                     .point_range,
             ),
         };
-        build_pseudo_gt_database(&frames, &PseudoCloudMaker::new(&settings, range))?
+        build_pseudo_gt_database(&frames, &PseudoCloudMaker::new(&settings, range), &|| {
+            bar.inc(1)
+        })?
     } else {
-        build_gt_database(&frames)?
+        build_gt_database(&frames, &|| bar.inc(1))?
     };
+    bar.finish_and_clear();
     db.save(&out)?;
     let mut per_class: BTreeMap<String, (usize, usize)> = BTreeMap::new();
     for o in db.objects() {

@@ -10,7 +10,8 @@ use std::path::PathBuf;
 #[derive(clap::Args)]
 pub struct InfoArgs {
     /// Experiment configuration (TOML, read as `train` reads it: `[detector]`, `[dataset]`,
-    /// `[model]`, `[loss]`, ...; missing keys take the published F-ConvNet Car values).
+    /// then the family's sections; a missing key takes its family's published Car value:
+    /// F-ConvNet's for the frustum family, Voxel R-CNN's or DASANet's for theirs).
     #[arg(long)]
     pub config: PathBuf,
 }

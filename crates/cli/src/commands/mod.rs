@@ -2,6 +2,7 @@
 
 pub mod ablation;
 pub mod bench;
+pub mod data_root;
 pub mod demo;
 pub mod depth_complete;
 pub mod detect;
@@ -11,6 +12,7 @@ pub mod info;
 pub mod merge;
 pub mod omega_study;
 pub mod outputs;
+pub mod progress;
 pub mod pseudo_points;
 pub mod shards;
 pub mod simulate;

@@ -33,6 +33,7 @@ pub fn run(args: OmegaStudyArgs) -> anyhow::Result<()> {
             args.config.display()
         );
     }
+    super::data_root::check_root("--data", &args.data)?;
     let frames = load_split(&args.data, &args.split, args.max_frames, true)?;
     let study =
         omega_study_from_labels(frames, &config.frustum, config.train.seed, &DEFAULT_OMEGAS)?;

@@ -38,6 +38,7 @@ pub struct PseudoPointsArgs {
 }
 
 pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
+    super::data_root::check_frames("--data-dir", &args.data_dir)?;
     let frames = FrameDir::new(&args.data_dir);
     // Before anything is made or locked: the output may not touch what is read.
     let inputs = Inputs::new()
@@ -66,14 +67,18 @@ pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
         &[run.as_bytes(), &inputs_summary],
         ids,
         |ids| {
-            Ok(fusiondet_depth::pseudo_frames(
+            let bar = super::progress::bar("pseudo-points", ids.len(), "frames");
+            let summary = fusiondet_depth::pseudo_frames(
                 &frames,
                 ids,
                 args.depth_dir.as_deref(),
                 &args.out_dir,
                 &completer,
                 thinning,
-            )?)
+                &|| bar.inc(1),
+            )?;
+            bar.finish_and_clear();
+            Ok(summary)
         },
     )?;
     outln!(

@@ -10,8 +10,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 const AFTER_HELP: &str = "\
-Writes DIR/training/{velodyne,calib,label_2,image_2}/NNNNNN.*, DIR/ImageSets/{train,val,
-trainval}.txt, DIR/rgb_detections/rgb_detection_{train,val}.txt (F-PointNet format) and
+Writes DIR/training/{velodyne,calib,label_2,image_2,depth_2}/NNNNNN.* (depth_2: the
+camera's true depth, KITTI depth-completion PNGs), DIR/ImageSets/{train,val,trainval}.txt, DIR/rgb_detections/rgb_detection_{train,val}.txt (F-PointNet format) and
 DIR/sim_stats.json (realism statistics). The same seed gives byte-identical files on any
 machine; frames are generated in parallel.
 

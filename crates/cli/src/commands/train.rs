@@ -1,13 +1,16 @@
-//! `fusiondet train`: trains a frustum detector from a TOML experiment configuration.
+//! `fusiondet train`: trains a detector of any family from a TOML experiment configuration.
 
-use fusiondet_pipeline::{ComputeDevice, ExperimentConfig, TrainOptions, train};
+use fusiondet_pipeline::{ComputeDevice, ExperimentConfig, PipelineError, TrainOptions, train};
 use fusiondet_workflows::outln;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct TrainArgs {
-    /// Experiment configuration (TOML: [frustum], [model], [loss], [train], [detect]).
+    /// Experiment configuration (TOML): `[detector] kind` and `[dataset] format`, `classes`
+    /// (both required), then the family's sections (frustum: [frustum], [model], [loss];
+    /// voxel_rcnn: [voxel_rcnn]; dasanet: [voxel_rcnn] and [dasanet]) and [train], [detect].
+    /// configs/ holds one for every model.
     #[arg(long)]
     pub config: PathBuf,
     /// Dataset root with training/ and ImageSets/ (e.g. made by `fusiondet simulate`), or a
@@ -85,14 +88,24 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         };
         refine.first_stage = path;
     }
-    let summary = train(&TrainOptions {
+    super::data_root::check_root("--data", &args.data)?;
+    stop_on_ctrl_c();
+    let summary = match train(&TrainOptions {
         config,
         data_dir: args.data,
         run_dir: args.out,
         resume: args.resume,
         progress: std::io::stderr().is_terminal(),
         device: args.device,
-    })?;
+    }) {
+        Ok(summary) => summary,
+        Err(e @ PipelineError::Interrupted { .. }) => {
+            eprintln!("{e}");
+            // The shell's code for a process ended by SIGINT.
+            std::process::exit(130);
+        }
+        Err(e) => return Err(e.into()),
+    };
     outln!(
         "trained on {}: {} epoch(s) run, {} done, final loss {}",
         if summary.sample_noun == "frames" {
@@ -121,3 +134,23 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     outln!("model: {}", summary.model.display());
     Ok(())
 }
+
+/// Ctrl-C asks the training to stop at its next step (the run keeps its committed epochs
+/// and says how to resume); a second Ctrl-C ends the process at once.
+#[cfg(unix)]
+fn stop_on_ctrl_c() {
+    use std::sync::atomic::Ordering;
+    extern "C" fn on_sigint(_: libc::c_int) {
+        // Only async-signal-safe work here: an atomic swap and _exit.
+        if fusiondet_pipeline::trainer::STOP_REQUESTED.swap(true, Ordering::SeqCst) {
+            // SAFETY: _exit is async-signal-safe.
+            unsafe { libc::_exit(130) };
+        }
+    }
+    let handler: extern "C" fn(libc::c_int) = on_sigint;
+    // SAFETY: installs a handler that only touches an atomic and calls _exit.
+    unsafe { libc::signal(libc::SIGINT, handler as libc::sighandler_t) };
+}
+
+#[cfg(not(unix))]
+fn stop_on_ctrl_c() {}

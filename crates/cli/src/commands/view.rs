@@ -124,12 +124,7 @@ fn check_args(args: &ViewArgs) -> anyhow::Result<()> {
             bail!("{flag} must be in 1..=2000000, got {n}");
         }
     }
-    if !args.data_dir.is_dir() {
-        bail!(
-            "--data-dir {}: no such directory (a KITTI training/ or testing/ folder)",
-            args.data_dir.display()
-        );
-    }
+    super::data_root::check_frames("--data-dir", &args.data_dir)?;
     for (flag, dir) in [
         ("--result-dir", &args.result_dir),
         ("--pseudo-dir", &args.pseudo_dir),

@@ -95,6 +95,7 @@ pub(crate) fn check_score_threshold(threshold: Option<f64>) -> anyhow::Result<()
 pub fn run(args: VizArgs) -> anyhow::Result<()> {
     let id = frame_id(&args.id)?;
     check_score_threshold(args.score_threshold)?;
+    super::data_root::check_frames("--data-dir", &args.data_dir)?;
     let indoor = fusiondet_viz::is_sun_rgbd_dir(&args.data_dir);
     let (forward, side) = match indoor {
         true => (8.0, 5.0),

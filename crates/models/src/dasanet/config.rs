@@ -3,7 +3,7 @@
 //! on — the four rows of the paper's Table 4 — and the sizes the paper leaves open.
 //!
 //! The open sizes of the published configuration are chosen so that the parameter
-//! counts land within 10% of Table 5 (see `Dasanet::param_rows` and the README): RoI
+//! counts land within 10% of Table 5 (see `Dasanet::param_rows` and docs/dasanet.md): RoI
 //! features from C3 and C4 (and P3, P4) at 88 channels each (C = 176, N = 216), and
 //! STCA's encoder 6 → 32 → 64 point MLP, 64-channel submanifold convolutions and a
 //! 240-channel strided one over a 12³ RoI grid (F^A: 6³ × 480).

@@ -5,7 +5,7 @@
 use super::config::DasanetSection;
 use super::data::{DasanetData, collate};
 use crate::config::ExperimentConfig;
-use crate::detect::{FrameResults, StageTimes};
+use crate::detection::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use crate::voxel_rcnn::VoxelRcnnSection;
 use crate::voxel_rcnn::detector::{

@@ -46,16 +46,20 @@ pub fn detection_data(voxel: &VoxelRcnnSection, dasanet: &DasanetSection) -> Res
 
 /// The labelled objects of `frames` with their LiDAR and pseudo points, built in
 /// parallel (in frame order).
+/// `frame_done` is called once per frame (a progress bar's tick).
 pub fn build_pseudo_gt_database(
     frames: &InMemoryFrames<SensorFrame>,
     maker: &PseudoCloudMaker,
+    frame_done: &(dyn Fn() + Sync),
 ) -> Result<GtDatabase> {
     let parts = (0..frames.len())
         .into_par_iter()
         .map(|i| {
             let frame = frames.frame(i)?;
             let cloud = maker.cloud(&frame, None)?;
-            Ok(GtDatabase::of_frame_with_pseudo(frame.as_ref(), &cloud))
+            let part = GtDatabase::of_frame_with_pseudo(frame.as_ref(), &cloud);
+            frame_done();
+            Ok(part)
         })
         .collect::<Result<Vec<GtDatabase>>>()?;
     let mut db = GtDatabase::new();
@@ -196,7 +200,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         let db = cached_gt_database(
             &data_pseudo_gt_database_dir(&options.data_dir, &cfg.train.split),
             &opened.run.root.join(PSEUDO_GT_DATABASE_DIR),
-            || build_pseudo_gt_database(&frames, &maker),
+            || build_pseudo_gt_database(&frames, &maker, &|| {}),
         )?;
         Some(
             GtSampler::new(db, &voxel.augment)

@@ -4,7 +4,7 @@
 //! on frustums cut around the first stage's boxes.
 
 use crate::config::ExperimentConfig;
-use crate::detect::{FrameResults, StageTimes};
+use crate::detection::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use burn::prelude::*;
 use fusiondet_frustum::{BoxDetection, FrustumDataset, FrustumFrames, FrustumSample, SkipCounts};

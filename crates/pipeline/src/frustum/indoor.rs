@@ -3,8 +3,10 @@
 //! box per frustum → 3D NMS per class → `<id>.txt` result lines in upright depth, under
 //! detect's manifest (so `eval --dataset sunrgbd` reads them).
 
-use crate::detect::{DetectOptions, DetectSummary, Detector, ResultWriter, refuse_input_dir};
+use crate::detection::{DetectOptions, DetectSummary};
 use crate::error::{PipelineError, Result};
+use crate::frustum::FrustumDetector;
+use crate::result_dir::{ResultWriter, check_result_dir, refuse_input_dir};
 use fusiondet_dataset::Class;
 use fusiondet_dataset::indoor::{load_scenes, scene_ids};
 use fusiondet_frustum::{FrameDetection, InMemoryFrames};
@@ -37,7 +39,7 @@ fn scene_detections(
         .collect())
 }
 
-/// [`crate::detect::detect_in_chunks`] for SUN RGB-D data (whole splits only).
+/// `crate::detect::detect_in_chunks` for SUN RGB-D data (whole splits only).
 pub fn detect_scenes(options: &DetectOptions, chunk_frames: usize) -> Result<DetectSummary> {
     refuse_input_dir(options)?;
     if options.shard.is_some() {
@@ -61,18 +63,18 @@ pub fn detect_scenes(options: &DetectOptions, chunk_frames: usize) -> Result<Det
             d.display()
         )));
     }
-    crate::detect::check_result_dir(&options.out_dir, options.replace)?;
+    check_result_dir(&options.out_dir, options.replace)?;
     let mut summary = DetectSummary::default();
     let t = Instant::now();
     let device = options.device.device();
-    let detector = match Detector::load(options.config.clone(), &options.checkpoint, &device)? {
-        Detector::Frustum(d) => d,
-        _ => {
-            return Err(PipelineError::Invalid(
-                "SUN RGB-D data is detected by frustum models only".into(),
-            ));
-        }
-    };
+    let stored = fusiondet_models::read_checkpoint_kind(&options.checkpoint)?;
+    if stored != fusiondet_models::DetectorKind::Frustum {
+        return Err(PipelineError::Invalid(format!(
+            "SUN RGB-D data is detected by frustum models only; {} is a {stored} checkpoint",
+            options.checkpoint.display()
+        )));
+    }
+    let detector = FrustumDetector::load(options.config.clone(), &options.checkpoint, &device)?;
     let data = SunRgbdDir::new(&options.data_dir);
     let ids = scene_ids(&options.data_dir, &options.split, 0)?;
     // Every scene's detections are read before anything is written: a missing file

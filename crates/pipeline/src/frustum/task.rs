@@ -2,7 +2,7 @@
 //! around its first stage's boxes), F-ConvNet's loss.
 
 use crate::config::{DatasetFormat, ExperimentConfig, RefineConfig};
-use crate::detect::{FrameResults, StageTimes};
+use crate::detection::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use crate::frustum::FrustumDetector;
 use crate::run_dir::RunDir;
@@ -46,7 +46,23 @@ impl TrainingTask for FrustumTask<'_> {
         "frustums"
     }
     fn sample_note(&self) -> String {
-        format!(" (skipped: {:?})", self.dataset.skips())
+        let k = self.dataset.skips();
+        let skipped: Vec<String> = [
+            ("outside the image", k.outside_image),
+            ("too small", k.too_small),
+            ("without points", k.no_points),
+            ("without object points", k.no_object_points),
+            ("in frames not in the split", k.unknown_frame),
+            ("unmatched", k.unmatched),
+        ]
+        .iter()
+        .filter(|(_, n)| *n > 0)
+        .map(|(why, n)| format!("{n} {why}"))
+        .collect();
+        match skipped.is_empty() {
+            true => String::new(),
+            false => format!(" (skipped: {})", skipped.join(", ")),
+        }
     }
     fn new_model(&self, device: &Device) -> Result<FConvNet> {
         seeded_network(self.config, device)

@@ -6,7 +6,7 @@ use super::config::VoxelRcnnSection;
 use super::data::{VoxelData, batch_inputs};
 use super::proposals::{decode_proposals, nms_sorted, top_k};
 use crate::config::ExperimentConfig;
-use crate::detect::{FrameResults, StageTimes};
+use crate::detection::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};

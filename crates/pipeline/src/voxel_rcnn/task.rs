@@ -224,10 +224,18 @@ pub fn data_gt_database_dir(data_dir: &Path, split: &str) -> std::path::PathBuf 
 }
 
 /// The labelled objects of `frames` with their points, built in parallel (in frame order).
-pub fn build_gt_database(frames: &InMemoryFrames<SensorFrame>) -> Result<GtDatabase> {
+/// `frame_done` is called once per frame (a progress bar's tick).
+pub fn build_gt_database(
+    frames: &InMemoryFrames<SensorFrame>,
+    frame_done: &(dyn Fn() + Sync),
+) -> Result<GtDatabase> {
     let parts = (0..frames.len())
         .into_par_iter()
-        .map(|i| Ok(GtDatabase::of_frame(frames.frame(i)?.as_ref())))
+        .map(|i| {
+            let part = GtDatabase::of_frame(frames.frame(i)?.as_ref());
+            frame_done();
+            Ok(part)
+        })
         .collect::<Result<Vec<GtDatabase>>>()?;
     let mut db = GtDatabase::new();
     for part in parts {
@@ -272,7 +280,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         let db = cached_gt_database(
             &data_gt_database_dir(&options.data_dir, &cfg.train.split),
             &opened.run.root.join(GT_DATABASE_DIR),
-            || build_gt_database(&frames),
+            || build_gt_database(&frames, &|| {}),
         )?;
         Some(
             GtSampler::new(db, &section.augment)
