@@ -305,6 +305,28 @@ mod tests {
         }
     }
 
+    /// A scene whose image is a link to `/dev/zero` is an error naming the image: it was read
+    /// for gigabytes and then passed over, with a default size.
+    #[cfg(unix)]
+    #[test]
+    fn a_device_in_the_images_place_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let from = fixture().root;
+        for sub in ["calib", "label", "points", "splits"] {
+            std::fs::create_dir_all(dir.path().join(sub)).unwrap();
+            for entry in std::fs::read_dir(from.join(sub)).unwrap() {
+                let path = entry.unwrap().path();
+                std::fs::copy(&path, dir.path().join(sub).join(path.file_name().unwrap())).unwrap();
+            }
+        }
+        std::fs::create_dir_all(dir.path().join("image")).unwrap();
+        std::os::unix::fs::symlink("/dev/zero", dir.path().join("image/000017.jpg")).unwrap();
+        let err = load_scene(&SunRgbdDir::new(dir.path()), "000017", true)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("000017.jpg: not a regular file"), "{err}");
+    }
+
     #[test]
     fn the_real_scene_is_a_frame_with_its_bed_and_night_stand() {
         let f = load_scene(&fixture(), "000017", true).unwrap();
