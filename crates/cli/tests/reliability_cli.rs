@@ -5,8 +5,7 @@
 
 mod common;
 
-use common::{all_output, assert_fails_with, repo_root, run, s};
-use std::collections::BTreeMap;
+use common::{all_output, assert_fails_with, repo_root, run, s, snapshot};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -30,23 +29,6 @@ fn kitti_copy(dir: &Path) -> PathBuf {
         }
     }
     to
-}
-
-/// Every file under `root` with its bytes.
-fn snapshot(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                out.insert(path.clone(), std::fs::read(&path).unwrap());
-            }
-        }
-    }
-    out
 }
 
 /// Runs the binary and kills it after `limit`: a hang fails the test instead of stalling it.

@@ -4,33 +4,14 @@
 use fusiondet_kitti::{
     DatasetDir, ObjectClass, read_calib, read_detections2d, read_objects, read_split, read_velodyne,
 };
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
 mod common;
-use common::{s, text};
+use common::{s, snapshot, text};
 
 fn simulate(args: &[&str]) -> Output {
     common::run("simulate", args)
-}
-
-/// Every file under `root` with its bytes, by relative path.
-fn snapshot(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                let rel = path.strip_prefix(root).unwrap().to_path_buf();
-                out.insert(rel, std::fs::read(&path).unwrap());
-            }
-        }
-    }
-    out
 }
 
 #[test]

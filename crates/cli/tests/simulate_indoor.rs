@@ -5,32 +5,10 @@
 use fusiondet_sim::indoor::sunrgbd::{
     SunClass, SunRgbdDir, depth::read_depth_png, read_detections_2d, read_image,
 };
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 mod common;
-use common::{assert_fails_with, run, s, text};
-
-/// Every file under `root` with its bytes, by relative path.
-fn snapshot(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                let rel = path.strip_prefix(root).unwrap().to_path_buf();
-                // The lock file is created empty and holds nothing of the data set.
-                if !rel.ends_with(".fusiondet-sim.lock") {
-                    out.insert(rel, std::fs::read(&path).unwrap());
-                }
-            }
-        }
-    }
-    out
-}
+use common::{assert_fails_with, run, s, snapshot, text};
 
 #[test]
 fn writes_a_sun_rgbd_data_set_and_repeats_it_exactly() {

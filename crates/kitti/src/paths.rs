@@ -94,53 +94,54 @@ pub struct OverlapError {
 /// Refuses an output directory `out` (given as `flag`) that equals, lies inside or contains
 /// one of `inputs`.
 pub fn check_output_dir(flag: &str, out: &Path, inputs: &Inputs) -> Result<(), OverlapError> {
-    let target = resolve(out);
-    for (in_flag, given, real) in &inputs.entries {
-        let relation = if &target == real {
-            "is an input directory:"
+    first_overlap(flag, out, inputs, |target, real| {
+        if target == real {
+            Some("is an input directory:")
         } else if target.starts_with(real) {
-            "lies inside"
-        } else if real.starts_with(&target) {
-            "contains"
+            Some("lies inside")
         } else {
-            continue;
-        };
-        return Err(OverlapError {
-            out_flag: flag.to_string(),
-            out: out.to_path_buf(),
-            relation,
-            in_flag: in_flag.clone(),
-            input: given.clone(),
-        });
-    }
-    Ok(())
+            real.starts_with(target).then_some("contains")
+        }
+    })
 }
 
 /// Refuses an output file `out` (given as `flag`) that equals an input, or lies inside an
 /// input directory where it exists already or has a frame file's name.
 pub fn check_output_file(flag: &str, out: &Path, inputs: &Inputs) -> Result<(), OverlapError> {
-    let target = resolve(out);
-    let frame_name = target
-        .file_name()
-        .and_then(|n| n.to_str())
-        .is_some_and(is_frame_file_name);
-    for (in_flag, given, real) in &inputs.entries {
-        let relation = if &target == real {
-            "is the input"
+    first_overlap(flag, out, inputs, |target, real| {
+        let frame_name = target
+            .file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(is_frame_file_name);
+        if target == real {
+            Some("is the input")
         } else if real.is_dir() && target.starts_with(real) && (target.exists() || frame_name) {
-            "would overwrite an input in"
-        } else if real.starts_with(&target) {
-            "contains"
+            Some("would overwrite an input in")
         } else {
-            continue;
-        };
-        return Err(OverlapError {
-            out_flag: flag.to_string(),
-            out: out.to_path_buf(),
-            relation,
-            in_flag: in_flag.clone(),
-            input: given.clone(),
-        });
+            real.starts_with(target).then_some("contains")
+        }
+    })
+}
+
+/// The first input that `relation(resolved output, resolved input)` says the output
+/// touches, as the error naming both.
+fn first_overlap(
+    flag: &str,
+    out: &Path,
+    inputs: &Inputs,
+    relation: impl Fn(&Path, &Path) -> Option<&'static str>,
+) -> Result<(), OverlapError> {
+    let target = resolve(out);
+    for (in_flag, given, real) in &inputs.entries {
+        if let Some(relation) = relation(&target, real) {
+            return Err(OverlapError {
+                out_flag: flag.to_string(),
+                out: out.to_path_buf(),
+                relation,
+                in_flag: in_flag.clone(),
+                input: given.clone(),
+            });
+        }
     }
     Ok(())
 }
