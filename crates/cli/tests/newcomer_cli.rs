@@ -356,10 +356,13 @@ fn on_a_terminal(command: &str) -> Option<String> {
 
 #[test]
 fn per_frame_commands_draw_a_bar_on_a_terminal_only() {
-    if Command::new("script").arg("--version").output().is_err() {
-        eprintln!(
-            "skipped: `script` (util-linux) is not installed, so there is no terminal to test on"
-        );
+    // A machine without util-linux's `script`, or without pseudo-terminals, has no terminal
+    // to test on.
+    let probe = Command::new("script")
+        .args(["-qec", "true", "/dev/null"])
+        .output();
+    if !probe.is_ok_and(|o| o.status.success()) {
+        eprintln!("skipped: no pseudo-terminal through `script` (util-linux) here");
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
