@@ -404,6 +404,22 @@ fn per_frame_commands_draw_a_bar_on_a_terminal_only() {
         let shown = on_a_terminal(command).unwrap();
         assert!(shown.contains(bar), "{command}:\n{shown}");
     }
+    // Training on a terminal draws its bar, and stdout sent to a file still gets each epoch.
+    let sim = simulated(tmp.path());
+    let log = tmp.path().join("train.log");
+    let shown = on_a_terminal(&format!(
+        "{bin} train --config {} --data {} --out {} --epochs 2 > {}",
+        s(&repo_root().join("configs/tiny.toml")),
+        s(&sim),
+        s(&tmp.path().join("run")),
+        s(&log)
+    ))
+    .unwrap();
+    assert!(shown.contains("batches"), "{shown}");
+    let logged = std::fs::read_to_string(&log).unwrap();
+    for epoch in ["epoch 1/2: loss ", "epoch 2/2: loss "] {
+        assert_eq!(logged.matches(epoch).count(), 1, "{logged}");
+    }
     // Into a pipe: the summary lines alone.
     let o = detect(&data, "val", &tmp.path().join("again"), &[]);
     assert!(o.status.success());
