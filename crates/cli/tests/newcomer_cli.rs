@@ -356,10 +356,13 @@ fn on_a_terminal(command: &str) -> Option<String> {
 
 #[test]
 fn per_frame_commands_draw_a_bar_on_a_terminal_only() {
-    if Command::new("script").arg("--version").output().is_err() {
-        eprintln!(
-            "skipped: `script` (util-linux) is not installed, so there is no terminal to test on"
-        );
+    // A machine without util-linux's `script`, or without pseudo-terminals, has no terminal
+    // to test on.
+    let probe = Command::new("script")
+        .args(["-qec", "true", "/dev/null"])
+        .output();
+    if !probe.is_ok_and(|o| o.status.success()) {
+        eprintln!("skipped: no pseudo-terminal through `script` (util-linux) here");
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -400,6 +403,22 @@ fn per_frame_commands_draw_a_bar_on_a_terminal_only() {
     for (command, bar) in &cases {
         let shown = on_a_terminal(command).unwrap();
         assert!(shown.contains(bar), "{command}:\n{shown}");
+    }
+    // Training on a terminal draws its bar, and stdout sent to a file still gets each epoch.
+    let sim = simulated(tmp.path());
+    let log = tmp.path().join("train.log");
+    let shown = on_a_terminal(&format!(
+        "{bin} train --config {} --data {} --out {} --epochs 2 > {}",
+        s(&repo_root().join("configs/tiny.toml")),
+        s(&sim),
+        s(&tmp.path().join("run")),
+        s(&log)
+    ))
+    .unwrap();
+    assert!(shown.contains("batches"), "{shown}");
+    let logged = std::fs::read_to_string(&log).unwrap();
+    for epoch in ["epoch 1/2: loss ", "epoch 2/2: loss "] {
+        assert_eq!(logged.matches(epoch).count(), 1, "{logged}");
     }
     // Into a pipe: the summary lines alone.
     let o = detect(&data, "val", &tmp.path().join("again"), &[]);

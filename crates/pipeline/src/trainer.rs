@@ -26,8 +26,9 @@ pub struct TrainOptions {
     pub data_dir: PathBuf,
     pub run_dir: PathBuf,
     pub resume: bool,
-    /// Show a progress bar on stderr; without it each epoch is one line on stdout (a log
-    /// file or a pipe then shows the training advance).
+    /// Show a progress bar on stderr (and each epoch's line there). Each epoch is one line
+    /// on stdout too where there is no bar or stdout is not a terminal, so a log file or a
+    /// pipe shows the training advance.
     pub progress: bool,
     /// Where the network trains.
     pub device: ComputeDevice,
@@ -349,10 +350,12 @@ pub fn run_training<T: TrainingTask>(
             final_loss.unwrap_or(f64::NAN),
             started.elapsed().as_secs_f64()
         );
+        use std::io::{IsTerminal, Write};
         if options.progress {
             eprintln!("{line}");
-        } else {
-            use std::io::Write;
+        }
+        // Stdout into a file or a pipe gets every epoch as it ends, bar or not.
+        if !options.progress || !std::io::stdout().is_terminal() {
             // A reader that left is no reason to stop training.
             let mut out = std::io::stdout().lock();
             let _ = writeln!(out, "{line}").and_then(|()| out.flush());

@@ -113,37 +113,38 @@ pub fn draw_grid(img: &mut RgbImage, map: &BevMap, step: f64, text_scale: u32) {
             text_scale,
         );
     }
-    let lateral: Vec<(i32, String)> = ticks(r.lateral.0, r.lateral.1)
+    let labels: Vec<(f64, String)> = ticks(r.lateral.0, r.lateral.1)
         .filter(|&x| x != 0.0 && x > r.lateral.0 && x < r.lateral.1)
-        .map(|x| {
-            let (col, _) = map.to_pixel(x, r.forward.0);
-            (col as i32 + pad, format!("{x:+.0} m"))
-        })
+        .map(|x| (x, format!("{x:+.0} m")))
         .collect();
-    for (col, text) in spaced_labels(&lateral, text_scale, pad) {
+    let widest = labels
+        .iter()
+        .map(|(_, t)| text_size(t, text_scale).0)
+        .max()
+        .unwrap_or(0);
+    let (space, _) = text_size(" ", text_scale);
+    let every = label_stride(step * map.px_per_m, widest + space);
+    for (x, text) in labels {
+        if (x / step).round() as i64 % every != 0 {
+            continue;
+        }
+        let (col, _) = map.to_pixel(x, r.forward.0);
         draw_text(
             img,
-            col,
+            col as i32 + pad,
             map.height as i32 - th as i32 - pad,
-            text,
+            &text,
             TEXT,
             text_scale,
         );
     }
 }
 
-/// The labels of a row, left to right, that fit: one that would touch the last one kept
-/// is left out (a room-sized map has a metre every few dozen pixels, narrower than "-4 m").
-fn spaced_labels(labels: &[(i32, String)], text_scale: u32, gap: i32) -> Vec<(i32, &str)> {
-    let mut kept = Vec::new();
-    let mut free_from = i32::MIN;
-    for (col, text) in labels {
-        if *col >= free_from {
-            kept.push((*col, text.as_str()));
-            free_from = col + text_size(text, text_scale).0 as i32 + gap;
-        }
-    }
-    kept
+/// Label every how many grid lines so that labels `room` pixels wide (text and a space)
+/// never touch: 1 on a street-sized map, more on a room-sized one, where a metre is
+/// narrower than "-4 m". Multiples of it keep the labels symmetric about the camera.
+fn label_stride(px_per_step: f64, room: u32) -> i64 {
+    ((room as f64 / px_per_step).ceil() as i64).max(1)
 }
 
 /// The left and right edges of the camera's field of view, dashed, so one can see
@@ -315,20 +316,13 @@ mod tests {
     }
 
     #[test]
-    fn crowded_side_labels_skip_rather_than_overlap() {
-        let labels: Vec<(i32, String)> = [-4, -3, -2, -1, 1, 2]
-            .iter()
-            .enumerate()
-            .map(|(k, x)| (k as i32 * 30, format!("{x:+} m")))
-            .collect();
-        let kept = spaced_labels(&labels, 2, 4);
-        assert!(kept.len() < labels.len() && kept.len() >= 2, "{kept:?}");
-        for pair in kept.windows(2) {
-            let end = pair[0].0 + text_size(pair[0].1, 2).0 as i32;
-            assert!(end < pair[1].0, "{kept:?}");
-        }
-        let roomy: Vec<(i32, String)> = labels.iter().map(|(c, t)| (c * 10, t.clone())).collect();
-        assert_eq!(spaced_labels(&roomy, 2, 4).len(), labels.len());
+    fn crowded_side_labels_are_thinned_to_fit() {
+        // A room-sized map: a metre is 73 px, "-4 m" and a space 80 px at scale 2.
+        assert_eq!(label_stride(73.0, 80), 2);
+        // A street-sized map: every grid line keeps its label.
+        assert_eq!(label_stride(114.0, 80), 1);
+        assert_eq!(label_stride(80.0, 80), 1);
+        assert_eq!(label_stride(20.0, 80), 4);
     }
 
     #[test]
