@@ -4,7 +4,7 @@
 use fusiondet_kitti::{
     DatasetDir, ObjectClass, read_calib, read_detections2d, read_objects, read_split, read_velodyne,
 };
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Output;
 
 mod common;
