@@ -21,6 +21,7 @@ import shutil
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -141,7 +142,7 @@ def main():
     print(f"{args.frames} frames, {n_gt} ground-truth objects, {n_dt} detections")
     classes = ["Car", "Pedestrian", "Cyclist"]
 
-    t1, (_, ours) = timed(lambda: fusiondet.get_official_eval_result(gt, dt, classes))
+    t1, (ours_text, ours) = timed(lambda: fusiondet.get_official_eval_result(gt, dt, classes))
     t2, _ = timed(lambda: fusiondet.get_official_eval_result(gt, dt, classes))
     print(f"fusiondet.get_official_eval_result: first {t1:.3f} s, warm {t2:.3f} s")
 
@@ -149,25 +150,32 @@ def main():
         os.mkdir(os.path.join(d, "gt"))
         os.mkdir(os.path.join(d, "det"))
         sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
-        from test_fusiondet import write_kitti
+        from test_fusiondet import parse_text, write_kitti
 
         for i, (g, r) in enumerate(zip(gt, dt)):
-            write_kitti(os.path.join(d, "gt", f"{i:06d}.txt"), g)
-            write_kitti(os.path.join(d, "det", f"{i:06d}.txt"), r)
+            write_kitti(Path(d, "gt", f"{i:06d}.txt"), g)
+            write_kitti(Path(d, "det", f"{i:06d}.txt"), r)
         t3, _ = timed(lambda: fusiondet.evaluate_kitti(os.path.join(d, "gt"), os.path.join(d, "det")))
         print(f"fusiondet.evaluate_kitti (files, parsing included): {t3:.3f} s")
 
     port = load_port(args.port, cpu_iou)
     where = "IoU kernel on the CPU (numba njit)" if cpu_iou else "IoU kernel on the GPU (numba.cuda)"
-    p1, (_, theirs) = timed(lambda: port.get_official_eval_result(gt, dt, classes))
+    p1, (theirs_text, theirs) = timed(lambda: port.get_official_eval_result(gt, dt, classes))
     p2, _ = timed(lambda: port.get_official_eval_result(gt, dt, classes))
     print(f"numba port ({where}): first {p1:.3f} s (compilation included), warm {p2:.3f} s")
     print(f"warm ratio: {p2 / t2:.0f}x; first-call ratio: {p1 / t1:.0f}x")
 
-    diffs = sorted(((abs(float(ours[k]) - float(theirs[k])), k) for k in ours if k in theirs), reverse=True)
-    print(f"keys compared: {len(diffs)}; largest AP differences (ours - port):")
+    assert set(ours) == set(theirs), (sorted(ours), sorted(theirs))
+    diffs = sorted(((abs(float(ours[k]) - float(theirs[k])), k) for k in ours), reverse=True)
+    print(f"result_dict: same {len(diffs)} keys; largest AP differences (fusiondet vs port):")
     for diff, k in diffs[:5]:
         print(f"  {k}: {float(ours[k]):.4f} vs {float(theirs[k]):.4f} (|diff| {diff:.4f})")
+    a, b = parse_text(ours_text), parse_text(theirs_text)
+    assert set(a) == set(b)
+    rows = sorted(((max(abs(x - y) for x, y in zip(a[k], b[k])), k) for k in a), reverse=True)
+    print(f"result_str: same {len(rows)} rows; largest differences (AP11 and AP_R40, both settings):")
+    for diff, k in rows[:5]:
+        print(f"  {k}: {a[k]} vs {b[k]} (|diff| {diff:.4f})")
 
 
 if __name__ == "__main__":

@@ -58,6 +58,21 @@ def test_same_dict_as_the_binary_json_layout():
     assert by_all["results"] != by_list["results"]
 
 
+def parse_text(text):
+    """OpenPCDet's result_str as {(class, setting, "AP" | "AP_R40", metric): [e, m, h]}."""
+    out, seen, head = {}, {}, None
+    for line in text.splitlines():
+        if "@" in line:
+            cls, rest = line.split(" ", 1)
+            kind = rest.split("@")[0]
+            seen[(cls, kind)] = seen.get((cls, kind), -1) + 1
+            head = (cls, seen[(cls, kind)], kind)
+        else:
+            metric, values = line.split("AP:")
+            out[head + (metric.strip(),)] = [float(v) for v in values.split(",")]
+    return out
+
+
 def annos_of(case, ids):
     gt, dt = [], []
     for i in ids:
@@ -89,13 +104,16 @@ def test_annos_drop_in_matches_the_devkit_on_mixed():
     gt, dt = annos_of(MIXED, ids)
     text, ret = fusiondet.get_official_eval_result(gt, dt, ["Car", "Pedestrian", "Cyclist"])
     expected = expected_rows(MIXED)
+    printed = parse_text(text)
     for cls in ("Car", "Pedestrian", "Cyclist"):
         ov = {"Car": 0.7}.get(cls, 0.5)
         for metric, key in (("3d", "3d"), ("bev", "bev"), ("bbox", "image"), ("aos", "aos")):
             e = expected[(cls, metric, ov)]
             for d, diff in enumerate(("easy", "moderate", "hard")):
-                assert abs(ret[f"{cls}_{key}_{diff}"] - e["ap11"][d]) < 0.01
-                assert abs(ret[f"{cls}_{key}_{diff}_R40"] - e["ap40"][d]) < 0.01
+                assert abs(ret[f"{cls}_{key}/{diff}_R40"] - e["ap40"][d]) < 0.01
+            assert np.allclose(printed[(cls, 0, "AP", metric)], e["ap11"], atol=0.01)
+            assert np.allclose(printed[(cls, 0, "AP_R40", metric)], e["ap40"], atol=0.01)
+    assert len(ret) == 3 * 4 * 3
     # OpenPCDet's layout: per class and setting, an AP and an AP_R40 block of 5 lines.
     lines = text.splitlines()
     assert len(lines) == 3 * 2 * 2 * 5
@@ -104,18 +122,19 @@ def test_annos_drop_in_matches_the_devkit_on_mixed():
     assert lines[10] == "Car AP@0.70, 0.50, 0.50:"
     assert lines[20] == "Pedestrian AP@0.50, 0.50, 0.50:"
     assert lines[30] == "Pedestrian AP@0.50, 0.25, 0.25:"
-    car = ret["Car_3d_moderate_R40"]
-    assert lines[8] == f"3d   AP:{ret['Car_3d_easy_R40']:.4f}, {car:.4f}, {ret['Car_3d_hard_R40']:.4f}"
+    car = ret["Car_3d/moderate_R40"]
+    assert lines[8] == f"3d   AP:{ret['Car_3d/easy_R40']:.4f}, {car:.4f}, {ret['Car_3d/hard_R40']:.4f}"
     assert lines[9].startswith("aos  AP:")
 
 
 def test_nested_boxes_are_scored_exactly():
     ids = (NESTED / "ids.txt").read_text().split()
     gt, dt = annos_of(NESTED, ids)
-    _, ret = fusiondet.get_official_eval_result(gt, dt, "Car")
+    text, _ = fusiondet.get_official_eval_result(gt, dt, "Car")
+    printed = parse_text(text)
     # The devkit scores this nested pair as IoU 0 (AP11 0); the exact answer is one hit.
-    assert abs(ret["Car_bev_easy"] - 100.0 / 11.0) < 1e-9
-    assert abs(ret["Car_3d_easy"] - 100.0 / 11.0) < 1e-9
+    assert printed[("Car", 0, "AP", "bev")][0] == round(100.0 / 11.0, 4)
+    assert printed[("Car", 0, "AP", "3d")][0] == round(100.0 / 11.0, 4)
 
 
 def random_annos(rng, n_frames, with_score):
@@ -191,19 +210,26 @@ def test_annos_drop_in_agrees_with_the_file_evaluation(tmp_path, seed):
     for i, g, d in zip(ids, gt, dt):
         write_kitti(tmp_path / "gt" / f"{i}.txt", g)
         write_kitti(tmp_path / "det" / f"{i}.txt", d)
-    _, ret = fusiondet.get_official_eval_result(gt, dt, [0, 1, 2])
+    text, ret = fusiondet.get_official_eval_result(gt, dt, [0, 1, 2])
+    printed = parse_text(text)
     files = fusiondet.evaluate_kitti(tmp_path / "gt", tmp_path / "det", split=ids)
     key = {"3d": "3d", "bev": "bev", "bbox": "image", "aos": "aos"}
-    strict = {"Car": 0.7, "Pedestrian": 0.5, "Cyclist": 0.5}
+    loose = {"Car": [0.7, 0.5, 0.5, 0.7], "Pedestrian": [0.5, 0.25, 0.25, 0.5], "Cyclist": [0.5, 0.25, 0.25, 0.5]}
     checked = 0
     for r in files["results"]:
-        if r["min_overlap"] != strict[r["class"]] or (r["class"] != "Car" and r["metric"] in ("bev", "3d") and r["min_overlap"] != 0.5):
-            continue
-        for d, diff in enumerate(("easy", "moderate", "hard")):
-            assert ret[f"{r['class']}_{key[r['metric']]}_{diff}"] == pytest.approx(r["ap11"][d], abs=1e-9)
-            assert ret[f"{r['class']}_{key[r['metric']]}_{diff}_R40"] == pytest.approx(r["ap40"][d], abs=1e-9)
-            checked += 1
-    assert checked >= 3 * 4 * 3
+        m = ("bbox", "bev", "3d", "aos").index(r["metric"])
+        strict = r["min_overlap"] == (0.7 if r["class"] == "Car" else 0.5)
+        if strict:
+            for d, diff in enumerate(("easy", "moderate", "hard")):
+                assert ret[f"{r['class']}_{key[r['metric']]}/{diff}_R40"] == pytest.approx(r["ap40"][d], abs=1e-9)
+        for setting in (0, 1):
+            if r["min_overlap"] == (loose[r["class"]][m] if setting else (0.7 if r["class"] == "Car" else 0.5)):
+                digits = 2 if r["metric"] == "aos" else 4
+                assert printed[(r["class"], setting, "AP", r["metric"])] == [round(v, digits) for v in r["ap11"]]
+                assert printed[(r["class"], setting, "AP_R40", r["metric"])] == [round(v, digits) for v in r["ap40"]]
+                checked += 1
+    # 24 rows; bbox and aos have the same overlap in both settings and are checked twice.
+    assert checked == 36
     # Non-trivial: some AP well above 0 and below 100.
     assert any(0 < v < 100 for v in ret.values())
 
@@ -233,8 +259,7 @@ def test_identical_footprints_and_perfect_detections_score_100():
     for cls in ("Car", "Pedestrian", "Cyclist"):
         for key in ("3d", "bev", "image"):
             for diff in ("easy", "moderate", "hard"):
-                assert ret[f"{cls}_{key}_{diff}_R40"] == pytest.approx(100.0), (cls, key, diff)
-                assert ret[f"{cls}_{key}_{diff}"] == pytest.approx(100.0), (cls, key, diff)
+                assert ret[f"{cls}_{key}/{diff}_R40"] == pytest.approx(100.0), (cls, key, diff)
 
 
 def test_label_reader_round_trips(tmp_path):
