@@ -93,10 +93,13 @@ def load_port(port_dir, cpu_iou):
     src = open(path).read()
     src = src.replace("from numba import cuda", "")
     src = re.sub(r"@cuda\.jit\(.*?\)\s*\n(?=def )", "@numba.njit\n", src, flags=re.S)
+    # error_model="numpy": a division by zero gives inf/NaN as on the GPU, where numba.cuda
+    # raises nothing (the CPU default would raise ZeroDivisionError, e.g. on parallel edges).
+    src = src.replace("@numba.njit\n", '@numba.njit(error_model="numpy")\n')
     src = src.replace("cuda.local.array(", "np.zeros(").replace("dtype=numba.float32", "dtype=np.float32")
     src += '''
 
-@numba.njit
+@numba.njit(error_model="numpy")
 def _iou_all_pairs_cpu(boxes, query_boxes, criterion):
     iou = np.zeros((boxes.shape[0], query_boxes.shape[0]), dtype=np.float32)
     for n in range(boxes.shape[0]):
