@@ -366,3 +366,34 @@ def test_bad_annos_point_at_the_entry():
         fusiondet.get_official_eval_result(gt, dt[:3], "Car")
     with pytest.raises(FusiondetError, match="not evaluated"):
         fusiondet.get_official_eval_result(gt, dt, "Van")
+
+
+def test_split_name_and_breakdown_on_the_kitti_sample(tmp_path):
+    labels = SAMPLE / "training/label_2"
+    ids = (SAMPLE / "ImageSets/val.txt").read_text().split()
+    for i in ids:
+        anno = fusiondet.read_label(labels / f"{i}.txt")
+        keep = anno["name"] != "DontCare"
+        det = {k: v[keep] for k, v in anno.items()}
+        det["score"] = np.linspace(0.9, 0.5, int(keep.sum()))
+        write_kitti(tmp_path / f"{i}.txt", det)
+    out = fusiondet.evaluate_kitti(
+        labels,
+        tmp_path,
+        split="val",
+        breakdown=True,
+        velodyne_dir=SAMPLE / "training/velodyne",
+        calib_dir=SAMPLE / "training/calib",
+    )
+    assert set(out) == {"results", "breakdown"}
+    assert {r["by"] for r in out["breakdown"]} == {"distance", "occlusion", "lidar_points"}
+    by_list = fusiondet.evaluate_kitti(labels, tmp_path, split=ids)
+    assert by_list["results"] == out["results"]
+
+    # Every ground-truth box lies in exactly one distance bin and one LiDAR-points bin.
+    def total(by):
+        rows = [r for r in out["breakdown"] if r["by"] == by and r["class"] == "Car" and r["metric"] == "3d"]
+        return np.sum([r["n_gt"] for r in rows if r["min_overlap"] == 0.7], axis=0)
+
+    assert np.array_equal(total("distance"), total("lidar_points"))
+    assert np.sum(total("distance")) > 0
