@@ -1,7 +1,7 @@
 //! Pseudo voxels per frame as DASANet's training and detection make them (issue 34):
 //! for each frame of a split, the pseudo points in range, the voxels they fill with no
-//! cap, and per rule (training: augmentation and the voxel cap's shuffle drawn from
-//! `--seed`; detection) the voxels kept and the in-range points no voxel mean includes.
+//! cap, and per rule (training: augmentation, without ground-truth pasting, and the voxel
+//! cap's shuffle drawn from `SEED`; detection) the voxels kept and the in-range points no voxel mean includes.
 //!
 //! `cargo run --release -p fusiondet-pipeline --example dasanet_pseudo_voxels --
 //! CONFIG.toml DATA_DIR SPLIT MAX_FRAMES SEED`
@@ -24,7 +24,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (Some(voxel), Some(dasanet)) = (&config.voxel_rcnn, &config.dasanet) else {
         return Err("not a DASANet configuration".into());
     };
-    let data = detection_data(voxel, dasanet)?;
+    // No ground-truth database here: training's augmentation runs without pasting objects
+    // (a few pasted boxes' points would not change the caps' effect on a frame).
+    let mut voxel = voxel.clone();
+    voxel.augment.sample_groups.clear();
+    let data = detection_data(&voxel, dasanet)?;
     let seed: u64 = seed.parse()?;
     let ids = split_ids(Path::new(data_dir), split, max_frames.parse()?)?;
     let dir = DatasetDir::new(data_dir).training();

@@ -199,7 +199,7 @@ mod tests {
     #[test]
     fn the_second_form_ablation_rows_differ_only_in_the_modules() {
         let old_base = load("voxel-rcnn-local-aug-car-sim.toml");
-        let base = load("dasanet-baseline-car-sim.toml");
+        let base = load("dasanet-baseline-voxel-rcnn-car-sim.toml");
         let (ob, b) = (
             old_base.voxel_rcnn.clone().unwrap(),
             base.voxel_rcnn.clone().unwrap(),
