@@ -84,6 +84,8 @@ pub struct DasanetModules {
     pub aux_weights: [f64; 2],
     /// How TDIS's weights start (the paper does not say).
     pub tdis_init: TdisInit,
+    /// How TDIS's supplement joins F^S (Eq. 3, 5, 7 add it plainly).
+    pub tdis_form: TdisForm,
 }
 
 impl Default for DasanetModules {
@@ -94,8 +96,35 @@ impl Default for DasanetModules {
             stca_shape: StcaConfig::default(),
             aux_weights: [1.0, 1.0],
             tdis_init: TdisInit::FanIn,
+            tdis_form: TdisForm::Plain,
         }
     }
+}
+
+/// How TDIS adds its supplement S = A^Ch F^Sp + F^Ch A^Sp + F^Go A to F^S.
+///
+/// `plain` is Eq. 3, 5 and 7 as printed: F^T = F^S + S. S is three weighted sums over
+/// N·C inputs each, and under AdamW every weight moves by about the learning rate a
+/// step, so S can outgrow F^S within a few hundred steps whatever the start (issue 34).
+/// The paper is silent on S's scale; `gated` fixes it: F^T = F^S + tanh(g) · S ·
+/// RMS(F^S) / RMS(S), RMS per RoI over its N·C features and g one learned scalar
+/// starting at 0. The supplement is then exactly |tanh g| times F^S's size, so
+/// RMS(F^T − F^S) / RMS(F^S) ≤ 1 at every step; TDIS starts as the identity, like
+/// `tdis_init = "zero"`, while W^Sp, W^Ch and W^Go start at fan-in values so that S has a
+/// direction for g to learn along (hence `gated` refuses zero-started weights). A gate
+/// rather than a normalisation alone because a fixed-size disturbance would sit on F^S
+/// from the first step whether it helps or not.
+///
+/// `bypass` is a measurement, not a model: F^T = F^S, with the pseudo branch, the pooling
+/// of F^P and everything else of the +TDIS row in place, so a run with it isolates what
+/// TDIS itself does to the row.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TdisForm {
+    #[default]
+    Plain,
+    Gated,
+    Bypass,
 }
 
 /// The starting weights of TDIS's W^Sp, W^Ch and W^Go.
@@ -212,6 +241,14 @@ impl DasanetModules {
             return Err(
                 "[dasanet.modules]: neither tdis nor stca is on; the baseline row is Voxel R-CNN \
                  (kind = \"voxel_rcnn\")"
+                    .into(),
+            );
+        }
+        if self.tdis_form == TdisForm::Gated && self.tdis_init == TdisInit::Zero {
+            return Err(
+                "[dasanet.modules]: tdis_form = \"gated\" with tdis_init = \"zero\" never \
+                 learns (a zero supplement gives the gate no gradient and a shut gate gives the \
+                 weights none); use tdis_init = \"fan-in\""
                     .into(),
             );
         }

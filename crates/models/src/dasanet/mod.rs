@@ -115,10 +115,15 @@ impl Dasanet {
             ),
             lidar_pool: config.modules.tdis.then(pool),
             pseudo_pool: config.modules.tdis.then(pool),
-            tdis: config
-                .modules
-                .tdis
-                .then(|| Tdis::new(c, n, config.modules.tdis_init, device)),
+            tdis: config.modules.tdis.then(|| {
+                Tdis::new(
+                    c,
+                    n,
+                    config.modules.tdis_init,
+                    config.modules.tdis_form,
+                    device,
+                )
+            }),
             stca: config
                 .modules
                 .stca
@@ -192,6 +197,29 @@ impl Dasanet {
         let lidar = lidar_pool.forward(&pooled_maps(&stage_one.lidar, levels), lidar_grid);
         let pseudo = pseudo_pool.forward(&pooled_maps(&stage_one.pseudo, levels), pseudo_grid);
         Some(tdis.forward(lidar, pseudo))
+    }
+
+    /// A diagnostic of TDIS's scale (issue 34): RMS(F^T − F^S) / RMS(F^S) over the batch's
+    /// RoIs and the largest |weight| of W^Sp, W^Ch, W^Go. Recomputes the pooling, so only
+    /// a run that asks for it (`FUSIONDET_TDIS_STATS`) pays for it.
+    pub fn tdis_scale(
+        &self,
+        config: &DasanetNetConfig,
+        stage_one: &DasanetStageOne,
+        inputs: &DasanetRoiInputs,
+    ) -> Option<(f32, f32)> {
+        let (tdis, lidar_pool) = (self.tdis.as_ref()?, self.lidar_pool.as_ref()?);
+        let supplemented = self.supplemented(config, stage_one, inputs)?;
+        let (lidar_grid, _) = inputs.grids.as_ref()?;
+        let levels = &config.voxel_rcnn.roi.levels;
+        let lidar = lidar_pool.forward(&pooled_maps(&stage_one.lidar, levels), lidar_grid);
+        let rms = |t: Tensor<2>| t.powi_scalar(2).mean().sqrt().into_scalar::<f32>();
+        let ratio = rms(supplemented - lidar.clone()) / rms(lidar);
+        let largest = [&tdis.spatial, &tdis.channel, &tdis.global]
+            .iter()
+            .map(|w| w.val().abs().max().into_scalar::<f32>())
+            .fold(0.0f32, f32::max);
+        Some((ratio, largest))
     }
 
     /// F^A flattened [RoIs, g³·2C] (with STCA).

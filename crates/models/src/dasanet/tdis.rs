@@ -14,13 +14,20 @@
 //! C × N weight matrix, so the three are one matrix product of F^D [RoIs, N·C] with the
 //! weights stacked as columns. The paper states no bias; none is added.
 //!
+//! With `tdis_form = "gated"` the sum S of the three added terms is scaled to F^S's size
+//! and by a learned gate before it is added (see [`TdisForm`]); `plain` is the above.
+//!
 //! Layout: rows of [RoIs, N·C], location-major (element `j·C + i` is channel i at grid
 //! location j), as the RoI grid pooling writes them.
 
-use super::config::TdisInit;
+use super::config::{TdisForm, TdisInit};
 use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::Distribution;
+
+/// Added to the mean squares of the gated form's RMS, so a RoI with no feature (all
+/// zeros) divides by a number, not by zero.
+const RMS_EPS: f32 = 1e-12;
 
 #[derive(Module, Debug)]
 pub struct Tdis {
@@ -30,6 +37,12 @@ pub struct Tdis {
     pub channel: Param<Tensor<2>>,
     /// W^Go: [N·C, 1].
     pub global: Param<Tensor<2>>,
+    /// g of the gated form ([1], starts at 0); absent in the plain form, so plain
+    /// checkpoints hold the same tensors as before the key existed.
+    pub gate: Option<Param<Tensor<1>>>,
+    /// `tdis_form = "bypass"`: F^T = F^S (a measurement of the row without TDIS).
+    #[module(skip)]
+    pub bypass: bool,
     #[module(skip)]
     pub channels: usize,
     #[module(skip)]
@@ -38,8 +51,14 @@ pub struct Tdis {
 
 impl Tdis {
     /// Weights drawn uniformly in ±1/√(N·C), the fan-in bound burn's linear layers use,
-    /// or zeros (see [`TdisInit`]).
-    pub fn new(channels: usize, locations: usize, init: TdisInit, device: &Device) -> Self {
+    /// or zeros (see [`TdisInit`]); the gated form's gate shut.
+    pub fn new(
+        channels: usize,
+        locations: usize,
+        init: TdisInit,
+        form: TdisForm,
+        device: &Device,
+    ) -> Self {
         let fan_in = channels * locations;
         let bound = 1.0 / (fan_in as f64).sqrt();
         let init = |cols: usize| {
@@ -54,6 +73,8 @@ impl Tdis {
             spatial: init(locations),
             channel: init(channels),
             global: init(1),
+            gate: (form == TdisForm::Gated).then(|| Param::from_tensor(Tensor::zeros([1], device))),
+            bypass: form == TdisForm::Bypass,
             channels,
             locations,
         }
@@ -64,15 +85,30 @@ impl Tdis {
         let [r, width] = lidar.dims();
         let (c, n) = (self.channels, self.locations);
         assert_eq!(width, n * c, "TDIS expects N·C = {n}·{c} features per RoI");
+        if self.bypass {
+            return lidar;
+        }
         let difference = pseudo - lidar.clone(); // Eq. 1
         let spatial = difference.clone().matmul(self.spatial.val()); // Eq. 2, [R, N]
         let channel = difference.clone().matmul(self.channel.val()); // Eq. 4, [R, C]
         let global = difference.matmul(self.global.val()); // Eq. 6, [R, 1]
-        let supplemented = lidar.reshape([r, n, c])
-            + spatial.reshape([r, n, 1]) // Eq. 3
-            + channel.reshape([r, 1, c]) // Eq. 5
-            + global.reshape([r, 1, 1]); // Eq. 7
-        supplemented.reshape([r, n * c])
+        let Some(gate) = &self.gate else {
+            let supplemented = lidar.reshape([r, n, c])
+                + spatial.reshape([r, n, 1]) // Eq. 3
+                + channel.reshape([r, 1, c]) // Eq. 5
+                + global.reshape([r, 1, 1]); // Eq. 7
+            return supplemented.reshape([r, n * c]);
+        };
+        // The same three terms (Eq. 3, 5, 7) as one supplement S, scaled to F^S's size.
+        let supplement = (Tensor::<3>::zeros([r, n, c], &lidar.device())
+            + spatial.reshape([r, n, 1])
+            + channel.reshape([r, 1, c])
+            + global.reshape([r, 1, 1]))
+        .reshape([r, n * c]);
+        let rms = |t: Tensor<2>| t.powi_scalar(2).mean_dim(1).add_scalar(RMS_EPS).sqrt();
+        let scale = rms(lidar.clone()) / rms(supplement.clone()); // [R, 1]
+        let g = gate.val().tanh().reshape([1, 1]);
+        lidar + supplement * scale * g
     }
 
     /// Multiply-adds per RoI: one dot product of length N·C per output value.
@@ -121,7 +157,7 @@ mod tests {
             }
             v
         };
-        let mut tdis = Tdis::new(c, n, TdisInit::FanIn, &d);
+        let mut tdis = Tdis::new(c, n, TdisInit::FanIn, TdisForm::Plain, &d);
         tdis.spatial = Param::from_tensor(t2(column_major(n, 0), [n * c, n], &d));
         tdis.channel = Param::from_tensor(t2(column_major(c, n), [n * c, c], &d));
         tdis.global = Param::from_tensor(t2(column_major(1, n + c), [n * c, 1], &d));
@@ -159,7 +195,7 @@ mod tests {
     #[test]
     fn no_difference_no_supplement() {
         let d = Device::flex();
-        let tdis = Tdis::new(4, 8, TdisInit::FanIn, &d);
+        let tdis = Tdis::new(4, 8, TdisInit::FanIn, TdisForm::Plain, &d);
         let x = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
         let out = tdis.forward(x.clone(), x.clone());
         let diff: f32 = (out - x).abs().max().into_scalar();
@@ -172,7 +208,7 @@ mod tests {
     #[test]
     fn zero_init_starts_as_identity_and_learns() {
         let d = Device::flex();
-        let tdis = Tdis::new(4, 8, TdisInit::Zero, &d);
+        let tdis = Tdis::new(4, 8, TdisInit::Zero, TdisForm::Plain, &d);
         let fs = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
         let fp = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
         let out = tdis.forward(fs.clone(), fp.clone());
@@ -180,11 +216,84 @@ mod tests {
         assert_eq!(diff, 0.0);
 
         let ad = Device::flex().autodiff();
-        let tdis = Tdis::new(4, 8, TdisInit::Zero, &ad);
+        let tdis = Tdis::new(4, 8, TdisInit::Zero, TdisForm::Plain, &ad);
         let fs = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &ad);
         let fp = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &ad);
         let grads = tdis.forward(fs, fp).sum().backward();
         let g: f32 = tdis.spatial.grad(&grads).unwrap().abs().sum().into_scalar();
         assert!(g > 0.0, "W^Sp got no gradient");
+    }
+
+    /// RMS(F^T − F^S) / RMS(F^S) per RoI.
+    fn ratios(tdis: &Tdis, fs: &Tensor<2>, fp: &Tensor<2>) -> Vec<f32> {
+        let rms = |t: Tensor<2>| t.powi_scalar(2).mean_dim(1).sqrt();
+        let out = tdis.forward(fs.clone(), fp.clone());
+        (rms(out - fs.clone()) / rms(fs.clone()))
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap()
+    }
+
+    /// The gated form starts as the identity; with its gate open and weights far larger
+    /// than any training would reach, the supplement is still |tanh g| times F^S's size,
+    /// where the plain form's is hundreds of times F^S.
+    #[test]
+    fn the_gated_supplement_is_tanh_g_times_the_lidar_features() {
+        let d = Device::flex();
+        let mut tdis = Tdis::new(4, 8, TdisInit::FanIn, TdisForm::Gated, &d);
+        let fs = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
+        let fp = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
+        assert!(ratios(&tdis, &fs, &fp).iter().all(|&q| q == 0.0));
+
+        let big = |t: &Param<Tensor<2>>| Param::from_tensor(t.val().mul_scalar(1000.0));
+        tdis.spatial = big(&tdis.spatial);
+        tdis.channel = big(&tdis.channel);
+        tdis.global = big(&tdis.global);
+        let mut plain = Tdis::new(4, 8, TdisInit::FanIn, TdisForm::Plain, &d);
+        plain.spatial = tdis.spatial.clone();
+        plain.channel = tdis.channel.clone();
+        plain.global = tdis.global.clone();
+        assert!(ratios(&plain, &fs, &fp).iter().all(|&q| q > 100.0));
+
+        tdis.gate = Some(Param::from_tensor(Tensor::from_data(
+            TensorData::new(vec![0.5f32], [1]),
+            &d,
+        )));
+        for q in ratios(&tdis, &fs, &fp) {
+            assert!((q - 0.5f32.tanh()).abs() < 1e-4, "{q}");
+        }
+    }
+
+    /// A shut gate still gets a gradient (from the fan-in supplement), so the gated form
+    /// can open.
+    #[test]
+    fn the_shut_gate_learns() {
+        let ad = Device::flex().autodiff();
+        let tdis = Tdis::new(4, 8, TdisInit::FanIn, TdisForm::Gated, &ad);
+        let fs = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &ad);
+        let fp = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &ad);
+        let w = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &ad);
+        let grads = (tdis.forward(fs, fp) * w).sum().backward();
+        let gate = tdis.gate.as_ref().unwrap();
+        let g: f32 = gate.grad(&grads).unwrap().abs().sum().into_scalar();
+        assert!(g > 0.0, "the gate got no gradient");
+    }
+
+    /// The bypass form hands F^S through untouched, whatever F^P and the weights are.
+    #[test]
+    fn bypass_is_the_identity() {
+        let d = Device::flex();
+        let tdis = Tdis::new(4, 8, TdisInit::FanIn, TdisForm::Bypass, &d);
+        let fs = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
+        let fp = Tensor::<2>::random([3, 32], Distribution::Normal(0.0, 1.0), &d);
+        let out = tdis.forward(fs.clone(), fp.clone());
+        let diff: f32 = (out - fs.clone()).abs().max().into_scalar();
+        assert_eq!(diff, 0.0);
+        let plain = Tdis::new(4, 8, TdisInit::FanIn, TdisForm::Plain, &d);
+        let moved: f32 = (plain.forward(fs.clone(), fp) - fs)
+            .abs()
+            .max()
+            .into_scalar();
+        assert!(moved > 0.0);
     }
 }

@@ -89,7 +89,7 @@ impl DasanetData {
             &scene.pseudo,
             p.max_points_per_voxel,
             p.max_voxels(training),
-            rng,
+            rng.filter(|_| p.shuffles(training)),
         );
         Ok(DasanetSample {
             lidar,

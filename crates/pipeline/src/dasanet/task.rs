@@ -77,6 +77,9 @@ pub struct DasanetTask<'a> {
     device: Device,
     /// Frames with LiDAR and pseudo points in range.
     usable: Vec<usize>,
+    /// Print TDIS's scale every step to stderr (`FUSIONDET_TDIS_STATS=1`; issue 34's
+    /// measurement, see `Dasanet::tdis_scale`).
+    tdis_stats: bool,
 }
 
 pub struct TrainBatch {
@@ -168,6 +171,11 @@ impl TrainingTask for DasanetTask<'_> {
         let (sampled, rois) = sample_training_rois(section, &proposals, &batch.gts, roi_seed)?;
         let inputs = roi_inputs(section, &self.shape.network, &out, &rois, &batch.clouds);
         let pred = net.stage_two(&self.shape.network, &out, &inputs, true);
+        if self.tdis_stats
+            && let Some((ratio, largest)) = net.tdis_scale(&self.shape.network, &out, &inputs)
+        {
+            eprintln!("tdis-scale rms_ratio {ratio:.6} max_abs_weight {largest:.6}");
+        }
         let mut terms = vec![("cls", cls), ("loc", loc), ("dir", dir)];
         terms.extend(rcnn_loss(
             &pred,
@@ -229,6 +237,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         frames,
         device: options.device.device().autodiff(),
         usable,
+        tdis_stats: std::env::var_os("FUSIONDET_TDIS_STATS").is_some_and(|v| v == "1"),
     };
     run_training(&task, options, opened)
 }
