@@ -71,12 +71,7 @@ impl SensorFrame {
             Vec::new()
         };
         let image = dir.image(id);
-        // A frame may come without its image; one that is there but is a pipe, a device or
-        // a folder is an error, never waited on or passed over.
-        if std::fs::symlink_metadata(&image).is_ok() {
-            fusiondet_kitti::error::open_regular(&image, fusiondet_kitti::error::MAX_IMAGE_BYTES)?;
-        }
-        let image_size = png_size(&image).unwrap_or(DEFAULT_IMAGE_SIZE);
+        let image_size = present_png_size(&image)?.unwrap_or(DEFAULT_IMAGE_SIZE);
         let mut frame = SensorFrame::new(id, calib, lidar, image_size, objects)?;
         frame.image_path = image.is_file().then_some(image);
         Ok(frame)
@@ -111,20 +106,31 @@ pub fn scan_in_rect(velodyne: &Path, calib: &Path) -> Result<Vec<[f64; 3]>> {
         .collect())
 }
 
-/// Width and height from a PNG's IHDR chunk, or `None` if the file is missing or not a PNG.
+/// Width and height from a PNG's IHDR chunk, or `None` if the file is missing, cannot be
+/// read (a pipe or device in its place is passed over, never waited on) or is not a PNG.
 pub fn png_size(path: &Path) -> Option<[f64; 2]> {
+    present_png_size(path).ok().flatten()
+}
+
+/// [`png_size`] for a frame, which may come without its image: `None` where it is missing
+/// or not a PNG, but an error where it is there and is a pipe, a device or a folder.
+fn present_png_size(path: &Path) -> Result<Option<[f64; 2]>> {
     use std::io::Read;
-    let mut head = [0u8; 24];
-    // A pipe or device in the image's place is passed over, never waited on.
+    if std::fs::symlink_metadata(path).is_err() {
+        return Ok(None);
+    }
     let (mut file, _) =
-        fusiondet_kitti::error::open_regular(path, fusiondet_kitti::error::MAX_IMAGE_BYTES).ok()?;
-    file.read_exact(&mut head).ok()?;
-    if head[..8] != *b"\x89PNG\r\n\x1a\n" || head[12..16] != *b"IHDR" {
-        return None;
+        fusiondet_kitti::error::open_regular(path, fusiondet_kitti::error::MAX_IMAGE_BYTES)?;
+    let mut head = [0u8; 24];
+    if file.read_exact(&mut head).is_err()
+        || head[..8] != *b"\x89PNG\r\n\x1a\n"
+        || head[12..16] != *b"IHDR"
+    {
+        return Ok(None);
     }
     let w = u32::from_be_bytes([head[16], head[17], head[18], head[19]]);
     let h = u32::from_be_bytes([head[20], head[21], head[22], head[23]]);
-    (w > 0 && h > 0).then_some([w as f64, h as f64])
+    Ok((w > 0 && h > 0).then_some([w as f64, h as f64]))
 }
 
 /// What a detector family keeps of a [`SensorFrame`]: the frustum family keeps only

@@ -20,9 +20,13 @@ pub fn image_reader(path: &Path) -> Result<image::ImageReader<std::io::Cursor<Ve
         .map_err(|e| FormatError::io(path, e))
 }
 
-/// Width and height from an image file's header, read as [`image_reader`] reads.
+/// Width and height from an image file's header: the file is checked as [`image_reader`]
+/// checks it, but only its header is read.
 pub fn image_size(path: &Path) -> Result<(u32, u32)> {
-    image_reader(path)?
+    let (file, _) = crate::error::open_regular(path, MAX_IMAGE_BYTES)?;
+    image::ImageReader::new(std::io::BufReader::new(file))
+        .with_guessed_format()
+        .map_err(|e| FormatError::io(path, e))?
         .into_dimensions()
         .map_err(|e| FormatError::file(path, format!("cannot read the image's size: {e}")))
 }

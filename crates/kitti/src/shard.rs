@@ -115,11 +115,19 @@ pub fn fingerprint(parts: &[&[u8]]) -> String {
         .collect()
 }
 
-/// What a run reads of each frame, for its fingerprint: every file's size (`-` where it is
-/// missing) and every small text file's bytes (calibrations). Shards that read two
-/// different data sets through the same split and 2D detections then never share a
-/// directory, while looking at the files costs one `stat` each (a scan is not read whole).
-pub fn frame_inputs_summary(files: impl IntoIterator<Item = std::path::PathBuf>) -> Vec<u8> {
+/// What a run reads of the frames `ids` of `frames`, for its fingerprint: each frame's scan,
+/// image and calibration ([`files_summary`]). Shards that read two different data sets
+/// through the same split and 2D detections then never share a directory.
+pub fn frames_summary(frames: &crate::FrameDir, ids: &[String]) -> Vec<u8> {
+    files_summary(
+        ids.iter()
+            .flat_map(|id| [frames.velodyne(id), frames.image(id), frames.calib(id)]),
+    )
+}
+
+/// Every file's size (`-` where it is missing) and every small text file's bytes
+/// (calibrations): looking at the files costs one `stat` each (a scan is not read whole).
+fn files_summary(files: impl IntoIterator<Item = std::path::PathBuf>) -> Vec<u8> {
     let mut summary = Vec::new();
     for path in files {
         match std::fs::metadata(&path) {
@@ -475,17 +483,19 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let (a, b) = (dir.path().join("a"), dir.path().join("b"));
         for (root, scan, calib) in [(&a, 10, "P2: 1"), (&b, 12, "P2: 2")] {
-            std::fs::create_dir_all(root).unwrap();
-            std::fs::write(root.join("000001.bin"), vec![0u8; scan]).unwrap();
-            std::fs::write(root.join("000001.txt"), calib).unwrap();
+            for sub in ["velodyne", "calib"] {
+                std::fs::create_dir_all(root.join(sub)).unwrap();
+            }
+            std::fs::write(root.join("velodyne/000001.bin"), vec![0u8; scan]).unwrap();
+            std::fs::write(root.join("calib/000001.txt"), calib).unwrap();
         }
-        let of =
-            |root: &Path| frame_inputs_summary([root.join("000001.bin"), root.join("000001.txt")]);
+        let ids = ["000001".to_string()];
+        let of = |root: &Path| frames_summary(&crate::FrameDir::new(root), &ids);
         assert_ne!(of(&a), of(&b));
-        std::fs::write(b.join("000001.bin"), vec![1u8; 10]).unwrap();
-        std::fs::write(b.join("000001.txt"), "P2: 1").unwrap();
+        std::fs::write(b.join("velodyne/000001.bin"), vec![1u8; 10]).unwrap();
+        std::fs::write(b.join("calib/000001.txt"), "P2: 1").unwrap();
         assert_eq!(of(&a), of(&b));
-        assert_ne!(of(&a), frame_inputs_summary([a.join("missing.bin")]));
+        assert_ne!(of(&a), files_summary([a.join("missing.bin")]));
     }
 
     #[test]

@@ -418,7 +418,7 @@ pub fn frames_bar(frames: usize) -> indicatif::ProgressBar {
 
 /// What defines a sharded detect run, so that shards of different runs never share a
 /// result directory: the weights, the configuration, the split, what its frames' files
-/// are ([`shard::frame_inputs_summary`]) and its 2D detections,
+/// are ([`shard::frames_summary`]) and its 2D detections,
 /// the completed depth maps' folder and the shard count.
 fn run_fingerprint(
     options: &DetectOptions,
@@ -430,11 +430,9 @@ fn run_fingerprint(
         &options.checkpoint,
         fusiondet_kitti::error::MAX_BINARY_BYTES,
     )?;
-    let frames = fusiondet_kitti::FrameDir::new(options.data_dir.join("training"));
-    let frames_summary = shard::frame_inputs_summary(
-        split_ids
-            .iter()
-            .flat_map(|id| [frames.velodyne(id), frames.image(id), frames.calib(id)]),
+    let frames_summary = shard::frames_summary(
+        &fusiondet_kitti::FrameDir::new(options.data_dir.join("training")),
+        split_ids,
     );
     let depth_dir = options
         .depth_dir

@@ -165,13 +165,13 @@ pub fn run(args: DepthCompleteArgs) -> anyhow::Result<()> {
                 &Inputs::new().with("--data-dir", Some(dir)),
             )?;
             let ids = fusiondet_depth::frame_ids(&frames, &args.ids)?;
-            let inputs_summary = super::shards::frames_summary(&frames, &ids);
             let run = format!("{:?} {}", completer, super::shards::canonical(dir));
             super::shards::run_frames(
                 "depth-complete",
                 out_dir,
                 args.shard,
-                &[run.as_bytes(), &inputs_summary],
+                &[run.as_bytes()],
+                &frames,
                 ids,
                 |ids| {
                     let bar = super::progress::bar("depth-complete", ids.len(), "frames");

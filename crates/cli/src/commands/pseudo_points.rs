@@ -46,7 +46,6 @@ pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
         .with("--depth-dir", args.depth_dir.as_deref());
     check_output_dir("--out-dir", &args.out_dir, &inputs)?;
     let ids = fusiondet_depth::frame_ids(&frames, &args.ids)?;
-    let inputs_summary = super::shards::frames_summary(&frames, &ids);
     let completer = IpBasic {
         extrapolate: false,
         ..IpBasic::measured_best()
@@ -64,7 +63,8 @@ pub fn run(args: PseudoPointsArgs) -> anyhow::Result<()> {
         "pseudo-points",
         &args.out_dir,
         args.shard,
-        &[run.as_bytes(), &inputs_summary],
+        &[run.as_bytes()],
+        &frames,
         ids,
         |ids| {
             let bar = super::progress::bar("pseudo-points", ids.len(), "frames");

@@ -22,8 +22,9 @@ pub fn frame_file(command: &str, id: &str) -> Option<PathBuf> {
 }
 
 /// Runs `work` on shard `shard` of `ids` (all of them without a shard), recording the
-/// shard in `out_dir` before and after; `run` lists what defines the run (options, inputs),
-/// so that another run's shards are never mixed into the same directory. The directory's
+/// shard in `out_dir` before and after; `run` lists what defines the run (options, inputs)
+/// and the fingerprint adds what the frames of `frames` are ([`shard::frames_summary`]), so
+/// that another run's shards are never mixed into the same directory. The directory's
 /// writer lock is held throughout (shared between the shards of a run, exclusive for an
 /// unsharded one), and the temporary files that killed writes of this run's frames left
 /// behind are removed first.
@@ -32,6 +33,7 @@ pub fn run_frames<T>(
     out_dir: &Path,
     shard: Option<Shard>,
     run: &[&[u8]],
+    frames: &fusiondet_kitti::FrameDir,
     ids: Vec<String>,
     work: impl FnOnce(&[String]) -> anyhow::Result<T>,
 ) -> anyhow::Result<T> {
@@ -43,8 +45,14 @@ pub fn run_frames<T>(
     let fingerprint = {
         let count = shard.count.to_string();
         let list = ids.join("\n");
+        let frames_summary = shard::frames_summary(frames, &ids);
         let mut parts = run.to_vec();
-        parts.extend([command.as_bytes(), list.as_bytes(), count.as_bytes()]);
+        parts.extend([
+            frames_summary.as_slice(),
+            command.as_bytes(),
+            list.as_bytes(),
+            count.as_bytes(),
+        ]);
         shard::fingerprint(&parts)
     };
     let mine = shard.select(&ids);
@@ -108,15 +116,6 @@ pub fn remove_stale_temp_files(command: &str, out_dir: &Path, ids: &[String]) {
         .filter_map(|id| frame_file(command, id))
         .collect();
     fusiondet_kitti::atomic::remove_temp_files(out_dir, |target| mine.contains(Path::new(target)));
-}
-
-/// What the frames `ids` of `frames` are, for a run's fingerprint
-/// ([`shard::frame_inputs_summary`]).
-pub fn frames_summary(frames: &fusiondet_kitti::FrameDir, ids: &[String]) -> Vec<u8> {
-    shard::frame_inputs_summary(
-        ids.iter()
-            .flat_map(|id| [frames.velodyne(id), frames.image(id), frames.calib(id)]),
-    )
 }
 
 /// A path as one string for a run's fingerprint, links resolved where it exists.
