@@ -78,6 +78,8 @@ enum Command {
     PseudoPoints(commands::pseudo_points::PseudoPointsArgs),
     /// Check (and finish) a directory that sharded runs (`--shard i/n`) wrote into.
     Merge(commands::merge::MergeArgs),
+    /// Compare two result directories box by box (CPU against GPU, one build against another).
+    Compare(commands::compare::CompareArgs),
 }
 
 fn main() -> ExitCode {
@@ -99,6 +101,7 @@ fn main() -> ExitCode {
         Command::DepthComplete(args) => commands::depth_complete::run(args),
         Command::PseudoPoints(args) => commands::pseudo_points::run(args),
         Command::Merge(args) => commands::merge::run(args),
+        Command::Compare(args) => commands::compare::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -37,6 +37,7 @@
 
 pub mod ablation;
 pub mod breakdown;
+pub mod compare;
 #[cfg(test)]
 mod edge_cases;
 mod engine;

@@ -2,6 +2,7 @@
 
 pub mod ablation;
 pub mod bench;
+pub mod compare;
 pub mod data_root;
 pub mod demo;
 pub mod depth_complete;

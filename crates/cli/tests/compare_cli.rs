@@ -1,0 +1,93 @@
+//! End-to-end tests of `fusiondet compare`: a demo's pinned results against themselves,
+//! against a copy with one box moved 5 cm, and bad input.
+
+mod common;
+
+use common::{all_output, repo_root, s};
+
+fn pinned() -> std::path::PathBuf {
+    repo_root().join("crates/cli/tests/data/demo-results-fconvnet/sim")
+}
+
+#[test]
+fn a_result_directory_equals_itself_and_a_moved_box_is_caught() {
+    let o = common::run("compare", &[s(&pinned()), s(&pinned())]);
+    let out = all_output(&o);
+    assert!(o.status.success(), "{out}");
+    assert!(out.contains("same boxes within 0.01 m"), "{out}");
+
+    // A copy whose first box of the first frame moved 5 cm along x.
+    let dir = tempfile::tempdir().unwrap();
+    let moved = dir.path().join("moved");
+    std::fs::create_dir(&moved).unwrap();
+    let mut first = true;
+    for entry in std::fs::read_dir(pinned()).unwrap() {
+        let path = entry.unwrap().path();
+        let mut text = std::fs::read_to_string(&path).unwrap();
+        if first && path.file_name().unwrap() == "000000.txt" {
+            let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+            let mut f: Vec<String> = lines[0].split(' ').map(str::to_string).collect();
+            let x: f64 = f[11].parse().unwrap();
+            f[11] = format!("{:.2}", x + 0.05);
+            lines[0] = f.join(" ");
+            text = lines.join("\n") + "\n";
+            first = false;
+        }
+        std::fs::write(moved.join(path.file_name().unwrap()), text).unwrap();
+    }
+    assert!(!first, "the pinned results hold frame 000000");
+    let o = common::run("compare", &[s(&pinned()), s(&moved)]);
+    let out = all_output(&o);
+    assert!(!o.status.success(), "{out}");
+    assert!(out.contains("largest centre offset  0.05"), "{out}");
+    assert!(out.contains("differ beyond the tolerance"), "{out}");
+    // A wider tolerance accepts it.
+    let o = common::run(
+        "compare",
+        &[s(&pinned()), s(&moved), "--max-metres", "0.06"],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+}
+
+#[test]
+fn bad_input_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nothing");
+    common::assert_fails_with("compare", &[s(&pinned()), s(&missing)], "no such directory");
+    common::assert_fails_with(
+        "compare",
+        &[s(dir.path()), s(dir.path())],
+        "holds a result file",
+    );
+    common::assert_fails_with(
+        "compare",
+        &[s(&pinned()), s(&pinned()), "--max-score", "nan"],
+        "a tolerance is a finite number",
+    );
+    std::fs::write(dir.path().join("000000.txt"), "Car 0 0 0 1 2 3\n").unwrap();
+    common::assert_fails_with("compare", &[s(&pinned()), s(dir.path())], "000000.txt");
+}
+
+/// `scripts/gpu-check.sh` as a dry run, the CPU against itself: the script a lent GPU runs
+/// must not fail on its own bugs in the few minutes it has.
+#[test]
+fn the_gpu_check_script_runs_through_against_the_cpu() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = std::process::Command::new("bash")
+        .arg(repo_root().join("scripts/gpu-check.sh"))
+        .env("FUSIONDET", env!("CARGO_BIN_EXE_fusiondet"))
+        .env("DEVICE", "cpu")
+        .env("MODELS", "fconvnet-car")
+        .env("TRAIN_CONFIGS", "configs/tiny-voxel-rcnn.toml")
+        .env("FRAMES", "6")
+        .env("REPEATS", "1")
+        .env("STEPS_FRAMES", "2")
+        .env("OUT", dir.path())
+        .output()
+        .unwrap();
+    let out = all_output(&o);
+    assert!(o.status.success(), "{out}");
+    assert!(out.contains("fconvnet-car     parity same"), "{out}");
+    assert!(out.contains("relative difference 0.00e+00"), "{out}");
+    assert!(out.contains("s/step"), "{out}");
+}

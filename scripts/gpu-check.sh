@@ -1,0 +1,188 @@
+#!/usr/bin/env bash
+# One prepared run on a GPU machine: CPU-vs-GPU parity of the shipped models, detection speed
+# on both, and seconds per training step of the published Voxel R-CNN and DASANet
+# configurations. Meant for a lent machine with little time (about 8 minutes on one GPU with
+# 16 CPU cores): everything it needs is simulated on the spot, every figure it prints is
+# measured in this run, and it ends with one summary table.
+#
+#   scripts/gpu-check.sh                        # everything, binary from scripts/build-cuda.sh
+#   FUSIONDET=/path/fusiondet DEVICE=cuda:0 scripts/gpu-check.sh
+#   MODELS="fconvnet-car saf-car" TRAIN=0 scripts/gpu-check.sh    # part of it (see below)
+#   DEVICE=cpu MODELS=fconvnet-car TRAIN_CONFIGS=configs/tiny-voxel-rcnn.toml scripts/gpu-check.sh
+#                                               # a dry run of the script itself, CPU against CPU
+#
+# Environment (all optional):
+#   FUSIONDET      the binary (default: target-cuda/release/fusiondet, else fusiondet on PATH)
+#   DEVICE         the device to check against the CPU (default: cuda)
+#   MODELS         shipped models to check, names of MODELS_DIR/<name>.bpk (default: all five)
+#   MODELS_DIR     where their checkpoints are (default: models/ of this repository). A call
+#                  to a lent machine sends at most 64 MiB: the five models are 70 MB and a
+#                  stripped, xz-compressed CUDA binary about 55 MB, so send the tree without
+#                  models/ and data/, and split the models over calls with MODELS and
+#                  MODELS_DIR (a git-ignored folder carried with the call); OUT is kept
+#                  between calls on a warm machine, so later calls reuse the simulated frames.
+#   TRAIN          1 (default) to time training steps, 0 to skip them
+#   TRAIN_CONFIGS  configurations to time (default: the published Voxel R-CNN and DASANet)
+#   OUT            work directory (default: gpu-check-out in the repository, which git ignores)
+#   FRAMES         simulated frames, half of them val (default: 48)
+#   REPEATS        bench repeats after the warm-up run (default: 3)
+#   STEPS_FRAMES   training frames per epoch for the step timing (default: 8)
+#
+# What each figure is:
+#   parity     `fusiondet compare` of the CPU's and the device's result files of the val frames:
+#              every box paired, centres and sizes within 1 cm, headings within 0.01 rad,
+#              scores within 1e-3 (the issue's tolerance), and the largest differences seen.
+#   frames/s   `fusiondet bench` on the val frames, median of REPEATS runs after one warm-up,
+#              without reading files (as `bench` always measures), on each device.
+#   s/step     a training run of two epochs of STEPS_FRAMES frames: the second epoch's seconds
+#              divided by its steps (the first holds kernel compilation and tuning), on each
+#              device; and the first epoch's mean training loss on both, which must agree
+#              within float tolerance (the same data, seed and initial weights).
+#   start-up   seconds of a whole `detect` process on the device minus the CPU's, for the
+#              first model: what compiling and tuning kernels costs a process.
+set -euo pipefail
+
+repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$repo"
+
+bin="${FUSIONDET:-}"
+if [ -z "$bin" ]; then
+    if [ -x target-cuda/release/fusiondet ]; then
+        bin="$repo/target-cuda/release/fusiondet"
+    else
+        bin="$(command -v fusiondet || true)"
+    fi
+fi
+[ -n "$bin" ] && [ -x "$bin" ] || {
+    echo "error: no fusiondet binary: build one with scripts/build-cuda.sh or set FUSIONDET" >&2
+    exit 2
+}
+device="${DEVICE:-cuda}"
+models="${MODELS:-fconvnet-car saf-car fcam-car voxel-rcnn-car dasanet-car}"
+models_dir="${MODELS_DIR:-$repo/models}"
+train="${TRAIN:-1}"
+train_configs="${TRAIN_CONFIGS:-configs/voxel-rcnn-car.toml configs/dasanet-car.toml}"
+out="${OUT:-$repo/gpu-check-out}"
+frames="${FRAMES:-48}"
+repeats="${REPEATS:-3}"
+steps_frames="${STEPS_FRAMES:-8}"
+
+for m in $models; do
+    [ -f "$models_dir/$m.bpk" ] || {
+        echo "error: $models_dir/$m.bpk not found (MODELS_DIR, MODELS)" >&2
+        exit 2
+    }
+done
+
+started=$(date +%s)
+stamp() { echo "[$(($(date +%s) - started)) s] $*"; }
+summary=()
+failures=0
+
+echo "fusiondet GPU check: $("$bin" --version), device $device, $(date -u +%FT%TZ)"
+command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
+echo "CPU: $(nproc) cores"
+
+# 1. Frames: simulated street scenes (half val) with their 2D detections, and the two
+#    ground-truth databases the voxel trainings paste from. Kept between calls.
+data="$out/sim"
+if [ ! -f "$data/ImageSets/val.txt" ]; then
+    stamp "simulating $frames frames"
+    "$bin" simulate --out "$data" --frames "$frames" --seed 2027 --val-fraction 0.5 >/dev/null
+fi
+if [ "$train" = 1 ]; then
+    [ -d "$data/gt_database/train" ] || "$bin" gt-database --data "$data" >/dev/null
+    [ -d "$data/gt_database/train-pseudo" ] || "$bin" gt-database --data "$data" --pseudo >/dev/null
+fi
+
+# Seconds a command took, its output to a log.
+timed() {
+    local log="$1"
+    shift
+    local t0 t1
+    t0=$(date +%s%N)
+    "$@" >"$log" 2>&1
+    t1=$(date +%s%N)
+    awk -v ns="$((t1 - t0))" 'BEGIN { printf "%.1f", ns / 1e9 }'
+}
+frames_per_second() { grep -o '[0-9.]* frames/s' "$1" | head -1 | cut -d' ' -f1; }
+
+# 2. Per shipped model: detect on both devices, compare, bench on both.
+first=1
+for m in $models; do
+    ckpt="$models_dir/$m.bpk"
+    det="$out/detect/$m"
+    rm -rf "$det"
+    mkdir -p "$det"
+    stamp "$m: detect on cpu and $device"
+    t_cpu=$(timed "$det/cpu.log" "$bin" detect --checkpoint "$ckpt" --data "$data" --split val --out "$det/cpu") || {
+        echo "  cpu detect failed:"; tail -5 "$det/cpu.log"; failures=$((failures + 1)); continue; }
+    t_dev=$(timed "$det/dev.log" "$bin" detect --checkpoint "$ckpt" --data "$data" --split val --out "$det/dev" --device "$device") || {
+        echo "  $device detect failed:"; tail -5 "$det/dev.log"; failures=$((failures + 1)); continue; }
+    if "$bin" compare "$det/cpu" "$det/dev" >"$det/compare.log" 2>&1; then
+        parity="same"
+    else
+        parity="DIFFERENT"
+        failures=$((failures + 1))
+    fi
+    sed 's/^/  /' "$det/compare.log"
+    offset=$(grep -o 'largest centre offset *[0-9.]*' "$det/compare.log" | grep -o '[0-9.]*$' || echo "?")
+    score=$(grep -o 'largest score change *[0-9.]*' "$det/compare.log" | grep -o '[0-9.]*$' || echo "?")
+    boxes=$(grep -o 'paired [0-9]*' "$det/compare.log" | grep -o '[0-9]*' || echo "?")
+    if [ "$first" = 1 ]; then
+        summary+=("start-up: detect of $(wc -l <"$data/ImageSets/val.txt") frames with $m: cpu ${t_cpu} s, $device ${t_dev} s")
+        first=0
+    fi
+    stamp "$m: bench on cpu and $device"
+    "$bin" bench --checkpoint "$ckpt" --data "$data" --repeats "$repeats" >"$det/bench-cpu.log" 2>&1 || true
+    "$bin" bench --checkpoint "$ckpt" --data "$data" --repeats "$repeats" --device "$device" >"$det/bench-dev.log" 2>&1 || true
+    fps_cpu=$(frames_per_second "$det/bench-cpu.log" || true)
+    fps_dev=$(frames_per_second "$det/bench-dev.log" || true)
+    [ -n "$fps_dev" ] || { echo "  $device bench failed:"; tail -5 "$det/bench-dev.log"; failures=$((failures + 1)); }
+    summary+=("$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s' \
+        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}")")
+done
+
+# 3. Training steps of the published configurations, on both devices.
+step_seconds() { # metrics.jsonl → the second epoch's seconds per step
+    sed -n 2p "$1" | grep -o '"batches":[0-9]*\|"seconds":[0-9.e+-]*' | cut -d: -f2 | paste -sd' ' |
+        awk '{ if ($1 > 0) printf "%.3f", $2 / $1; else print "?" }'
+}
+first_loss() { head -1 "$1" | grep -o '"loss_total":[0-9.e+-]*' | cut -d: -f2; }
+if [ "$train" = 1 ]; then
+    for config in $train_configs; do
+        name="$(basename "$config" .toml)"
+        row=()
+        losses=()
+        for d in cpu "$device"; do
+            run="$out/train/$name-${d//:/-}"
+            rm -rf "$run"
+            mkdir -p "$out/train"
+            stamp "$name: two epochs of $steps_frames frames on $d"
+            if "$bin" train --config "$config" --data "$data" --out "$run" --epochs 2 \
+                --max-frames "$steps_frames" --device "$d" >"$run.log" 2>&1; then
+                row+=("$d $(step_seconds "$run/metrics.jsonl") s/step")
+                losses+=("$(first_loss "$run/metrics.jsonl")")
+            else
+                echo "  training on $d failed:"; tail -5 "$run.log" || true
+                failures=$((failures + 1))
+                row+=("$d failed")
+            fi
+        done
+        agree="?"
+        if [ "${#losses[@]}" = 2 ]; then
+            agree=$(awk -v a="${losses[0]}" -v b="${losses[1]}" \
+                'BEGIN { d = a - b; if (d < 0) d = -d; r = d / (a > 0 ? a : 1); printf "%.2e", r }')
+        fi
+        summary+=("$(printf '%-26s %s; first-epoch loss %s, relative difference %s' \
+            "$name" "$(IFS=,; echo "${row[*]}")" "$(IFS=/; echo "${losses[*]:-?}")" "$agree")")
+    done
+fi
+
+echo
+echo "== summary ($(($(date +%s) - started)) s, device $device, binary $bin)"
+printf '%s\n' "${summary[@]}"
+if [ "$failures" -gt 0 ]; then
+    echo "$failures check(s) failed (logs under $out)"
+    exit 1
+fi
