@@ -429,6 +429,20 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
         "the refinement stage used another first stage"
     );
     assert!(t.contains("3D Easy") && t.contains("Occl. 1"), "{t}");
+    // The frustum rows beside SAF's Table 4: the refinement row has two stages.
+    assert!(t.contains("Car: beside the SAF paper"), "{t}");
+    let row_of = |name: &str| {
+        t.lines()
+            .find(|l| l.starts_with(&format!("| {name} ")) && l.contains(" ours "))
+            .unwrap_or_else(|| panic!("no Table 4 row of {name}\n{t}"))
+            .to_string()
+    };
+    assert!(row_of("tiny-fconvnet-refine").contains(" two "), "{t}");
+    assert!(row_of("tiny-saf").contains(" one "), "{t}");
+    assert!(
+        t.contains("3,724,013") && t.contains("79.91"),
+        "the paper's SAF row\n{t}"
+    );
     for f in [
         "ablation.md",
         "ablation.json",

@@ -51,6 +51,7 @@ pub mod protocol;
 #[cfg(test)]
 mod reference;
 pub mod report;
+pub mod saf_tables;
 pub mod seeds;
 pub mod synthetic;
 

@@ -9,6 +9,7 @@
 
 use crate::{out, outln};
 use anyhow::{Context, bail};
+use fusiondet_eval::saf_tables::{OurRow, saf_table};
 use fusiondet_eval::{
     AblationRow, Difficulty, EvalConfig, Metric, SeedGroup, ablation_breakdown_table,
     ablation_table, count_lidar_points, evaluate, evaluate_breakdown, frame_ids, load_dirs,
@@ -124,6 +125,15 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
         frames_per_second: Some(e.frames_per_second),
     };
     let rows: Vec<AblationRow> = entries.iter().map(|e| row(e)).collect();
+    // Stages of each row's detector, in the order of `rows` (each configuration's runs).
+    let row_stages: Vec<u32> = groups
+        .iter()
+        .zip(&configs)
+        .flat_map(|(runs, (_, c))| runs.iter().map(|_| 1 + u32::from(c.refine.is_some())))
+        .collect();
+    let frustum_only = configs
+        .iter()
+        .all(|(_, c)| c.kind() == fusiondet_models::DetectorKind::Frustum);
     let seed_groups: Vec<SeedGroup> = configs
         .iter()
         .zip(&groups)
@@ -150,6 +160,17 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
             text += "\n";
             for metric in [Metric::ThreeD, Metric::Bev] {
                 text += &seed_breakdown_table(&seed_groups, class, 0, metric, Difficulty::Hard);
+            }
+        }
+        // The frustum family's rows beside SAF's Tables 4–6 (one per class it has).
+        if frustum_only {
+            let ours: Vec<OurRow> = rows
+                .iter()
+                .zip(&row_stages)
+                .map(|(row, &stages)| OurRow { row, stages })
+                .collect();
+            if let Some(table) = saf_table(&ours, class) {
+                text += &format!("### {class}: beside the SAF paper\n\n{table}\n");
             }
         }
         for (metric, tag) in [(Metric::ThreeD, "3d"), (Metric::Bev, "bev")] {
