@@ -222,7 +222,7 @@ mod tests {
         c.add_frame("000000", &objects(A), &objects(b));
         assert_eq!(c.paired, 2);
         assert!((c.max_centre_m - 0.004).abs() < 1e-9, "{}", c.max_centre_m);
-        let wrapped = std::f64::consts::TAU - 6.28;
+        let wrapped = std::f64::consts::TAU - (3.10 + 3.18);
         assert!(
             (c.max_heading_rad - wrapped).abs() < 1e-9,
             "{}",
