@@ -35,9 +35,15 @@ impl ComputeDevice {
         match self {
             ComputeDevice::Cpu => Device::flex(),
             #[cfg(feature = "wgpu")]
-            ComputeDevice::Wgpu => Device::wgpu(burn::tensor::DeviceKind::DefaultDevice),
+            ComputeDevice::Wgpu => {
+                crate::kernel_cache::configure();
+                Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)
+            }
             #[cfg(feature = "cuda")]
-            ComputeDevice::Cuda(index) => Device::cuda(index),
+            ComputeDevice::Cuda(index) => {
+                crate::kernel_cache::configure();
+                Device::cuda(index)
+            }
         }
     }
 
@@ -57,6 +63,7 @@ impl ComputeDevice {
             }
             #[cfg(feature = "cuda")]
             ComputeDevice::Cuda(index) => {
+                crate::kernel_cache::configure();
                 let found = silenced(|| Device::enumerate(burn::tensor::DeviceType::Cuda).len())
                     .map_err(|e| format!("no CUDA device/driver found: {e}"))?;
                 if found == 0 {

@@ -11,6 +11,7 @@ pub mod detection;
 pub mod device;
 pub mod error;
 pub mod frustum;
+pub mod kernel_cache;
 pub mod metrics_log;
 pub mod result_dir;
 pub mod run_dir;

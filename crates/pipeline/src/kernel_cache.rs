@@ -1,0 +1,116 @@
+//! Where a GPU build keeps its compiled kernels and autotune results between runs.
+//!
+//! burn's GPU backends (CubeCL) compile every kernel at run time (NVRTC for CUDA) and tune
+//! the ones with several variants by timing them: 10–16 s before the first frame of every
+//! process on an H100. CubeCL can keep both on disk, but by default it keeps compiled
+//! kernels nowhere and puts the tuning results under the `target/` of the Cargo workspace
+//! around the current directory (a user's cache folder outside one), so an installed
+//! `fusiondet` paid the compilation again in every process. Here both go to one folder the
+//! user can name, and compiled kernels are kept.
+//!
+//! The folder: `FUSIONDET_KERNEL_CACHE` (a directory; `off` keeps nothing on disk), else
+//! `$XDG_CACHE_HOME/fusiondet/kernels`, else `$HOME/.cache/fusiondet/kernels`. A CubeCL
+//! configuration file the user wrote (`cubecl.toml`, or a `[cubecl]` section in `burn.toml`,
+//! in the current directory or above) is left to CubeCL, unchanged.
+
+use std::path::{Path, PathBuf};
+
+/// Where the caches go, from the three environment variables (read by the caller); `None`
+/// when caching is turned off or no folder can be named.
+pub fn cache_dir(
+    fusiondet_kernel_cache: Option<&str>,
+    xdg_cache_home: Option<&str>,
+    home: Option<&str>,
+) -> Option<PathBuf> {
+    if let Some(dir) = nonempty(fusiondet_kernel_cache) {
+        return (dir != "off").then(|| PathBuf::from(dir));
+    }
+    // XDG: a relative XDG_CACHE_HOME is invalid and ignored.
+    if let Some(xdg) = nonempty(xdg_cache_home).filter(|d| Path::new(d).is_absolute()) {
+        return Some(Path::new(xdg).join("fusiondet/kernels"));
+    }
+    nonempty(home).map(|h| Path::new(h).join(".cache/fusiondet/kernels"))
+}
+
+fn nonempty(v: Option<&str>) -> Option<&str> {
+    v.filter(|s| !s.trim().is_empty())
+}
+
+/// Whether a CubeCL configuration file lies in `dir` or a folder above it.
+pub fn user_config_above(dir: &Path) -> Option<PathBuf> {
+    const NAMES: [&str; 4] = ["cubecl.toml", "CubeCL.toml", "burn.toml", "Burn.toml"];
+    dir.ancestors()
+        .flat_map(|d| NAMES.iter().map(move |n| d.join(n)))
+        .find(|p| p.is_file())
+}
+
+/// Sets CubeCL's configuration before the first GPU device starts (later calls do nothing;
+/// a configuration CubeCL already loaded is kept).
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub fn configure() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        use cubecl_runtime::config::{CubeClRuntimeConfig, RuntimeConfig, cache::CacheConfig};
+        let here = std::env::current_dir().unwrap_or_default();
+        if user_config_above(&here).is_some() {
+            return;
+        }
+        let env = |k: &str| std::env::var(k).ok();
+        let dir = cache_dir(
+            env("FUSIONDET_KERNEL_CACHE").as_deref(),
+            env("XDG_CACHE_HOME").as_deref(),
+            env("HOME").as_deref(),
+        );
+        // CUBECL_* variables still apply on top (autotune level, logging, ...).
+        let mut config = CubeClRuntimeConfig::default().override_from_env();
+        match dir {
+            Some(dir) => {
+                config.compilation.cache = true;
+                config.environment.path = CacheConfig::Directory(dir);
+            }
+            None => config.autotune.disable_cache = true,
+        }
+        // False when CubeCL already read its configuration: that one stays.
+        CubeClRuntimeConfig::try_set(config);
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cache_folder_follows_the_variables_in_order() {
+        let d = |a, b, c| cache_dir(a, b, c);
+        assert_eq!(
+            d(Some("/k"), Some("/x"), Some("/h")),
+            Some(PathBuf::from("/k"))
+        );
+        assert_eq!(d(Some("off"), Some("/x"), Some("/h")), None);
+        assert_eq!(
+            d(None, Some("/x"), Some("/h")),
+            Some(PathBuf::from("/x/fusiondet/kernels"))
+        );
+        // An empty or relative XDG_CACHE_HOME is ignored, as XDG says.
+        assert_eq!(
+            d(Some(""), Some("rel"), Some("/h")),
+            Some(PathBuf::from("/h/.cache/fusiondet/kernels"))
+        );
+        assert_eq!(d(None, None, None), None);
+    }
+
+    #[test]
+    fn a_user_cubecl_file_above_is_found() {
+        let root = tempfile::tempdir().unwrap();
+        let deep = root.path().join("a/b");
+        std::fs::create_dir_all(&deep).unwrap();
+        // Only a file above the temporary folder (none on a clean machine) is found.
+        let outside = user_config_above(root.path().parent().unwrap());
+        assert_eq!(user_config_above(&deep), outside);
+        std::fs::write(root.path().join("burn.toml"), "[cubecl]\n").unwrap();
+        assert_eq!(
+            user_config_above(&deep),
+            Some(root.path().join("burn.toml"))
+        );
+    }
+}
