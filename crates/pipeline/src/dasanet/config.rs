@@ -278,4 +278,28 @@ mod tests {
             (row.voxel_rcnn, row.train)
         );
     }
+
+    /// The third form of the +TDIS row pools from Voxel R-CNN's three levels, so its
+    /// baseline is the first ablation's baseline row itself; otherwise it is the second form.
+    #[test]
+    fn the_third_form_tdis_row_reads_what_the_first_baseline_reads() {
+        let (base, v2, v3) = (
+            load("voxel-rcnn-local-aug-car-sim.toml"),
+            load("dasanet-v2-tdis-car-sim.toml"),
+            load("dasanet-v3-tdis-car-sim.toml"),
+        );
+        let b = base.voxel_rcnn.as_ref().unwrap();
+        let (r2, r3) = (v2.voxel_rcnn.unwrap(), v3.voxel_rcnn.unwrap());
+        assert_eq!(r3.network.roi, b.network.roi);
+        assert_eq!(r3.network.roi.levels.len(), 3);
+        assert_ne!(r3.network.roi, r2.network.roi);
+        let mut r3_as_v2 = r3.clone();
+        r3_as_v2.network.roi = r2.network.roi.clone();
+        assert_eq!(r3_as_v2, r2);
+        assert_eq!(
+            (&v3.dasanet, &v3.train, &v3.dataset),
+            (&v2.dasanet, &v2.train, &v2.dataset)
+        );
+        assert_eq!((&v3.train, &v3.dataset), (&base.train, &base.dataset));
+    }
 }
