@@ -8,9 +8,10 @@
 pub mod host_max;
 pub mod mlp;
 pub mod norm;
+pub mod ragged;
 pub mod segment;
 pub mod sparse;
 
 pub use mlp::{MlpLayer, mlp_stack};
-pub use norm::{NormConfig, batch_norm, masked_batch_norm};
+pub use norm::{NormConfig, batch_norm, masked_batch_norm, norm_rows};
 pub use segment::{SegmentPool, segment_mean};
