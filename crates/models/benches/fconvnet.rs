@@ -4,6 +4,9 @@
 //! backend's matrix-multiply rate, the yardstick the step's rate is read against. Throughput
 //! is in FLOPs (2 per multiply-add; a training step counted as 3 forward passes: the forward,
 //! and the backward's input and weight gradients), so criterion's `thrpt` reads as FLOP/s.
+//! Training's benchmarks run twice, with the custom flex operations that training takes
+//! (`fusiondet_nn::ragged`) and with burn's generic operations (`…, generic ops`), so one run
+//! shows both side by side.
 //!
 //! `cargo bench -p fusiondet-models --bench fconvnet`
 
@@ -124,6 +127,27 @@ fn saf_lfa(c: &mut Criterion) {
         b.iter(|| index(black_box(&batch.points)))
     });
     g.bench_function("forward", |b| b.iter(|| sync(&lfa.forward(&inputs))));
+    // Training's LFA: forward and backward of its features' sum on the autodiff device,
+    // with the custom operations and with burn's generic ones.
+    let train_device = Device::flex().autodiff();
+    let train_lfa = fusiondet_models::lfa::Lfa::new(&config.model, &lfa_config, &train_device);
+    let train_inputs =
+        fusiondet_models::lfa::LfaInputs::new(&batch.points, 8, 4096, &lfa_config, &train_device)
+            .unwrap();
+    for (name, custom) in [
+        ("train forward + backward", true),
+        ("train forward + backward, generic ops", false),
+    ] {
+        fusiondet_nn::ragged::set_custom_ops(custom);
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let grads = train_lfa.forward(&train_inputs).sum().backward();
+                let w = train_lfa.stages[0].local[0].linear.weight.val();
+                sync(&w.grad(&grads).unwrap())
+            })
+        });
+    }
+    fusiondet_nn::ragged::set_custom_ops(true);
     g.finish();
 }
 
@@ -151,24 +175,41 @@ fn train_step(c: &mut Criterion) {
     let mut g = c.benchmark_group("car_train_b32");
     g.sample_size(10).measurement_time(Duration::from_secs(30));
     g.throughput(Throughput::Elements(step_flops));
-    g.bench_function("train_step (forward + loss + backward + adam)", |b| {
-        b.iter(|| {
-            let m = model.take().unwrap();
-            let loss = fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss).unwrap();
-            let grads = GradientsParams::from_grads(loss.total.backward(), &m);
-            model = Some(optim.step(1e-3, m, grads));
-            loss.components.total
-        })
-    });
-    g.bench_function("forward + loss (autodiff graph)", |b| {
-        b.iter(|| {
-            let m = model.as_ref().unwrap();
-            fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss)
-                .unwrap()
-                .components
-                .total
-        })
-    });
+    // Each step twice: with the custom flex operations (`fusiondet_nn::ragged`, what
+    // training runs) and with burn's generic operations (the path before them), side by
+    // side in one run.
+    for (name, custom) in [
+        ("train_step (forward + loss + backward + adam)", true),
+        ("train_step, generic ops", false),
+    ] {
+        fusiondet_nn::ragged::set_custom_ops(custom);
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let m = model.take().unwrap();
+                let loss =
+                    fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss).unwrap();
+                let grads = GradientsParams::from_grads(loss.total.backward(), &m);
+                model = Some(optim.step(1e-3, m, grads));
+                loss.components.total
+            })
+        });
+    }
+    for (name, custom) in [
+        ("forward + loss (autodiff graph)", true),
+        ("forward + loss (autodiff graph), generic ops", false),
+    ] {
+        fusiondet_nn::ragged::set_custom_ops(custom);
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let m = model.as_ref().unwrap();
+                fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss)
+                    .unwrap()
+                    .components
+                    .total
+            })
+        });
+    }
+    fusiondet_nn::ragged::set_custom_ops(true);
     g.finish();
 }
 

@@ -1,7 +1,8 @@
 //! Voxel R-CNN stage one on the flex CPU backend over a KITTI-like synthetic sweep
 //! (`voxel_rcnn::synthetic`, about 20,000–30,000 voxels): the rulebooks, the sparse 3D
 //! backbone, the BEV backbone + anchor head, for the published network; and one submanifold
-//! layer against burn's dense `conv3d` on a window of the sweep.
+//! layer against burn's dense `conv3d` on a window of the sweep; the backbone's training pass
+//! with the custom flex operations and with burn's generic ones.
 //!
 //! `cargo bench -p fusiondet-models --bench voxel_rcnn`
 
@@ -148,5 +149,37 @@ fn sparse_vs_dense(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, stage_one, sparse_vs_dense);
+/// The sparse backbone's training pass (forward, and backward of its output's sum) on the
+/// autodiff device, with the custom flex operations that training takes (batch norm over
+/// the active rows, `fusiondet_nn::ragged`) and with burn's generic ones, side by side.
+fn backbone_training(c: &mut Criterion) {
+    let device = Device::flex().autodiff();
+    let config = VoxelRcnnNetConfig::default();
+    let model = VoxelRcnn::new(&config, 41, &device).unwrap();
+    let sweep = synthetic_sweep(1, PUBLISHED_RANGE, PUBLISHED_VOXEL);
+    let sites = Arc::new(sweep.sites);
+    let n = sites.len();
+    let features = Tensor::<2>::from_data(TensorData::new(sweep.features, [n, 4]), &device);
+    let plan = BackbonePlan::new(sites, &device);
+    let mut g = c.benchmark_group("voxel_rcnn_published_train");
+    g.sample_size(10).measurement_time(Duration::from_secs(15));
+    for (name, custom) in [
+        ("backbone3d forward + backward", true),
+        ("backbone3d forward + backward, generic ops", false),
+    ] {
+        fusiondet_nn::ragged::set_custom_ops(custom);
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let out = model.backbone.forward(features.clone(), &plan);
+                let grads = out.output.features.sum().backward();
+                let w = model.backbone.output.conv.weight.val();
+                sync(&w.grad(&grads).unwrap())
+            })
+        });
+    }
+    fusiondet_nn::ragged::set_custom_ops(true);
+    g.finish();
+}
+
+criterion_group!(benches, stage_one, sparse_vs_dense, backbone_training);
 criterion_main!(benches);

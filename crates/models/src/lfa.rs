@@ -22,10 +22,12 @@ use crate::config::{LfaConfig, ModelConfig};
 use crate::error::ModelError;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+use fusiondet_nn::ragged::{self, Neighbours, Runs};
 use fusiondet_nn::{MlpLayer, host_max, mlp_stack};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use std::num::NonZero;
+use std::sync::Arc;
 
 /// One stage's host-built indices.
 #[derive(Debug, Clone)]
@@ -36,8 +38,9 @@ pub struct LfaStageIndex {
     pub keep: Tensor<1, Int>,
     /// [B · N_s / 2 · K]: rows of each survivor's K nearest neighbours.
     pub neighbours: Tensor<1, Int>,
-    /// The same rows on the host, for the first layer's host path in inference.
-    pub neighbours_host: Vec<u32>,
+    /// The same rows on the host (with their transpose), for the first layer's host path
+    /// in inference and its custom operation in training.
+    pub neighbours_host: Arc<Neighbours>,
 }
 
 /// Everything LFA needs for a batch.
@@ -118,7 +121,11 @@ impl LfaInputs {
             stage_index.push(LfaStageIndex {
                 points: n,
                 keep: ints(keep),
-                neighbours_host: neighbours.iter().map(|&r| r as u32).collect(),
+                neighbours_host: Arc::new(Neighbours::new(
+                    neighbours.iter().map(|&r| r as u32).collect(),
+                    k,
+                    batch_size * n,
+                )),
                 neighbours: ints(neighbours),
             });
             n = half;
@@ -239,12 +246,17 @@ impl Lfa {
 }
 
 /// [M·K, C] → [M, C], the max over each query's K neighbours: on the host in inference
-/// on the CPU (see `fusiondet_nn::host_max`), else burn's reduction.
+/// on the CPU (see `fusiondet_nn::host_max`), by the custom operation in training there
+/// (`fusiondet_nn::ragged`: the winning neighbour kept, the gradient sent to it), else
+/// burn's reduction.
 fn max_over_neighbours(x: Tensor<2>, k: usize) -> Tensor<2> {
     if host_max::host_path(&x) {
         return host_max::blocks_max(x, k);
     }
     let [rows, c] = x.dims();
+    if ragged::custom_path(&x) {
+        return ragged::runs_max(x, &Arc::new(Runs::blocks(rows / k, k)));
+    }
     x.reshape([rows / k, k, c])
         .max_dim(1)
         .reshape([rows / k, c])
@@ -296,6 +308,8 @@ fn local_first_layer(
     };
     let y = if host_max::host_path(&terms.per_point) {
         terms.combine_on_host(&at)
+    } else if ragged::custom_path(&terms.per_point) {
+        terms.combine_custom(&at)
     } else {
         terms.combine_by_tensors(&at)
     };
@@ -353,27 +367,71 @@ impl FirstLayerTerms {
     /// matrices in about ten passes, and those element-wise passes were most of LFA's
     /// time. The same operations in the same order, so the same bits.
     fn combine_on_host(self, at: &Neighbourhood) -> Tensor<2> {
-        let (offset_gain, k) = (at.offset_gain, at.k);
+        let k = at.k;
         let [m, c1] = self.per_query.dims();
         let device = self.per_query.device();
-        let host = |t: Tensor<2>| {
-            t.into_data()
-                .try_into_vec::<f32>()
-                .expect("f32 on the host")
-        };
         let (per_point, per_query, w_d) =
             (host(self.per_point), host(self.per_query), host(self.w_d));
-        let (coords, q) = (host(at.coords.clone()), host(at.q.clone()));
+        let distance = at.distances();
+        let neighbours = &at.index.neighbours_host.neighbours;
         let mut y = vec![0f32; m * k * c1];
         y.par_chunks_mut(k * c1)
-            .zip(at.index.neighbours_host.par_chunks(k))
+            .zip(neighbours.par_chunks(k))
             .enumerate()
             .for_each(|(i, (rows, neighbours))| {
                 let query = &per_query[i * c1..(i + 1) * c1];
-                let p_i = &q[i * 3..i * 3 + 3];
-                for (row, &nb) in rows.chunks_exact_mut(c1).zip(neighbours) {
+                for (j, (row, &nb)) in rows.chunks_exact_mut(c1).zip(neighbours).enumerate() {
                     let nb = nb as usize;
-                    let p_k = &coords[nb * 3..nb * 3 + 3];
+                    let distance = distance[i * k + j];
+                    let point = &per_point[nb * c1..(nb + 1) * c1];
+                    for (((out, &pk), &pi), &wd) in row.iter_mut().zip(point).zip(query).zip(&w_d) {
+                        *out = (pk + pi) + distance * wd;
+                    }
+                }
+            });
+        Tensor::from_data(TensorData::new(y, [m * k, c1]), &device)
+    }
+
+    /// The same sum as one custom operation on the flex device with its own backward
+    /// (`fusiondet_nn::ragged::neighbour_sum`), for training there: the distances are
+    /// computed on the host (the points are inputs, constants of the graph), the gather,
+    /// broadcast and adds are one pass each way. The same bits as the tensor form.
+    fn combine_custom(self, at: &Neighbourhood) -> Tensor<2> {
+        let device = self.per_query.device();
+        let rows = at.index.neighbours_host.neighbours.len();
+        let distance = Tensor::from_data(TensorData::new(at.distances(), [rows, 1]), &device);
+        ragged::neighbour_sum(
+            self.per_point,
+            self.per_query,
+            distance,
+            self.w_d,
+            &at.index.neighbours_host,
+        )
+    }
+}
+
+/// A tensor's f32 values on the host.
+fn host(t: Tensor<2>) -> Vec<f32> {
+    t.into_data()
+        .try_into_vec::<f32>()
+        .expect("f32 on the host")
+}
+
+impl Neighbourhood<'_> {
+    /// `‖b·(p_i − p_k)‖` per (query, neighbour), [M·K], by the tensor form's operations in
+    /// its order (so its bits).
+    fn distances(&self) -> Vec<f32> {
+        let (offset_gain, k) = (self.offset_gain, self.k);
+        let (coords, q) = (host(self.coords.clone()), host(self.q.clone()));
+        let neighbours = &self.index.neighbours_host.neighbours;
+        let mut out = vec![0f32; neighbours.len()];
+        out.par_chunks_mut(k)
+            .zip(neighbours.par_chunks(k))
+            .enumerate()
+            .for_each(|(i, (dst, neighbours))| {
+                let p_i = &q[i * 3..i * 3 + 3];
+                for (d_out, &nb) in dst.iter_mut().zip(neighbours) {
+                    let p_k = &coords[nb as usize * 3..nb as usize * 3 + 3];
                     let mut squares = 0f32;
                     for d in 0..3 {
                         let offset = p_i[d] - p_k[d];
@@ -384,14 +442,10 @@ impl FirstLayerTerms {
                         };
                         squares += offset * offset;
                     }
-                    let distance = (squares + 1e-12).sqrt();
-                    let point = &per_point[nb * c1..(nb + 1) * c1];
-                    for (((out, &pk), &pi), &wd) in row.iter_mut().zip(point).zip(query).zip(&w_d) {
-                        *out = (pk + pi) + distance * wd;
-                    }
+                    *d_out = (squares + 1e-12).sqrt();
                 }
             });
-        Tensor::from_data(TensorData::new(y, [m * k, c1]), &device)
+        out
     }
 }
 
@@ -560,8 +614,8 @@ mod tests {
         }
     }
 
-    /// The first layer's host sum gives the tensor sum's bits, at unit and other offset
-    /// gains, over a real stage index.
+    /// The first layer's host sum and its custom operation give the tensor sum's bits, at
+    /// unit and other offset gains, over a real stage index.
     #[test]
     fn host_first_layer_sum_gives_the_tensor_bits() {
         let device = Device::flex();
@@ -603,10 +657,12 @@ mod tests {
                 offset_gain,
                 k,
             };
-            let by_tensors = terms().combine_by_tensors(&at);
-            let on_host = terms().combine_on_host(&at);
-            assert_eq!(by_tensors.dims(), [m * k, c1]);
-            assert_eq!(bits(by_tensors), bits(on_host), "offset gain {offset_gain}");
+            let by_tensors = bits(terms().combine_by_tensors(&at));
+            let on_host = bits(terms().combine_on_host(&at));
+            let custom = terms().combine_custom(&at);
+            assert_eq!(custom.dims(), [m * k, c1]);
+            assert_eq!(by_tensors, on_host, "offset gain {offset_gain}");
+            assert_eq!(by_tensors, bits(custom), "offset gain {offset_gain}");
         }
     }
 

@@ -5,8 +5,8 @@
 //! a padded copy first: in LFA's [M, K, C] max over the K = 16 neighbours that took a
 //! fifth of LFA's time (`cargo bench -p fusiondet-models --bench fconvnet -- middle_max`).
 //! Here one pass reads each row once, in place. Only for tensors on the flex device
-//! without autodiff (inference); everywhere else the callers use burn's own operations,
-//! which training differentiates and other backends run on their devices.
+//! without autodiff (inference); training on the flex device takes the custom operations of
+//! [`crate::ragged`] (with their own backward passes), other backends burn's own operations.
 //!
 //! The result is the same bit for bit as burn-flex's: rows are scanned in order and a
 //! value replaces the running maximum only when it is larger (or NaN), so among equal

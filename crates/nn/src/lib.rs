@@ -3,14 +3,18 @@
 //! (sub-frustums of points today; points of a voxel for a voxel feature encoder, and
 //! the sparse convolutions of the voxel family, belong here too).
 //!
-//! Backend-agnostic: every layer takes the [`burn::tensor::Device`] it is built on.
+//! Backend-agnostic: every layer takes the [`burn::tensor::Device`] it is built on. On the
+//! flex CPU device the hot ragged operations take faster paths of their own: the host in
+//! inference ([`host_max`]), custom operations with their own backward passes in training
+//! ([`ragged`]).
 
 pub mod host_max;
 pub mod mlp;
 pub mod norm;
+pub mod ragged;
 pub mod segment;
 pub mod sparse;
 
 pub use mlp::{MlpLayer, mlp_stack};
-pub use norm::{NormConfig, batch_norm, masked_batch_norm};
+pub use norm::{NormConfig, batch_norm, masked_batch_norm, norm_rows};
 pub use segment::{SegmentPool, segment_mean};

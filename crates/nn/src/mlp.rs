@@ -1,7 +1,7 @@
 //! One point-wise MLP layer: Linear + BatchNorm + ReLU on [rows, channels] (point-wise
 //! MLPs as `Linear`, which is several times faster than a 1×1 convolution here).
 
-use crate::norm::{NormConfig, batch_norm, masked_batch_norm};
+use crate::norm::{NormConfig, batch_norm, masked_batch_norm, norm_rows};
 use burn::nn::{BatchNorm, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
@@ -76,7 +76,7 @@ impl MlpLayer {
     pub fn normalize(&self, y: Tensor<2>) -> Tensor<2> {
         match &self.folded {
             Some(_) => y,
-            None => self.norm.forward(y),
+            None => norm_rows(&self.norm, y),
         }
     }
 

@@ -1,6 +1,7 @@
 //! Batch norm as the detectors use it: settings of their own, and statistics over the
 //! real rows of a padded tensor.
 
+use crate::ragged;
 use burn::nn::{BatchNorm, BatchNormConfig};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -32,6 +33,33 @@ pub fn batch_norm(channels: usize, config: &NormConfig, device: &Device) -> Batc
         .with_momentum(config.momentum)
         .with_epsilon(config.epsilon)
         .init(device)
+}
+
+/// `bn.forward(x)` on [rows, C]: in training on the flex CPU device the fused custom
+/// operation ([`ragged::batch_norm_rows`]: two passes for the statistics, one for the
+/// output, two backward, where burn's generic form transposes the rows and makes about
+/// eight passes each way), with the same running-statistics update as `BatchNorm`;
+/// elsewhere (inference, other devices) `bn.forward` itself.
+pub fn norm_rows(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
+    if !(x.device().is_autodiff() && bn.training.is_enabled() && ragged::custom_path(&x)) {
+        return bn.forward(x);
+    }
+    let [channels] = bn.gamma.shape().dims();
+    assert_eq!(x.dims()[1], channels, "one column per channel of the norm");
+    let (out, mean, variance) =
+        ragged::batch_norm_rows(x, bn.gamma.val(), bn.beta.val(), bn.epsilon);
+    let momentum = bn.momentum;
+    let update = |state: &burn::module::RunningState<Tensor<1>>, batch: Tensor<1>| {
+        let device = batch.device();
+        let old = state.value_sync().to_device(&device);
+        let new = old
+            .mul_scalar(1.0 - momentum)
+            .add(batch.detach().mul_scalar(momentum));
+        state.update(new.detach());
+    };
+    update(&bn.running_mean, mean);
+    update(&bn.running_var, variance);
+    out
 }
 
 /// Batch norm over [rows, C] whose statistics use only the rows where `valid` ([rows, 1])
@@ -69,4 +97,83 @@ pub fn masked_batch_norm(
     update(&bn.running_mean, mean);
     update(&bn.running_var, var);
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::module::Param;
+
+    fn values(t: Tensor<2>) -> Vec<f32> {
+        t.try_into_vec_as::<f32>().unwrap()
+    }
+
+    fn close(a: &[f32], b: &[f32], what: &str) {
+        assert_eq!(a.len(), b.len(), "{what}");
+        for (x, y) in a.iter().zip(b) {
+            assert!(
+                (x - y).abs() <= 2e-5 * (1.0 + y.abs()),
+                "{what}: {x} vs {y}"
+            );
+        }
+    }
+
+    /// The fused training norm against burn's `BatchNorm::forward`: output, the input's,
+    /// γ's and β's gradients and the running statistics, for one row, a few and many,
+    /// with offsets that make the variance small against the mean.
+    #[test]
+    fn norm_rows_matches_burns_batch_norm_in_training() {
+        let device = Device::flex().autodiff();
+        for (rows, c) in [(1, 3), (3, 4), (700, 9)] {
+            let x: Vec<f32> = (0..rows * c)
+                .map(|i| 100.0 + ((i * 37) % 23) as f32 * 0.125 - (i % c) as f32 * 3.0)
+                .collect();
+            let g: Vec<f32> = (0..rows * c).map(|i| ((i * 13) % 7) as f32 - 3.0).collect();
+            let run = |fused: bool| {
+                let mut bn = batch_norm(c, &NormConfig::default(), &device);
+                let gamma: Vec<f32> = (0..c).map(|i| 0.5 + i as f32 * 0.25).collect();
+                let beta: Vec<f32> = (0..c).map(|i| i as f32 * 0.1 - 0.2).collect();
+                bn.gamma =
+                    Param::from_tensor(Tensor::from_data(TensorData::new(gamma, [c]), &device));
+                bn.beta =
+                    Param::from_tensor(Tensor::from_data(TensorData::new(beta, [c]), &device));
+                let input = Tensor::<2>::from_data(TensorData::new(x.clone(), [rows, c]), &device)
+                    .require_grad();
+                let out = if fused {
+                    assert!(ragged::custom_path(&input));
+                    norm_rows(&bn, input.clone())
+                } else {
+                    bn.forward(input.clone())
+                };
+                let weights =
+                    Tensor::<2>::from_data(TensorData::new(g.clone(), [rows, c]), &device);
+                let grads = (out.clone() * weights).sum().backward();
+                let grad1 = |t: Tensor<1>| t.try_into_vec_as::<f32>().unwrap();
+                (
+                    values(out),
+                    values(input.grad(&grads).unwrap()),
+                    grad1(bn.gamma.val().grad(&grads).unwrap()),
+                    grad1(bn.beta.val().grad(&grads).unwrap()),
+                    grad1(bn.running_mean.value()),
+                    grad1(bn.running_var.value()),
+                )
+            };
+            let (fused, generic) = (run(true), run(false));
+            close(&fused.0, &generic.0, "output");
+            close(&fused.1, &generic.1, "input gradient");
+            close(&fused.2, &generic.2, "γ gradient");
+            close(&fused.3, &generic.3, "β gradient");
+            close(&fused.4, &generic.4, "running mean");
+            close(&fused.5, &generic.5, "running variance");
+        }
+    }
+
+    /// Inference (no autodiff) keeps burn's own norm: the running statistics.
+    #[test]
+    fn inference_keeps_burns_norm() {
+        let device = Device::flex();
+        let bn = batch_norm(2, &NormConfig::default(), &device);
+        let x = Tensor::<2>::from_floats([[1.0, 2.0], [3.0, 5.0]], &device);
+        assert_eq!(values(norm_rows(&bn, x.clone())), values(bn.forward(x)));
+    }
 }

@@ -2,13 +2,18 @@
 //! pairs of a frustum, the points of a voxel. Segments are given by their row counts
 //! and start rows in a flat [rows, C] tensor, so no group is padded to the largest.
 
-use crate::host_max;
+use crate::{host_max, ragged};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
+use std::sync::Arc;
 
-/// Max-pooling of ragged rows into segments, by gather.
+/// Max-pooling of ragged rows into segments.
 ///
-/// Segments are grouped into buckets by their row count rounded up to a power of two; a
+/// On the flex CPU device one pass over the rows: inference on the host
+/// ([`host_max::runs_max`]), training through the custom operation with its own backward
+/// ([`ragged::runs_max`]: the winning row per (segment, channel) kept, the gradient
+/// scattered to it). Elsewhere, by gather ([`SegmentPool::max_pool_generic`]):
+/// segments are grouped into buckets by their row count rounded up to a power of two; a
 /// bucket of width w gathers [segments · w] rows — each segment's window repeats its own
 /// rows (duplicates do not change a max) — and takes the max over the window. Empty
 /// segments form a bucket of width 0 whose output is zeros (so the features need no zero
@@ -22,6 +27,8 @@ pub struct SegmentPool {
     /// Each segment's start row and row count, for the host path of inference.
     pub starts: Vec<usize>,
     pub counts: Vec<usize>,
+    /// The same runs for the custom training operation on the flex device.
+    pub runs: Arc<ragged::Runs>,
     /// [num_segments]: row of each segment in the concatenated bucket outputs; `None`
     /// when that is already segment order.
     pub restore: Option<Tensor<1, Int>>,
@@ -69,6 +76,7 @@ impl SegmentPool {
             buckets,
             starts: starts[..counts.len()].to_vec(),
             counts: counts.to_vec(),
+            runs: Arc::new(ragged::Runs::new(&starts[..counts.len()], counts)),
             restore: (!in_order).then(|| Tensor::from_data(TensorData::new(restore, [n]), device)),
         }
     }
@@ -84,6 +92,16 @@ impl SegmentPool {
         if host_max::host_path(&features) {
             return host_max::runs_max(features, &self.starts, &self.counts);
         }
+        if ragged::custom_path(&features) {
+            return ragged::runs_max(features, &self.runs);
+        }
+        self.max_pool_generic(features)
+    }
+
+    /// [`SegmentPool::max_pool`] by burn's generic operations (gather into the buckets,
+    /// max over each window), on any backend: what other devices run, and the reference
+    /// the custom operation is tested against.
+    pub fn max_pool_generic(&self, features: Tensor<2>) -> Tensor<2> {
         let c = features.dims()[1];
         let parts: Vec<Tensor<2>> = self
             .buckets

@@ -117,7 +117,10 @@ impl SparseConvBlock {
     }
 
     pub fn forward(&self, features: Tensor<2>, rulebook: &Rulebook) -> Tensor<2> {
-        burn::tensor::activation::relu(self.norm.forward(self.conv.forward(features, rulebook)))
+        burn::tensor::activation::relu(crate::norm::norm_rows(
+            &self.norm,
+            self.conv.forward(features, rulebook),
+        ))
     }
 }
 

@@ -1,0 +1,995 @@
+//! Training's ragged operations as custom backend operations on the flex CPU device, each
+//! with its own backward pass: the max over runs of rows that keeps its winning row
+//! (backward scatters the gradient to it), and LFA's neighbour sum (gather + add, backward
+//! the transposed gather).
+//!
+//! Why: burn's generic form of these costs several passes over memory each way. The ragged
+//! max-pool gathered every segment into a power-of-two window ([segments · width, C], up to
+//! twice the rows), reshaped and reduced the middle axis with flex's element-by-element
+//! scan, and its backward zeroed and scattered the window before scattering the window back
+//! to the rows; the neighbour sum gathered, broadcast and added [M·K, C] matrices in about
+//! ten passes and differentiated each. Here each is one pass forward and one backward.
+//!
+//! burn 0.22 routes a custom operation through `#[backend_extension]`: the trait below is
+//! implemented for `Flex` (no graph: inference, or training's untracked parts) and for
+//! `Autodiff<Flex, C>` (a node with a hand-written [`Backward`]); `Tensor::into_dispatch`
+//! and `Tensor::from_dispatch` carry the workspace's `Tensor<D>` across. Any other device
+//! (wgpu, CUDA) keeps burn's generic operations: [`custom_path`] says which applies.
+//!
+//! Ties and NaN follow flex's `max_dim_with_indices`, which training differentiated
+//! before: a row replaces the running maximum only when it is larger, or NaN while the
+//! maximum is not NaN, so among equal values the first row of the run wins (the gradient
+//! goes to it) and the first NaN wins over everything after it.
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::flex::FlexTensor;
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Autodiff, AutodiffBackend, Backend, Dispatch, Flex, backend_extension};
+use burn::prelude::*;
+use burn::tensor::DType;
+use rayon::prelude::*;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Whether the custom operations are used where they apply (the default).
+static ENABLED: AtomicBool = AtomicBool::new(true);
+
+/// Turns the custom operations off (or back on) for the whole process, so that burn's
+/// generic operations run everywhere: for side-by-side benchmarks and for comparing
+/// trainings of both paths. Set it before a computation starts, not during one.
+pub fn set_custom_ops(enabled: bool) {
+    ENABLED.store(enabled, Ordering::SeqCst);
+}
+
+/// Whether `x` takes the custom operations: on the flex CPU device, with or without
+/// autodiff, unless [`set_custom_ops`] turned them off. Elsewhere callers use burn's
+/// generic operations.
+pub fn custom_path<const D: usize>(x: &Tensor<D>) -> bool {
+    ENABLED.load(Ordering::Relaxed) && x.device().without_autodiff() == Device::flex()
+}
+
+/// Runs of rows: run s covers rows `starts[s]..starts[s] + counts[s]` of a [rows, C]
+/// tensor. Runs may be empty; they need not be disjoint or in order.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Runs {
+    pub starts: Vec<u32>,
+    pub counts: Vec<u32>,
+}
+
+impl Runs {
+    pub fn new(starts: &[usize], counts: &[usize]) -> Self {
+        assert_eq!(starts.len(), counts.len(), "one start per run");
+        let small = |v: &[usize]| -> Vec<u32> {
+            v.iter()
+                .map(|&x| u32::try_from(x).expect("row indices fit in 32 bits"))
+                .collect()
+        };
+        Self {
+            starts: small(starts),
+            counts: small(counts),
+        }
+    }
+
+    /// `blocks` runs of `width` consecutive rows each.
+    pub fn blocks(blocks: usize, width: usize) -> Self {
+        let starts: Vec<usize> = (0..blocks).map(|b| b * width).collect();
+        Self::new(&starts, &vec![width; blocks])
+    }
+
+    pub fn len(&self) -> usize {
+        self.counts.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.counts.is_empty()
+    }
+}
+
+/// LFA's neighbourhoods: query i's K neighbour rows `neighbours[i·K..(i+1)·K]` among the
+/// stage's points, and that transposed (for each point, the (query, slot) rows that read
+/// it, in row order) for the backward pass.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Neighbours {
+    pub k: usize,
+    pub points: usize,
+    pub neighbours: Vec<u32>,
+    /// CSR over points: rows `readers[reader_start[p]..reader_start[p + 1]]` read point p.
+    reader_start: Vec<u32>,
+    readers: Vec<u32>,
+}
+
+impl Neighbours {
+    /// `neighbours`: [M · K] rows into `points` points.
+    pub fn new(neighbours: Vec<u32>, k: usize, points: usize) -> Self {
+        assert!(
+            k > 0 && neighbours.len().is_multiple_of(k),
+            "K rows per query"
+        );
+        let mut reader_start = vec![0u32; points + 1];
+        for &p in &neighbours {
+            assert!((p as usize) < points, "neighbour {p} past {points} points");
+            reader_start[p as usize + 1] += 1;
+        }
+        for p in 0..points {
+            reader_start[p + 1] += reader_start[p];
+        }
+        let mut fill = reader_start.clone();
+        let mut readers = vec![0u32; neighbours.len()];
+        for (row, &p) in neighbours.iter().enumerate() {
+            readers[fill[p as usize] as usize] = row as u32;
+            fill[p as usize] += 1;
+        }
+        Self {
+            k,
+            points,
+            neighbours,
+            reader_start,
+            readers,
+        }
+    }
+
+    pub fn queries(&self) -> usize {
+        self.neighbours.len() / self.k
+    }
+}
+
+/// The custom operations (see the module's documentation).
+#[backend_extension(Flex, Autodiff)]
+pub trait RaggedOps: Backend {
+    /// Per-run max of `x` ([rows, C]) → [runs, C]; an empty run gives zeros.
+    fn runs_max(x: FloatTensor<Self>, runs: Arc<Runs>) -> FloatTensor<Self>;
+
+    /// `y[i·K + j] = (per_point[nb(i, j)] + per_query[i]) + distance[i·K + j] · w_d`,
+    /// [M·K, C], from per_point [N, C], per_query [M, C], distance [M·K, 1] (a constant:
+    /// it gets no gradient) and w_d [1, C].
+    fn neighbour_sum(
+        per_point: FloatTensor<Self>,
+        per_query: FloatTensor<Self>,
+        distance: FloatTensor<Self>,
+        w_d: FloatTensor<Self>,
+        neighbours: Arc<Neighbours>,
+    ) -> FloatTensor<Self>;
+
+    /// Training batch norm over the rows of `x` ([rows, C]): the output, and the batch's
+    /// per-channel mean and biased variance ([C] each, constants).
+    fn batch_norm_rows(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        epsilon: f64,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
+}
+
+/// [`RaggedOps::runs_max`] on a `Tensor<2>` on the flex device (see [`custom_path`]).
+pub fn runs_max(x: Tensor<2>, runs: &Arc<Runs>) -> Tensor<2> {
+    Tensor::from_dispatch(<Dispatch as RaggedOps>::runs_max(
+        x.into_dispatch(),
+        Arc::clone(runs),
+    ))
+}
+
+/// [`RaggedOps::neighbour_sum`] on tensors on the flex device (see [`custom_path`]).
+pub fn neighbour_sum(
+    per_point: Tensor<2>,
+    per_query: Tensor<2>,
+    distance: Tensor<2>,
+    w_d: Tensor<2>,
+    neighbours: &Arc<Neighbours>,
+) -> Tensor<2> {
+    Tensor::from_dispatch(<Dispatch as RaggedOps>::neighbour_sum(
+        per_point.into_dispatch(),
+        per_query.into_dispatch(),
+        distance.into_dispatch(),
+        w_d.into_dispatch(),
+        Arc::clone(neighbours),
+    ))
+}
+
+/// [`RaggedOps::batch_norm_rows`] on tensors on the flex device (see [`custom_path`]):
+/// (output, batch mean, batch variance).
+pub fn batch_norm_rows(
+    x: Tensor<2>,
+    gamma: Tensor<1>,
+    beta: Tensor<1>,
+    epsilon: f64,
+) -> (Tensor<2>, Tensor<1>, Tensor<1>) {
+    let (out, mean, variance) = <Dispatch as RaggedOps>::batch_norm_rows(
+        x.into_dispatch(),
+        gamma.into_dispatch(),
+        beta.into_dispatch(),
+        epsilon,
+    );
+    (
+        Tensor::from_dispatch(out),
+        Tensor::from_dispatch(mean),
+        Tensor::from_dispatch(variance),
+    )
+}
+
+/// The f32 values of a flex tensor in row-major order, borrowed when it is contiguous.
+fn values(x: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
+    assert_eq!(x.dtype(), DType::F32, "the ragged operations take f32");
+    match x.as_slice::<f32>() {
+        Some(s) => std::borrow::Cow::Borrowed(s),
+        None => std::borrow::Cow::Owned(x.to_contiguous().as_slice::<f32>().unwrap().to_vec()),
+    }
+}
+
+fn dims2(x: &FlexTensor) -> [usize; 2] {
+    let shape = x.layout().shape();
+    assert_eq!(shape.num_dims(), 2, "a [rows, C] tensor");
+    [shape[0], shape[1]]
+}
+
+fn flex_tensor(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(values, shape))
+}
+
+/// One step of flex's `max_dim_with_indices` scan: `v` replaces `best` when `best` is not
+/// NaN and `v` is larger or NaN.
+#[inline]
+fn replaces(best: f32, v: f32) -> bool {
+    !best.is_nan() && (v.is_nan() || v > best)
+}
+
+/// The per-run max of `x` and, when `with_argmax`, each (run, channel)'s winning row.
+fn runs_max_forward(x: &FlexTensor, runs: &Runs, with_argmax: bool) -> (FlexTensor, Vec<u32>) {
+    let [rows, c] = dims2(x);
+    let data = values(x);
+    let n = runs.len();
+    let mut out = vec![0f32; n * c];
+    let mut arg = if with_argmax {
+        vec![u32::MAX; n * c]
+    } else {
+        Vec::new()
+    };
+    if c > 0 {
+        let kernel = |dst: &mut [f32], arg: Option<&mut [u32]>, s: usize| {
+            let (start, count) = (runs.starts[s] as usize, runs.counts[s] as usize);
+            assert!(
+                start + count <= rows,
+                "run {start}+{count} past {rows} rows"
+            );
+            if count == 0 {
+                return;
+            }
+            dst.copy_from_slice(&data[start * c..(start + 1) * c]);
+            match arg {
+                None => {
+                    for row in data[(start + 1) * c..(start + count) * c].chunks_exact(c) {
+                        for (best, &v) in dst.iter_mut().zip(row) {
+                            if replaces(*best, v) {
+                                *best = v;
+                            }
+                        }
+                    }
+                }
+                Some(arg) => {
+                    arg.fill(start as u32);
+                    for (r, row) in data[(start + 1) * c..(start + count) * c]
+                        .chunks_exact(c)
+                        .enumerate()
+                    {
+                        let r = (start + 1 + r) as u32;
+                        for ((best, at), &v) in dst.iter_mut().zip(arg.iter_mut()).zip(row) {
+                            if replaces(*best, v) {
+                                *best = v;
+                                *at = r;
+                            }
+                        }
+                    }
+                }
+            }
+        };
+        if with_argmax {
+            out.par_chunks_mut(c)
+                .zip(arg.par_chunks_mut(c))
+                .enumerate()
+                .for_each(|(s, (dst, arg))| kernel(dst, Some(arg), s));
+        } else {
+            out.par_chunks_mut(c)
+                .enumerate()
+                .for_each(|(s, dst)| kernel(dst, None, s));
+        }
+    }
+    (flex_tensor(out, [n, c]), arg)
+}
+
+/// The gradient of the per-run max: each (run, channel)'s gradient added to its winning
+/// row's, in run order (runs that share rows add up deterministically); rows that won
+/// nothing get zero.
+fn runs_max_backward(grad: &FlexTensor, argmax: &[u32], rows: usize) -> FlexTensor {
+    let [n, c] = dims2(grad);
+    let g = values(grad);
+    let mut out = vec![0f32; rows * c];
+    for s in 0..n {
+        for ch in 0..c {
+            let at = argmax[s * c + ch];
+            if at != u32::MAX {
+                out[at as usize * c + ch] += g[s * c + ch];
+            }
+        }
+    }
+    flex_tensor(out, [rows, c])
+}
+
+/// The neighbour sum's forward (see [`RaggedOps::neighbour_sum`]); the same operations in
+/// the same order as burn's tensor form, so the same bits.
+fn neighbour_sum_forward(
+    per_point: &FlexTensor,
+    per_query: &FlexTensor,
+    distance: &FlexTensor,
+    w_d: &FlexTensor,
+    nb: &Neighbours,
+) -> FlexTensor {
+    let [n, c] = dims2(per_point);
+    let [m, cq] = dims2(per_query);
+    assert_eq!(n, nb.points, "per-point rows");
+    assert_eq!(m, nb.queries(), "per-query rows");
+    assert_eq!(c, cq, "channels");
+    assert_eq!(dims2(distance), [m * nb.k, 1], "a distance per neighbour");
+    assert_eq!(dims2(w_d), [1, c], "a distance weight per channel");
+    let (pp, pq, dist, wd) = (
+        values(per_point),
+        values(per_query),
+        values(distance),
+        values(w_d),
+    );
+    let k = nb.k;
+    let mut y = vec![0f32; m * k * c];
+    if c > 0 {
+        y.par_chunks_mut(k * c)
+            .zip(nb.neighbours.par_chunks(k))
+            .enumerate()
+            .for_each(|(i, (rows, neighbours))| {
+                let query = &pq[i * c..(i + 1) * c];
+                for (j, (row, &p)) in rows.chunks_exact_mut(c).zip(neighbours).enumerate() {
+                    let d = dist[i * k + j];
+                    let point = &pp[p as usize * c..(p as usize + 1) * c];
+                    for (((out, &pk), &pi), &w) in row.iter_mut().zip(point).zip(query).zip(&*wd) {
+                        *out = (pk + pi) + d * w;
+                    }
+                }
+            });
+    }
+    flex_tensor(y, [m * k, c])
+}
+
+/// The neighbour sum's input gradients from `grad` ([M·K, C]): per point the sum of its
+/// readers' rows (in row order), per query the sum over its K rows, and w_d's the
+/// distance-weighted sum over all rows.
+fn neighbour_sum_backward(
+    grad: &FlexTensor,
+    distance: &[f32],
+    nb: &Neighbours,
+    need: [bool; 3],
+) -> [Option<FlexTensor>; 3] {
+    let [rows, c] = dims2(grad);
+    let (m, k) = (nb.queries(), nb.k);
+    assert_eq!(rows, m * k, "a gradient row per neighbour");
+    let g = values(grad);
+    let per_point = need[0].then(|| {
+        let mut out = vec![0f32; nb.points * c];
+        if c > 0 {
+            out.par_chunks_mut(c).enumerate().for_each(|(p, dst)| {
+                let readers =
+                    &nb.readers[nb.reader_start[p] as usize..nb.reader_start[p + 1] as usize];
+                for &r in readers {
+                    let r = r as usize;
+                    for (o, &v) in dst.iter_mut().zip(&g[r * c..(r + 1) * c]) {
+                        *o += v;
+                    }
+                }
+            });
+        }
+        flex_tensor(out, [nb.points, c])
+    });
+    let per_query = need[1].then(|| {
+        let mut out = vec![0f32; m * c];
+        if c > 0 {
+            out.par_chunks_mut(c).enumerate().for_each(|(i, dst)| {
+                for row in g[i * k * c..(i + 1) * k * c].chunks_exact(c) {
+                    for (o, &v) in dst.iter_mut().zip(row) {
+                        *o += v;
+                    }
+                }
+            });
+        }
+        flex_tensor(out, [m, c])
+    });
+    let w_d = need[2].then(|| {
+        // Per query first (in parallel), then the queries in order: deterministic.
+        let mut partial = vec![0f32; m * c];
+        if c > 0 {
+            partial.par_chunks_mut(c).enumerate().for_each(|(i, dst)| {
+                for (j, row) in g[i * k * c..(i + 1) * k * c].chunks_exact(c).enumerate() {
+                    let d = distance[i * k + j];
+                    for (o, &v) in dst.iter_mut().zip(row) {
+                        *o += d * v;
+                    }
+                }
+            });
+        }
+        let mut out = vec![0f32; c];
+        for row in partial.chunks_exact(c.max(1)).take(m) {
+            for (o, &v) in out.iter_mut().zip(row) {
+                *o += v;
+            }
+        }
+        flex_tensor(out, [1, c])
+    });
+    [per_point, per_query, w_d]
+}
+
+/// Rows per block of the column reductions: blocks are reduced in parallel and their sums
+/// added in block order, so the result does not depend on the number of threads.
+const ROWS_PER_BLOCK: usize = 256;
+
+/// Per-column sums over the rows of a [rows, C] computation, `add(r, acc)` adding row r's
+/// terms into `acc` (f64, so long columns keep their precision).
+fn column_sums(rows: usize, c: usize, add: impl Fn(usize, &mut [f64]) + Sync) -> Vec<f64> {
+    let blocks = rows.div_ceil(ROWS_PER_BLOCK);
+    let partial: Vec<Vec<f64>> = (0..blocks)
+        .into_par_iter()
+        .map(|b| {
+            let mut acc = vec![0f64; c];
+            for r in b * ROWS_PER_BLOCK..((b + 1) * ROWS_PER_BLOCK).min(rows) {
+                add(r, &mut acc);
+            }
+            acc
+        })
+        .collect();
+    let mut total = vec![0f64; c];
+    for block in &partial {
+        for (t, &v) in total.iter_mut().zip(block) {
+            *t += v;
+        }
+    }
+    total
+}
+
+/// `1 / √(σ² + ε)` per channel.
+fn inverse_std(variance: &[f32], epsilon: f64) -> Vec<f32> {
+    variance
+        .iter()
+        .map(|&v| 1.0 / (v + epsilon as f32).sqrt())
+        .collect()
+}
+
+/// Training batch norm of [rows, C]: (output, mean, biased variance). Two reading passes
+/// for the statistics (mean, then the centred squares) and one writing the output, where
+/// burn's generic form transposes the rows twice and makes about eight passes.
+fn batch_norm_rows_forward(
+    x: &FlexTensor,
+    gamma: &FlexTensor,
+    beta: &FlexTensor,
+    epsilon: f64,
+) -> (FlexTensor, FlexTensor, FlexTensor) {
+    let [rows, c] = dims2(x);
+    let data = values(x);
+    let (gamma, beta) = (values(gamma), values(beta));
+    assert_eq!((gamma.len(), beta.len()), (c, c), "γ and β per channel");
+    let n = rows.max(1) as f64;
+    let mean: Vec<f32> = column_sums(rows, c, |r, acc| {
+        for (a, &v) in acc.iter_mut().zip(&data[r * c..(r + 1) * c]) {
+            *a += v as f64;
+        }
+    })
+    .into_iter()
+    .map(|s| (s / n) as f32)
+    .collect();
+    let variance: Vec<f32> = column_sums(rows, c, |r, acc| {
+        for ((a, &v), &m) in acc.iter_mut().zip(&data[r * c..(r + 1) * c]).zip(&mean) {
+            let d = (v - m) as f64;
+            *a += d * d;
+        }
+    })
+    .into_iter()
+    .map(|s| (s / n) as f32)
+    .collect();
+    let scale: Vec<f32> = inverse_std(&variance, epsilon)
+        .iter()
+        .zip(gamma.iter())
+        .map(|(&s, &g)| s * g)
+        .collect();
+    let mut out = vec![0f32; rows * c];
+    if c > 0 {
+        out.par_chunks_mut(ROWS_PER_BLOCK * c)
+            .zip(data.par_chunks(ROWS_PER_BLOCK * c))
+            .for_each(|(dst, src)| {
+                for (d_row, s_row) in dst.chunks_exact_mut(c).zip(src.chunks_exact(c)) {
+                    for ((((o, &v), &m), &k), &b) in d_row
+                        .iter_mut()
+                        .zip(s_row)
+                        .zip(&mean)
+                        .zip(&scale)
+                        .zip(beta.iter())
+                    {
+                        *o = (v - m) * k + b;
+                    }
+                }
+            });
+    }
+    let vector = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [c]));
+    (flex_tensor(out, [rows, c]), vector(mean), vector(variance))
+}
+
+/// The training batch norm's gradients (x, γ, β) from the output's: with x̂ the
+/// normalised input, β' = Σ g, γ' = Σ g·x̂ and x' = γ/σ · (g − mean(g) − x̂·mean(g·x̂)).
+/// One reading pass for the sums, one writing x'.
+fn batch_norm_rows_backward(
+    x: &FlexTensor,
+    gamma: &[f32],
+    mean: &[f32],
+    variance: &[f32],
+    epsilon: f64,
+    grad: &FlexTensor,
+) -> (FlexTensor, FlexTensor, FlexTensor) {
+    let [rows, c] = dims2(x);
+    assert_eq!(dims2(grad), [rows, c], "a gradient per output");
+    let (data, g) = (values(x), values(grad));
+    let inv_std = inverse_std(variance, epsilon);
+    // Σ g and Σ g·x̂ per channel, side by side in one accumulator of 2C.
+    let sums = column_sums(rows, 2 * c, |r, acc| {
+        let (sum_g, sum_gx) = acc.split_at_mut(c);
+        let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
+        for ch in 0..c {
+            let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
+            sum_g[ch] += g_row[ch] as f64;
+            sum_gx[ch] += (g_row[ch] * x_hat) as f64;
+        }
+    });
+    let n = rows.max(1) as f64;
+    let mean_g: Vec<f32> = sums[..c].iter().map(|&s| (s / n) as f32).collect();
+    let mean_gx: Vec<f32> = sums[c..].iter().map(|&s| (s / n) as f32).collect();
+    let scale: Vec<f32> = gamma.iter().zip(&inv_std).map(|(&g, &s)| g * s).collect();
+    let mut dx = vec![0f32; rows * c];
+    if c > 0 {
+        dx.par_chunks_mut(ROWS_PER_BLOCK * c)
+            .enumerate()
+            .for_each(|(b, dst)| {
+                let first = b * ROWS_PER_BLOCK;
+                for (i, d_row) in dst.chunks_exact_mut(c).enumerate() {
+                    let r = first + i;
+                    let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
+                    for ch in 0..c {
+                        let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
+                        d_row[ch] = scale[ch] * ((g_row[ch] - mean_g[ch]) - x_hat * mean_gx[ch]);
+                    }
+                }
+            });
+    }
+    let vector = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [c]));
+    (
+        flex_tensor(dx, [rows, c]),
+        vector(sums[c..].iter().map(|&s| s as f32).collect()),
+        vector(sums[..c].iter().map(|&s| s as f32).collect()),
+    )
+}
+
+impl RaggedOps for Flex {
+    fn runs_max(x: FlexTensor, runs: Arc<Runs>) -> FlexTensor {
+        runs_max_forward(&x, &runs, false).0
+    }
+
+    fn neighbour_sum(
+        per_point: FlexTensor,
+        per_query: FlexTensor,
+        distance: FlexTensor,
+        w_d: FlexTensor,
+        neighbours: Arc<Neighbours>,
+    ) -> FlexTensor {
+        neighbour_sum_forward(&per_point, &per_query, &distance, &w_d, &neighbours)
+    }
+
+    fn batch_norm_rows(
+        x: FlexTensor,
+        gamma: FlexTensor,
+        beta: FlexTensor,
+        epsilon: f64,
+    ) -> (FlexTensor, FlexTensor, FlexTensor) {
+        batch_norm_rows_forward(&x, &gamma, &beta, epsilon)
+    }
+}
+
+/// The backward step of [`RaggedOps::runs_max`].
+#[derive(Debug)]
+struct RunsMaxBackward;
+
+impl Backward<Flex, 1> for RunsMaxBackward {
+    /// Each (run, channel)'s winning row (`u32::MAX` for an empty run) and the input rows.
+    type State = (Arc<Vec<u32>>, usize);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let (argmax, rows) = ops.state;
+        let grad = grads.consume::<Flex>(&ops.node);
+        if let [Some(parent)] = ops.parents {
+            grads.register::<Flex>(parent.id, runs_max_backward(&grad, &argmax, rows));
+        }
+    }
+}
+
+/// The backward step of [`RaggedOps::neighbour_sum`].
+#[derive(Debug)]
+struct NeighbourSumBackward;
+
+impl Backward<Flex, 3> for NeighbourSumBackward {
+    /// The distances (constants) and the neighbourhoods.
+    type State = (Arc<Vec<f32>>, Arc<Neighbours>);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let (distance, neighbours) = ops.state;
+        let grad = grads.consume::<Flex>(&ops.node);
+        let need = ops.parents.each_ref().map(Option::is_some);
+        let out = neighbour_sum_backward(&grad, &distance, &neighbours, need);
+        for (parent, g) in ops.parents.into_iter().zip(out) {
+            if let (Some(parent), Some(g)) = (parent, g) {
+                grads.register::<Flex>(parent.id, g);
+            }
+        }
+    }
+}
+
+/// The backward step of [`RaggedOps::batch_norm_rows`].
+#[derive(Debug)]
+struct BatchNormRowsBackward;
+
+impl Backward<Flex, 3> for BatchNormRowsBackward {
+    /// The input, γ, the batch mean and variance, ε.
+    type State = (FlexTensor, Arc<Vec<f32>>, Arc<Vec<f32>>, Arc<Vec<f32>>, f64);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let (x, gamma, mean, variance, epsilon) = ops.state;
+        let grad = grads.consume::<Flex>(&ops.node);
+        let (dx, dgamma, dbeta) =
+            batch_norm_rows_backward(&x, &gamma, &mean, &variance, epsilon, &grad);
+        let [node_x, node_gamma, node_beta] = ops.parents;
+        for (node, g) in [(node_x, dx), (node_gamma, dgamma), (node_beta, dbeta)] {
+            if let Some(node) = node {
+                grads.register::<Flex>(node.id, g);
+            }
+        }
+    }
+}
+
+impl<C: CheckpointStrategy> RaggedOps for Autodiff<Flex, C> {
+    fn runs_max(x: FloatTensor<Self>, runs: Arc<Runs>) -> FloatTensor<Self> {
+        let (x, node) = x.into_parts();
+        match RunsMaxBackward
+            .prepare::<C>([node])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let rows = dims2(&x)[0];
+                let (out, argmax) = runs_max_forward(&x, &runs, true);
+                prep.finish((Arc::new(argmax), rows), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(runs_max_forward(&x, &runs, false).0),
+        }
+    }
+
+    fn neighbour_sum(
+        per_point: FloatTensor<Self>,
+        per_query: FloatTensor<Self>,
+        distance: FloatTensor<Self>,
+        w_d: FloatTensor<Self>,
+        neighbours: Arc<Neighbours>,
+    ) -> FloatTensor<Self> {
+        assert!(
+            !distance.is_tracked(),
+            "the neighbour distances are constants (they get no gradient)"
+        );
+        let distance = distance.into_primitive();
+        let (per_point, a) = per_point.into_parts();
+        let (per_query, b) = per_query.into_parts();
+        let (w_d, c) = w_d.into_parts();
+        let out = neighbour_sum_forward(&per_point, &per_query, &distance, &w_d, &neighbours);
+        match NeighbourSumBackward
+            .prepare::<C>([a, b, c])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let distance = Arc::new(values(&distance).into_owned());
+                prep.finish((distance, neighbours), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        }
+    }
+
+    fn batch_norm_rows(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        epsilon: f64,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        let (x, a) = x.into_parts();
+        let (gamma, b) = gamma.into_parts();
+        let (beta, c) = beta.into_parts();
+        let (out, mean, variance) = batch_norm_rows_forward(&x, &gamma, &beta, epsilon);
+        let out = match BatchNormRowsBackward
+            .prepare::<C>([a, b, c])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let host = |t: &FlexTensor| Arc::new(values(t).into_owned());
+                let state = (x, host(&gamma), host(&mean), host(&variance), epsilon);
+                prep.finish(state, out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        };
+        // The statistics are constants (the running statistics' update detaches them).
+        (out, Self::from_inner(mean), Self::from_inner(variance))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::SegmentPool;
+
+    fn tensor(values: &[f32], shape: [usize; 2], device: &Device) -> Tensor<2> {
+        Tensor::from_data(TensorData::new(values.to_vec(), shape), device)
+    }
+
+    fn bits(t: Tensor<2>) -> Vec<u32> {
+        t.try_into_vec_as::<f32>()
+            .unwrap()
+            .iter()
+            .map(|v| v.to_bits())
+            .collect()
+    }
+
+    /// Values with many ties (zeros of both signs, repeated halves) and negatives.
+    fn tied(n: usize, seed: usize) -> Vec<f32> {
+        (0..n)
+            .map(|i| match ((i + seed) * 7919) % 11 {
+                0 => 0.0,
+                1 => -0.0,
+                r => (r as f32 - 6.0) * 0.5,
+            })
+            .collect()
+    }
+
+    /// Weights of a loss Σ w · out, so that every output element has its own gradient.
+    fn weights(n: usize, c: usize, device: &Device) -> Tensor<2> {
+        let w: Vec<f32> = (0..n * c).map(|i| 0.25 + (i % 13) as f32 * 0.5).collect();
+        tensor(&w, [n, c], device)
+    }
+
+    /// The pooled values and the input gradient of Σ w · pool(x), by a pooling function.
+    fn pooled_and_grad(
+        values: &[f32],
+        shape: [usize; 2],
+        pool: impl Fn(Tensor<2>) -> Tensor<2>,
+    ) -> (Vec<u32>, Vec<u32>) {
+        let device = Device::flex().autodiff();
+        let x = tensor(values, shape, &device).require_grad();
+        let out = pool(x.clone());
+        let [n, c] = out.dims();
+        let grads = (out.clone() * weights(n, c, &device)).sum().backward();
+        (bits(out), bits(x.grad(&grads).unwrap()))
+    }
+
+    /// The custom max-pool gives burn's generic bucket path's values and gradients bit for
+    /// bit: ragged and uneven segments, empty ones, runs longer than a power of two, ties.
+    #[test]
+    fn runs_max_matches_the_generic_pool_in_values_and_gradients() {
+        let c = 5;
+        for counts in [
+            vec![2usize, 0, 3, 1, 7, 0, 16, 5],
+            vec![1; 9],
+            vec![0, 0, 4],
+            vec![33, 2, 17],
+        ] {
+            let mut starts = vec![0usize];
+            for &n in &counts {
+                starts.push(starts.last().unwrap() + n);
+            }
+            let rows = *starts.last().unwrap();
+            let x = tied(rows * c, counts.len());
+            let device = Device::flex().autodiff();
+            let pool = SegmentPool::new(&counts, &starts, &device);
+            let generic = pooled_and_grad(&x, [rows, c], |t| pool.max_pool_generic(t));
+            let runs = Arc::new(Runs::new(&starts[..counts.len()], &counts));
+            let custom = pooled_and_grad(&x, [rows, c], |t| {
+                assert!(custom_path(&t));
+                runs_max(t, &runs)
+            });
+            assert_eq!(custom.0, generic.0, "values, counts {counts:?}");
+            assert_eq!(custom.1, generic.1, "gradients, counts {counts:?}");
+            // The pool takes the custom path itself on the flex device.
+            let through_pool = pooled_and_grad(&x, [rows, c], |t| pool.max_pool(t));
+            assert_eq!(through_pool, custom);
+        }
+    }
+
+    /// Among equal values the first row of the run gets the gradient; the first NaN wins
+    /// over everything after it (its value and its gradient), as in flex's indexed max.
+    #[test]
+    fn ties_go_to_the_first_row_and_nan_to_the_first_nan() {
+        let nan = f32::NAN;
+        // One run of 4 rows, 3 channels: channel 0 ties at 2.0 (rows 1, 3); channel 1
+        // has NaN at rows 2 and 3 after a larger value; channel 2 is all equal.
+        let x = [
+            1.0, 5.0, 7.0, //
+            2.0, 6.0, 7.0, //
+            0.0, nan, 7.0, //
+            2.0, nan, 7.0,
+        ];
+        let (values, grad) = pooled_and_grad(&x, [4, 3], |t| {
+            runs_max(t, &Arc::new(Runs::new(&[0], &[4])))
+        });
+        let values: Vec<f32> = values.into_iter().map(f32::from_bits).collect();
+        assert_eq!(values[0], 2.0);
+        assert!(values[1].is_nan());
+        assert_eq!(values[2], 7.0);
+        let grad: Vec<f32> = grad.into_iter().map(f32::from_bits).collect();
+        // Loss weights of the three outputs: 0.25, 0.75, 1.25.
+        let mut expected = vec![0.0; 12];
+        expected[3] = 0.25; // row 1, channel 0
+        expected[7] = 0.75; // row 2, channel 1 (the first NaN)
+        expected[2] = 1.25; // row 0, channel 2
+        assert_eq!(grad, expected);
+        // The generic pool agrees.
+        let device = Device::flex().autodiff();
+        let pool = SegmentPool::new(&[4], &[0, 4], &device);
+        let generic = pooled_and_grad(&x, [4, 3], |t| pool.max_pool_generic(t));
+        assert_eq!(
+            generic
+                .1
+                .into_iter()
+                .map(f32::from_bits)
+                .collect::<Vec<_>>(),
+            expected
+        );
+    }
+
+    /// Without autodiff (the flex device itself) the same values; empty runs give zeros
+    /// and runs may overlap (their gradients add).
+    #[test]
+    fn plain_flex_values_and_overlapping_runs() {
+        let x: Vec<f32> = (0..12).map(|i| (i % 5) as f32).collect();
+        let runs = Arc::new(Runs::new(&[0, 2, 3, 0], &[3, 0, 3, 2]));
+        let plain = runs_max(tensor(&x, [6, 2], &Device::flex()), &runs);
+        let (ad, grad) = pooled_and_grad(&x, [6, 2], |t| runs_max(t, &runs));
+        assert_eq!(bits(plain.clone()), ad);
+        assert_eq!(
+            plain.try_into_vec_as::<f32>().unwrap(),
+            vec![4.0, 3.0, 0.0, 0.0, 3.0, 4.0, 2.0, 3.0]
+        );
+        let grad: Vec<f32> = grad.into_iter().map(f32::from_bits).collect();
+        // burn's own max per run (select + max_dim), the runs concatenated.
+        let generic = {
+            let device = Device::flex().autodiff();
+            let x = tensor(&x, [6, 2], &device).require_grad();
+            let sel = |s: usize, n: usize| {
+                let rows: Vec<i64> = (s..s + n).map(|r| r as i64).collect();
+                Tensor::<1, Int>::from_data(TensorData::new(rows, [n]), &device)
+            };
+            let zero = Tensor::<2>::zeros([1, 2], &device);
+            let out = Tensor::cat(
+                vec![
+                    x.clone().select(0, sel(0, 3)).max_dim(0),
+                    zero,
+                    x.clone().select(0, sel(3, 3)).max_dim(0),
+                    x.clone().select(0, sel(0, 2)).max_dim(0),
+                ],
+                0,
+            );
+            let g = (out * weights(4, 2, &device)).sum().backward();
+            x.grad(&g).unwrap().try_into_vec_as::<f32>().unwrap()
+        };
+        assert_eq!(grad, generic);
+        // Row 1 wins channel 1 of runs 0 and 3 (loss weights 0.75 and 3.75): both add.
+        assert_eq!(grad[3], 4.5);
+    }
+
+    /// The neighbour sum against burn's gather + broadcast + add, values and the three
+    /// gradients, with points read by several queries, by none, and twice by one query.
+    #[test]
+    fn neighbour_sum_matches_burns_tensor_form() {
+        let (n, m, k, c) = (11, 6, 4, 7);
+        let nb: Vec<u32> = (0..m * k)
+            .map(|r| {
+                if r % 9 == 4 {
+                    3
+                } else {
+                    ((r * 5) % (n - 2)) as u32
+                }
+            })
+            .collect();
+        let neighbours = Arc::new(Neighbours::new(nb.clone(), k, n));
+        let pp = tied(n * c, 1);
+        let pq: Vec<f32> = (0..m * c).map(|i| (i % 7) as f32 * 0.3 - 1.0).collect();
+        let dist: Vec<f32> = (0..m * k).map(|i| (i % 5) as f32 * 0.7 + 0.1).collect();
+        let wd: Vec<f32> = (0..c).map(|i| i as f32 * 0.2 - 0.5).collect();
+        let run = |custom: bool| {
+            let device = Device::flex().autodiff();
+            let per_point = tensor(&pp, [n, c], &device).require_grad();
+            let per_query = tensor(&pq, [m, c], &device).require_grad();
+            let w_d = tensor(&wd, [1, c], &device).require_grad();
+            let distance = tensor(&dist, [m * k, 1], &device);
+            let y = if custom {
+                neighbour_sum(
+                    per_point.clone(),
+                    per_query.clone(),
+                    distance,
+                    w_d.clone(),
+                    &neighbours,
+                )
+            } else {
+                let rows: Vec<i64> = nb.iter().map(|&r| r as i64).collect();
+                let index = Tensor::<1, Int>::from_data(TensorData::new(rows, [m * k]), &device);
+                (per_point.clone().select(0, index).reshape([m, k, c])
+                    + per_query.clone().reshape([m, 1, c])
+                    + (distance * w_d.clone()).reshape([m, k, c]))
+                .reshape([m * k, c])
+            };
+            let grads = (y.clone() * weights(m * k, c, &device)).sum().backward();
+            let grad = |t: &Tensor<2>| t.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap();
+            (
+                y.try_into_vec_as::<f32>().unwrap(),
+                grad(&per_point),
+                grad(&per_query),
+                grad(&w_d),
+            )
+        };
+        let (custom, generic) = (run(true), run(false));
+        assert_eq!(bits_of(&custom.0), bits_of(&generic.0), "values");
+        for (name, a, b) in [
+            ("per point", &custom.1, &generic.1),
+            ("per query", &custom.2, &generic.2),
+            ("w_d", &custom.3, &generic.3),
+        ] {
+            assert_eq!(a.len(), b.len());
+            for (x, y) in a.iter().zip(b.iter()) {
+                assert!(
+                    (x - y).abs() <= 1e-5 * (1.0 + y.abs()),
+                    "{name}: {x} vs {y}"
+                );
+            }
+        }
+        // Points 9 and 10 are read by no query: zero gradient.
+        assert!(custom.1[9 * c..].iter().all(|&g| g == 0.0));
+        // Without autodiff the same values.
+        let device = Device::flex();
+        let plain = neighbour_sum(
+            tensor(&pp, [n, c], &device),
+            tensor(&pq, [m, c], &device),
+            tensor(&dist, [m * k, 1], &device),
+            tensor(&wd, [1, c], &device),
+            &neighbours,
+        );
+        assert_eq!(
+            bits_of(&plain.try_into_vec_as::<f32>().unwrap()),
+            bits_of(&custom.0)
+        );
+    }
+
+    fn bits_of(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    #[test]
+    fn the_transposed_neighbourhood_lists_each_points_readers_in_row_order() {
+        let nb = Neighbours::new(vec![2, 0, 2, 1, 2, 2], 2, 4);
+        assert_eq!(nb.queries(), 3);
+        assert_eq!(nb.reader_start, vec![0, 1, 2, 6, 6]);
+        assert_eq!(nb.readers, vec![1, 3, 0, 2, 4, 5]);
+    }
+
+    #[test]
+    fn other_devices_are_not_the_custom_path() {
+        assert!(custom_path(&Tensor::<2>::zeros([1, 1], &Device::flex())));
+        assert!(custom_path(&Tensor::<2>::zeros(
+            [1, 1],
+            &Device::flex().autodiff()
+        )));
+    }
+}
