@@ -144,7 +144,7 @@ fn assert_mentions(text: &str, parts: &[&str]) {
 #[test]
 fn info_prints_the_published_parameter_count() {
     let t = info_of("fconvnet-car.toml");
-    assert!(t.trim_end().ends_with("parameters: 3316777"), "{t}");
+    assert!(t.contains("\nparameters: 3316777\n"), "{t}");
 }
 
 #[test]
@@ -152,10 +152,112 @@ fn info_counts_both_stages_of_the_refinement_model() {
     let t = info_of("fconvnet-refine-car.toml");
     assert_mentions(&t, &["First stage", "Refinement stage"]);
     assert!(
-        t.trim_end()
-            .ends_with("Both stages: 6633554 parameters (3316777 + 3316777)"),
+        t.contains("\nBoth stages: 6633554 parameters (3316777 + 3316777)\npaper: 6633554 ("),
         "{t}"
     );
+}
+
+/// The number after `prefix` on the line that starts with it.
+fn number_after(text: &str, prefix: &str) -> i64 {
+    let line = text
+        .lines()
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no line {prefix:?} in:\n{text}"));
+    line[prefix.len()..]
+        .split_whitespace()
+        .next()
+        .and_then(|w| w.parse().ok())
+        .unwrap_or_else(|| panic!("no number after {prefix:?} in {line:?}"))
+}
+
+/// `info`'s table by block: the block rows (not indented) sum to the total, each block to
+/// its modules, and the paper's line gives the difference the total makes.
+fn check_block_table(t: &str) -> (i64, i64, f64) {
+    let lines: Vec<&str> = t.lines().collect();
+    let start = lines
+        .iter()
+        .position(|l| l.starts_with("block / module"))
+        .unwrap_or_else(|| panic!("no table in:\n{t}"));
+    let end = lines
+        .iter()
+        .position(|l| l.starts_with("batch-norm running statistics"))
+        .unwrap();
+    let count = |l: &str| -> i64 {
+        let name_end = l.trim_start().find("  ").unwrap() + (l.len() - l.trim_start().len());
+        l[name_end..]
+            .split_whitespace()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let (mut blocks, mut modules, mut current) = (0, 0, None::<(i64, i64)>);
+    for l in &lines[start + 1..end] {
+        if l.starts_with("  ") {
+            modules += count(l);
+            current.as_mut().unwrap().1 += count(l);
+        } else {
+            if let Some((b, m)) = current {
+                assert_eq!(b, m, "a block is the sum of its modules:\n{t}");
+            }
+            blocks += count(l);
+            current = Some((count(l), 0));
+        }
+    }
+    let (b, m) = current.unwrap();
+    assert_eq!(b, m, "{t}");
+    let total = number_after(t, "parameters: ");
+    assert_eq!((blocks, modules), (total, total), "{t}");
+    let paper = number_after(t, "paper: ");
+    let paper_line = lines.iter().find(|l| l.starts_with("paper: ")).unwrap();
+    let ours = paper_line.rsplit("ours ").next().unwrap();
+    let diff: i64 = ours.split_whitespace().next().unwrap().parse().unwrap();
+    let pct: f64 = ours.split(['(', '%']).nth(1).unwrap().parse().unwrap();
+    assert_eq!(diff, total - paper, "{t}");
+    assert!(
+        (pct - 100.0 * diff as f64 / paper as f64).abs() < 0.006,
+        "{t}"
+    );
+    (total, paper, pct)
+}
+
+/// SAF's published configurations at the paper's size: the table by block beside
+/// F-ConvNet's, the paper's count beside ours and within 5% of it, for Car and for
+/// Pedestrian + Cyclist (the paper's Tables 4-6 give one count); the shipped SAF's own
+/// configuration keeps its CPU-sized LFA and says how far that is from the paper.
+#[test]
+fn info_puts_saf_beside_the_papers_count() {
+    for config in ["saf-car.toml", "saf-people.toml", "saf-car-sim.toml"] {
+        let t = info_of(config);
+        assert_mentions(
+            &t,
+            &[
+                "over F-ConvNet",
+                "LFA",
+                "PointNets",
+                "FCN",
+                "heads",
+                "(SAF, He et al.",
+            ],
+        );
+        let (_, paper, pct) = check_block_table(&t);
+        assert_eq!(paper, 3_724_013, "{config}");
+        assert!(pct.abs() < 5.0, "{config}: {pct}%\n{t}");
+    }
+    let shipped = common::repo_root().join("models/saf-car.toml");
+    let o = fusiondet(&["info", "--config", shipped.to_str().unwrap()]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    let (total, _, pct) = check_block_table(&t);
+    assert_eq!(
+        total, 3_355_113,
+        "the shipped SAF's network is unchanged:\n{t}"
+    );
+    assert!(pct < -5.0, "{t}");
+    // F-ConvNet's own table has no comparison column and matches its paper's count.
+    let t = info_of("fconvnet-car.toml");
+    assert!(!t.contains("over F-ConvNet"), "{t}");
+    assert_eq!(check_block_table(&t).2, 0.0, "{t}");
 }
 
 #[test]

@@ -1,6 +1,6 @@
 //! The per-module parameter table of `fusiondet info`.
 
-use crate::config::FConvNetConfig;
+use crate::config::{FConvNetConfig, ModelConfig, SliceEncoderKind};
 use crate::error::ModelError;
 use crate::model::FConvNet;
 use burn::module::{ModuleVisitor, Param};
@@ -35,10 +35,58 @@ pub fn trainable_params<M: Module>(module: &M) -> usize {
     counter.total
 }
 
+/// The named blocks of the frustum network, in data-flow order: what `info` groups its
+/// rows by, so that a variant's extra parameters show where they sit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Block {
+    /// SAF's local feature aggregation.
+    Lfa,
+    /// The per-scale slice PointNets (without attention).
+    PointNets,
+    /// FCAM's CBAM blocks inside the PointNets.
+    Attention,
+    /// FCN blocks 1–4 (convolutions and the merges with the coarser scales).
+    Fcn,
+    /// The three transposed convolutions.
+    Deconv,
+    /// Classification and box-regression heads.
+    Heads,
+}
+
+impl Block {
+    pub const ALL: [Block; 6] = [
+        Block::Lfa,
+        Block::PointNets,
+        Block::Attention,
+        Block::Fcn,
+        Block::Deconv,
+        Block::Heads,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Block::Lfa => "LFA",
+            Block::PointNets => "PointNets",
+            Block::Attention => "attention (CBAM)",
+            Block::Fcn => "FCN",
+            Block::Deconv => "FCN deconvolutions",
+            Block::Heads => "heads",
+        }
+    }
+}
+
+/// One module's trainable parameters.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ParamRow {
+    pub block: Block,
+    pub name: String,
+    pub params: usize,
+}
+
 /// Trainable parameter counts per module.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ParamTable {
-    pub rows: Vec<(String, usize)>,
+    pub rows: Vec<ParamRow>,
     /// Trainable parameters of the whole network.
     pub total: usize,
     /// Batch-norm running statistics (not trained, but stored in checkpoints).
@@ -48,32 +96,68 @@ pub struct ParamTable {
 impl ParamTable {
     pub fn new(model: &FConvNet) -> Self {
         let mut rows = Vec::new();
+        let mut row = |block, name: String, params| {
+            rows.push(ParamRow {
+                block,
+                name,
+                params,
+            })
+        };
         if let Some(lfa) = &model.lfa {
             for (k, stage) in lfa.stages.iter().enumerate() {
-                rows.push((format!("lfa stage {}", k + 1), trainable_params(stage)));
+                row(
+                    Block::Lfa,
+                    format!("lfa stage {}", k + 1),
+                    trainable_params(stage),
+                );
             }
         }
         for (k, enc) in model.encoders.iter().enumerate() {
             let crate::pointnet::SliceEncoder::PointNet(p) = enc;
             let attention: usize = p.attention.iter().map(trainable_params).sum();
-            rows.push((
+            row(
+                Block::PointNets,
                 format!("pointnet scale {}", k + 1),
                 trainable_params(enc) - attention,
-            ));
+            );
             if attention > 0 {
-                rows.push((format!("  attention (cbam) scale {}", k + 1), attention));
+                row(
+                    Block::Attention,
+                    format!("attention (cbam) scale {}", k + 1),
+                    attention,
+                );
             }
         }
         let f = &model.fcn;
-        rows.push(("fcn block1".into(), trainable_params(&f.block1)));
-        rows.push(("fcn block2".into(), trainable_params(&f.block2)));
-        rows.push(("fcn block3".into(), trainable_params(&f.block3)));
-        rows.push(("fcn block4".into(), trainable_params(&f.block4)));
-        rows.push(("deconv block2".into(), trainable_params(&f.deconv2)));
-        rows.push(("deconv block3".into(), trainable_params(&f.deconv3)));
-        rows.push(("deconv block4".into(), trainable_params(&f.deconv4)));
-        rows.push(("head cls".into(), trainable_params(&model.heads.cls)));
-        rows.push(("head reg".into(), trainable_params(&model.heads.reg)));
+        row(Block::Fcn, "fcn block1".into(), trainable_params(&f.block1));
+        row(Block::Fcn, "fcn block2".into(), trainable_params(&f.block2));
+        row(Block::Fcn, "fcn block3".into(), trainable_params(&f.block3));
+        row(Block::Fcn, "fcn block4".into(), trainable_params(&f.block4));
+        row(
+            Block::Deconv,
+            "deconv block2".into(),
+            trainable_params(&f.deconv2),
+        );
+        row(
+            Block::Deconv,
+            "deconv block3".into(),
+            trainable_params(&f.deconv3),
+        );
+        row(
+            Block::Deconv,
+            "deconv block4".into(),
+            trainable_params(&f.deconv4),
+        );
+        row(
+            Block::Heads,
+            "head cls".into(),
+            trainable_params(&model.heads.cls),
+        );
+        row(
+            Block::Heads,
+            "head reg".into(),
+            trainable_params(&model.heads.reg),
+        );
         let total = trainable_params(model);
         Self {
             rows,
@@ -81,21 +165,157 @@ impl ParamTable {
             buffers: model.num_params() - total,
         }
     }
+
+    /// Parameters of one block (0 where the network has none).
+    pub fn block(&self, block: Block) -> usize {
+        self.rows
+            .iter()
+            .filter(|r| r.block == block)
+            .map(|r| r.params)
+            .sum()
+    }
+
+    /// The row named `name`, if the network has it.
+    pub fn row(&self, name: &str) -> Option<usize> {
+        self.rows.iter().find(|r| r.name == name).map(|r| r.params)
+    }
 }
 
-impl fmt::Display for ParamTable {
+/// The table alone, or beside a baseline's (the extra parameters of each module).
+struct TableView<'a> {
+    table: &'a ParamTable,
+    baseline: Option<&'a ParamTable>,
+}
+
+impl fmt::Display for TableView<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let width = self.rows.iter().map(|(n, _)| n.len()).max().unwrap_or(0);
-        for (name, n) in &self.rows {
-            writeln!(f, "{name:<width$}  {n:>10}")?;
+        let t = self.table;
+        let width = t
+            .rows
+            .iter()
+            .map(|r| r.name.len() + 2)
+            .chain(Block::ALL.iter().map(|b| b.name().len()))
+            .max()
+            .unwrap_or(0);
+        let extra = |ours: usize, base: Option<usize>| match self.baseline {
+            Some(_) => format!("  {:>+12}", ours as i64 - base.unwrap_or(0) as i64),
+            None => String::new(),
+        };
+        match self.baseline {
+            Some(_) => writeln!(
+                f,
+                "{:<width$}  {:>10}  {:>12}",
+                "block / module", "parameters", "over F-ConvNet"
+            )?,
+            None => writeln!(f, "{:<width$}  {:>10}", "block / module", "parameters")?,
+        }
+        for block in Block::ALL {
+            let rows: Vec<&ParamRow> = t.rows.iter().filter(|r| r.block == block).collect();
+            if rows.is_empty() {
+                continue;
+            }
+            let n = t.block(block);
+            let base = self.baseline.map(|b| b.block(block));
+            writeln!(f, "{:<width$}  {n:>10}{}", block.name(), extra(n, base))?;
+            for r in rows {
+                let base = self.baseline.and_then(|b| b.row(&r.name));
+                writeln!(
+                    f,
+                    "  {:<w$}  {:>10}{}",
+                    r.name,
+                    r.params,
+                    extra(r.params, base),
+                    w = width - 2
+                )?;
+            }
         }
         writeln!(
             f,
             "batch-norm running statistics (stored, not trained): {}",
-            self.buffers
+            t.buffers
         )?;
-        write!(f, "parameters: {}", self.total)
+        write!(f, "parameters: {}", t.total)
     }
+}
+
+impl fmt::Display for ParamTable {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        TableView {
+            table: self,
+            baseline: None,
+        }
+        .fmt(f)
+    }
+}
+
+/// A parameter count a paper publishes for a network of this shape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Published {
+    pub params: usize,
+    pub source: &'static str,
+}
+
+impl Published {
+    /// `ours` against the paper's figure: the difference and its share of the paper's.
+    pub fn compare(&self, ours: usize) -> String {
+        let diff = ours as i64 - self.params as i64;
+        format!(
+            "paper: {} ({}); ours {diff:+} ({:+.2}%)",
+            self.params,
+            self.source,
+            100.0 * diff as f64 / self.params as f64
+        )
+    }
+}
+
+/// The network without the variants' blocks: F-ConvNet at the same widths.
+fn backbone_of(config: &ModelConfig) -> ModelConfig {
+    ModelConfig {
+        lfa: None,
+        slice_encoder: SliceEncoderKind::PointNet,
+        attention: Default::default(),
+        ..config.clone()
+    }
+}
+
+/// The paper's count for `config`'s network, where one is published: only for the
+/// published F-ConvNet widths with KITTI's three classes (the one-hot and the size
+/// clusters are part of the count), and only for the forms a paper counts. SAF's slicing
+/// and projection loss add no parameters, so every network with LFA compares to SAF's
+/// full model; the Pedestrian and Cyclist networks are the Car one (Tables 5 and 6 give
+/// the same figures as Table 4).
+pub fn published_parameters(config: &ModelConfig) -> Option<Published> {
+    if backbone_of(config) != ModelConfig::car() {
+        return None;
+    }
+    match (config.slice_encoder, &config.lfa) {
+        (SliceEncoderKind::PointNet, None) => Some(Published {
+            params: 3_316_777,
+            source: "F-ConvNet as the SAF paper counts it, Tables 4-6; the FCAM paper quotes 3340089",
+        }),
+        (SliceEncoderKind::PointNet, Some(_)) => Some(Published {
+            params: 3_724_013,
+            source: "SAF, He et al., Sensors 2022, Tables 4-6",
+        }),
+        (SliceEncoderKind::ImprovedCbam, None) => Some(Published {
+            params: 3_351_353,
+            source: "FCAM, Sensors 2021",
+        }),
+        _ => None,
+    }
+}
+
+/// The paper's count for a refinement model's two stages (first stage and refinement
+/// stage both F-ConvNet): SAF's Table 4, "Backbone + Refine".
+pub fn published_two_stage_parameters(
+    first: &ModelConfig,
+    refine: &ModelConfig,
+) -> Option<Published> {
+    let plain = |c: &ModelConfig| *c == ModelConfig::car();
+    (plain(first) && plain(refine)).then_some(Published {
+        params: 6_633_554,
+        source: "F-ConvNet with its refinement stage, SAF paper Table 4",
+    })
 }
 
 /// Trainable parameters of the network `config` describes (built on the CPU, not run).
@@ -103,15 +323,32 @@ pub fn parameter_count(config: &crate::config::ModelConfig) -> Result<usize, Mod
     Ok(trainable_params(&FConvNet::new(config, &Device::flex())?))
 }
 
-/// The text `fusiondet info --config FILE` prints: a configuration summary and the table.
-/// The network is built on the CPU device without running it.
+/// The text `fusiondet info --config FILE` prints: a configuration summary, the table by
+/// block (beside F-ConvNet at the same widths for a variant, so that its extra
+/// parameters show where they sit) and, where a paper publishes a count for this
+/// network, that count and our difference. The network is built on the CPU device
+/// without running it.
 pub fn render_info(config: &FConvNetConfig) -> Result<String, ModelError> {
     let m = &config.model;
-    let model = FConvNet::new(m, &Device::flex())?;
-    let table = ParamTable::new(&model);
+    let device = Device::flex();
+    let table = ParamTable::new(&FConvNet::new(m, &device)?);
+    let backbone = backbone_of(m);
+    let baseline = if backbone != *m {
+        Some(ParamTable::new(&FConvNet::new(&backbone, &device)?))
+    } else {
+        None
+    };
+    let view = TableView {
+        table: &table,
+        baseline: baseline.as_ref(),
+    };
+    let paper = match published_parameters(m) {
+        Some(p) => format!("\n{}", p.compare(table.total)),
+        None => String::new(),
+    };
     Ok(format!(
         "F-ConvNet: {:?} slice encoder{}, pointnet widths {:?}, fcn channels {:?}, deconv {} × 3, \
-         {} heading bins, {} size clusters, regression {} per position\n{table}",
+         {} heading bins, {} size clusters, regression {} per position\n{view}{paper}",
         m.slice_encoder,
         match &m.lfa {
             Some(l) => format!(

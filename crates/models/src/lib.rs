@@ -49,7 +49,10 @@ pub use config::{
 pub use decode::{FrustumPrediction, decode};
 pub use error::ModelError;
 pub use family::DetectorKind;
-pub use info::{ForwardMacs, ParamTable, forward_macs, render_info};
+pub use info::{
+    Block, ForwardMacs, ParamRow, ParamTable, Published, forward_macs, published_parameters,
+    render_info,
+};
 pub use inputs::BatchInputs;
 pub use loss::{LossComponents, LossOutput, LossTargets, fconvnet_loss};
 pub use model::{FConvNet, FConvNetOutput};

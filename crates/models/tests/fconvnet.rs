@@ -176,9 +176,12 @@ fn car_parameter_count() {
     assert!((n as f64 - 3.32e6).abs() / 3.32e6 < 0.01, "{n}");
     // The published implementation's layers (no bias before batch norm) exactly.
     assert_eq!(n, 3_316_777);
-    assert_eq!(table.rows.iter().map(|r| r.1).sum::<usize>(), n);
-    assert_eq!(table.rows[0], ("pointnet scale 1".to_string(), 12_992));
-    assert_eq!(table.rows[12], ("head reg".to_string(), 768 * 39 + 39));
+    assert_eq!(table.rows.iter().map(|r| r.params).sum::<usize>(), n);
+    assert_eq!(table.row("pointnet scale 1"), Some(12_992));
+    assert_eq!(table.row("head reg"), Some(768 * 39 + 39));
+    assert_eq!(table.block(Block::Heads), 768 * 39 + 39 + 768 * 2 + 2);
+    assert_eq!(table.block(Block::Lfa), 0);
+    assert_eq!(Block::ALL.iter().map(|&b| table.block(b)).sum::<usize>(), n);
     let with_bias = ModelConfig {
         bias_before_norm: true,
         ..ModelConfig::car()
@@ -190,7 +193,10 @@ fn car_parameter_count() {
     assert_eq!(model.num_params(), 3_316_777 + 11_264); // burn also counts running statistics
     assert_eq!(table.buffers, 11_264);
     let text = render_info(&FConvNetConfig::car()).unwrap();
-    assert!(text.ends_with("parameters: 3316777"), "{text}");
+    assert!(text.contains("\nparameters: 3316777\n"), "{text}");
+    // The paper's count beside ours, and no baseline column for the baseline itself.
+    assert!(text.ends_with("; ours +0 (+0.00%)"), "{text}");
+    assert!(!text.contains("over F-ConvNet"), "{text}");
 }
 
 #[test]

@@ -52,7 +52,67 @@ fn parameter_counts_of_the_variants() {
     })
     .unwrap();
     assert!(text.contains("lfa stage 2"), "{text}");
-    assert!(text.ends_with(&format!("parameters: {}", base + 5_568 + 32_768)));
+    assert!(text.contains(&format!("\nparameters: {}\n", base + 5_568 + 32_768)));
+    // The shipped SAF's widths: 368,900 short of the paper's count, 9.91% under it.
+    assert!(
+        text.ends_with(
+            "paper: 3724013 (SAF, He et al., Sensors 2022, Tables 4-6); ours -368900 (-9.91%)"
+        ),
+        "{text}"
+    );
+}
+
+/// The paper-size LFA (`LfaConfig::paper`): one shared layer per MLP, 128 channels each
+/// in the first stage and 256 in the second, so 512 per point into the PointNets. Its
+/// count by hand, where it lies (LFA itself and the PointNets' first layers), and the
+/// paper's count within 5% (−0.20%).
+#[test]
+fn the_paper_size_lfa_is_within_five_percent_of_the_papers_count() {
+    let base = 3_316_777;
+    let layer = |c_in: usize, c_out: usize| c_in * c_out + 2 * c_out; // weights + γ, β
+    let stage1 = layer(10, 128) + layer(3, 128);
+    let stage2 = layer(10 + 256, 256) + layer(3 + 256, 256);
+    let pointnet_inputs = 512 * (64 + 64 + 128 + 256);
+    let config = ModelConfig {
+        lfa: Some(LfaConfig::paper()),
+        ..ModelConfig::car()
+    };
+    let n = params(&config);
+    assert_eq!(n, base + stage1 + stage2 + pointnet_inputs);
+    let model = FConvNet::new(&config, &Device::flex()).unwrap();
+    let table = ParamTable::new(&model);
+    assert_eq!(table.block(Block::Lfa), stage1 + stage2);
+    let fconvnet = ParamTable::new(&FConvNet::new(&ModelConfig::car(), &Device::flex()).unwrap());
+    assert_eq!(
+        table.block(Block::PointNets) - fconvnet.block(Block::PointNets),
+        pointnet_inputs
+    );
+    for block in [Block::Fcn, Block::Deconv, Block::Heads] {
+        assert_eq!(table.block(block), fconvnet.block(block), "{block:?}");
+    }
+    let paper = published_parameters(&config).unwrap();
+    let off = (n as f64 - paper.params as f64) / paper.params as f64;
+    assert!(off.abs() < 0.05, "{n} against {}", paper.params);
+    let text = render_info(&FConvNetConfig {
+        model: config,
+        loss: LossConfig::default(),
+    })
+    .unwrap();
+    assert!(text.contains("over F-ConvNet"), "{text}");
+    let diff = n as i64 - paper.params as i64;
+    assert!(
+        text.ends_with(&format!(
+            "ours {diff:+} ({:+.2}%)",
+            100.0 * diff as f64 / paper.params as f64
+        )),
+        "{text}"
+    );
+    // The tiny network has no published count.
+    let tiny = ModelConfig {
+        lfa: Some(LfaConfig::paper()),
+        ..ModelConfig::tiny()
+    };
+    assert_eq!(published_parameters(&tiny), None);
 }
 
 /// A synthetic tiny batch grown to `factor`× the points per frustum for LFA: the original

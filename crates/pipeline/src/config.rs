@@ -964,6 +964,85 @@ mod shipped_configs {
         ExperimentConfig::from_file(&path).unwrap()
     }
 
+    /// SAF's module rows at full size (docs/frustum.md): each row is the shipped
+    /// baseline's file with only its modules' keys changed (slicing: `[frustum.slicing]`
+    /// and the depth range it divides; LFA: `[model.lfa]` at the paper's size and the
+    /// 4,096 points it halves to the 1,024 sliced; PL: `loss.projection_weight`), so the
+    /// rows share the baseline's data, schedule and budget. The full row is the shipped
+    /// SAF's recipe with only LFA's widths changed, and the twice-budget pair is the
+    /// baseline and the full row with the copies per object doubled.
+    #[test]
+    fn the_saf_module_rows_differ_only_in_the_modules() {
+        use fusiondet_frustum::Slicing;
+        use fusiondet_models::LfaConfig;
+        let base = load("fconvnet-car-sim.toml");
+        // `row` with its modules' keys set back to the baseline's.
+        let without_modules = |row: &ExperimentConfig, slicing: bool, lfa: bool, pl: bool| {
+            let name = &row.name;
+            assert_eq!(
+                matches!(row.frustum.slicing, Slicing::DepthGuided(_)),
+                slicing,
+                "{name}"
+            );
+            assert_eq!(row.loss.projection_weight > 0.0, pl, "{name}");
+            let mut r = row.clone();
+            r.name = base.name.clone();
+            if slicing {
+                assert_eq!(r.frustum.depth_range, [0.0, 75.0], "{name}");
+                r.frustum.slicing = base.frustum.slicing.clone();
+                r.frustum.depth_range = base.frustum.depth_range;
+            }
+            if lfa {
+                assert_eq!(r.model.lfa, Some(LfaConfig::paper()), "{name}");
+                assert_eq!(
+                    (r.frustum.points_per_frustum, r.frustum.sliced_points),
+                    (4096, 1024),
+                    "{name}"
+                );
+                r.model.lfa = None;
+                r.frustum.points_per_frustum = base.frustum.points_per_frustum;
+                r.frustum.sliced_points = base.frustum.sliced_points;
+            } else {
+                assert_eq!(r.model.lfa, None, "{name}");
+            }
+            r.loss.projection_weight = base.loss.projection_weight;
+            r
+        };
+        for (file, slicing, lfa, pl) in [
+            ("saf-slicing-car-sim.toml", true, false, false),
+            ("saf-lfa-car-sim.toml", false, true, false),
+            ("saf-pl-car-sim.toml", false, false, true),
+            ("saf-car-sim.toml", true, true, true),
+        ] {
+            let row = load(file);
+            assert_eq!(without_modules(&row, slicing, lfa, pl), base, "{file}");
+        }
+        // The shipped SAF was trained on the full row's recipe with the CPU-sized LFA.
+        let shipped = ExperimentConfig::from_file(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/saf-car.toml"),
+        )
+        .unwrap();
+        let mut full = load("saf-car-sim.toml");
+        assert_ne!(full.model.lfa, shipped.model.lfa);
+        full.model.lfa = shipped.model.lfa.clone();
+        assert_eq!(full, shipped);
+        // The pair at twice the budget.
+        for (file, row) in [
+            ("fconvnet-car-sim-2x.toml", base.clone()),
+            ("saf-car-sim-2x.toml", load("saf-car-sim.toml")),
+        ] {
+            let mut twice = load(file);
+            assert_eq!(
+                twice.frustum.augment.copies,
+                2 * row.frustum.augment.copies,
+                "{file}"
+            );
+            twice.frustum.augment.copies = row.frustum.augment.copies;
+            twice.name = row.name.clone();
+            assert_eq!(twice, row, "{file}");
+        }
+    }
+
     #[test]
     fn the_car_config_is_the_published_one() {
         assert_eq!(load("fconvnet-car.toml"), ExperimentConfig::default());
@@ -1106,6 +1185,11 @@ mod shipped_configs {
                 // The name states the variant (tiny-* are the tiny network's variants):
                 // check that the file holds it.
                 let stem = file_stem.strip_prefix("tiny-").unwrap_or(&file_stem);
+                // `-half`, `-2x`: a `-sim` schedule on another budget.
+                let stem = ["-half", "-2x"]
+                    .iter()
+                    .find_map(|b| stem.strip_suffix(b))
+                    .unwrap_or(stem);
                 let stem = stem.strip_suffix("-sim").unwrap_or(stem);
                 let variant = stem
                     .strip_suffix("-car")

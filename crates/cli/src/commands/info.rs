@@ -1,7 +1,9 @@
-//! `fusiondet info`: the network's configuration summary and per-module parameter table;
-//! for a refinement configuration, its first stage's too and the total of both.
+//! `fusiondet info`: the network's configuration summary and per-module parameter table
+//! by block (beside F-ConvNet at the same widths for a variant), with the paper's count and
+//! our difference where a paper publishes one; for a refinement configuration, its first
+//! stage's too and the total of both.
 
-use fusiondet_models::info::parameter_count;
+use fusiondet_models::info::{parameter_count, published_two_stage_parameters};
 use fusiondet_models::render_info;
 use fusiondet_pipeline::ExperimentConfig;
 use fusiondet_workflows::{out, outln};
@@ -61,5 +63,8 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
         parameter_count(&config.model)?,
     );
     outln!("Both stages: {} parameters ({a} + {b})", a + b);
+    if let Some(p) = published_two_stage_parameters(&first.model, &config.model) {
+        outln!("{}", p.compare(a + b));
+    }
     Ok(())
 }
