@@ -196,3 +196,31 @@ pub fn synthetic_batch(spec: &SyntheticSpec, seed: u64) -> FrustumBatch {
         targets,
     }
 }
+
+/// A synthetic tiny batch grown to `factor`× the points per frustum for LFA: the original
+/// points first (the ones the slices use), jittered copies after.
+pub fn lfa_batch(spec: &SyntheticSpec, seed: u64, factor: usize) -> FrustumBatch {
+    let mut batch = synthetic_batch(spec, seed);
+    let n = batch.points_per_frustum;
+    let mut points = Vec::with_capacity(batch.points.len() * factor);
+    for f in 0..batch.batch_size {
+        let own = &batch.points[f * n * 3..(f + 1) * n * 3];
+        points.extend_from_slice(own);
+        for copy in 1..factor {
+            points.extend(
+                own.iter()
+                    .enumerate()
+                    .map(|(i, v)| v + 0.01 * (((i * 7 + copy * 13) % 11) as f32 - 5.0)),
+            );
+        }
+    }
+    for scale in &mut batch.scales {
+        for p in &mut scale.pair_point {
+            let (f, i) = (*p as usize / n, *p as usize % n);
+            *p = (f * n * factor + i) as i64;
+        }
+    }
+    batch.points = points;
+    batch.points_per_frustum = n * factor;
+    batch
+}

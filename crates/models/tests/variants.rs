@@ -3,10 +3,9 @@
 
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
-use fusiondet_frustum::FrustumBatch;
 use fusiondet_models::boxes::box_corners;
 use fusiondet_models::loss::{box_corners_tensor, projected_box, projection_loss};
-use fusiondet_models::synthetic::{SyntheticSpec, synthetic_batch};
+use fusiondet_models::synthetic::{SyntheticSpec, lfa_batch, synthetic_batch};
 use fusiondet_models::*;
 
 fn params(config: &ModelConfig) -> usize {
@@ -113,34 +112,6 @@ fn the_paper_size_lfa_is_within_five_percent_of_the_papers_count() {
         ..ModelConfig::tiny()
     };
     assert_eq!(published_parameters(&tiny), None);
-}
-
-/// A synthetic tiny batch grown to `factor`× the points per frustum for LFA: the original
-/// points stay first (they are the ones the slices use), jittered copies follow.
-fn lfa_batch(spec: &SyntheticSpec, seed: u64, factor: usize) -> FrustumBatch {
-    let mut batch = synthetic_batch(spec, seed);
-    let n = batch.points_per_frustum;
-    let mut points = Vec::with_capacity(batch.points.len() * factor);
-    for f in 0..batch.batch_size {
-        let own = &batch.points[f * n * 3..(f + 1) * n * 3];
-        points.extend_from_slice(own);
-        for copy in 1..factor {
-            points.extend(
-                own.iter()
-                    .enumerate()
-                    .map(|(i, v)| v + 0.01 * (((i * 7 + copy * 13) % 11) as f32 - 5.0)),
-            );
-        }
-    }
-    for scale in &mut batch.scales {
-        for p in &mut scale.pair_point {
-            let (f, i) = (*p as usize / n, *p as usize % n);
-            *p = (f * n * factor + i) as i64;
-        }
-    }
-    batch.points = points;
-    batch.points_per_frustum = n * factor;
-    batch
 }
 
 fn tiny_variant(kind: SliceEncoderKind, lfa: bool, projection: bool) -> FConvNetConfig {
