@@ -143,7 +143,12 @@ fn format_params(n: usize) -> String {
     }
 }
 
-fn min_overlap_of(rows: &[AblationRow], class: ObjectClass, setting: usize, m: Metric) -> String {
+pub(crate) fn min_overlap_of(
+    rows: &[AblationRow],
+    class: ObjectClass,
+    setting: usize,
+    m: Metric,
+) -> String {
     rows.iter()
         .find_map(|r| r.report.settings.get(setting))
         .and_then(|s| s.min_overlap(class, m))

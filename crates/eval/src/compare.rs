@@ -10,6 +10,7 @@
 //! either way.
 
 use crate::load::read_result_file;
+use fusiondet_kitti::layout::list_frame_ids;
 use fusiondet_kitti::{FormatError, Object};
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -164,18 +165,7 @@ fn angle_between(a: f64, b: f64) -> f64 {
 pub fn compare_dirs(a: &Path, b: &Path) -> Result<Comparison, FormatError> {
     let mut ids = BTreeSet::new();
     for dir in [a, b] {
-        let entries = std::fs::read_dir(dir).map_err(|e| FormatError::io(dir, e))?;
-        for entry in entries {
-            let entry = entry.map_err(|e| FormatError::io(dir, e))?;
-            let name = entry.file_name();
-            let name = name.to_string_lossy();
-            if let Some(id) = name.strip_suffix(".txt")
-                && !id.is_empty()
-                && id.bytes().all(|c| c.is_ascii_digit())
-            {
-                ids.insert(id.to_string());
-            }
-        }
+        ids.extend(list_frame_ids(dir, "txt").map_err(|e| FormatError::io(dir, e))?);
     }
     let mut comparison = Comparison::default();
     for id in &ids {

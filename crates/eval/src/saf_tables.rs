@@ -8,7 +8,7 @@
 //! as printed (its runtime on its own GPU). Nothing here is evaluated: every number of ours
 //! comes from an [`AblationRow`].
 
-use crate::ablation::{AblationRow, markdown_table};
+use crate::ablation::{AblationRow, markdown_table, min_overlap_of};
 use crate::protocol::Metric;
 use fusiondet_kitti::ObjectClass;
 use std::fmt::Write as _;
@@ -162,21 +162,13 @@ pub fn paper_table(class: ObjectClass) -> Option<(u32, &'static [PaperRow])> {
     }
 }
 
-/// One of our rows: an ablation row and how many stages its detector has.
-pub struct OurRow<'a> {
-    pub row: &'a AblationRow,
-    pub stages: u32,
-}
-
 /// Table 4, 5 or 6 for `class`: our rows (at the ablation's first overlap setting, the
-/// official one), then the paper's; `None` for a class the paper has no table of.
-pub fn saf_table(ours: &[OurRow], class: ObjectClass) -> Option<String> {
+/// official one), `stages[i]` the number of stages of row i's detector, then the paper's;
+/// `None` for a class the paper has no table of.
+pub fn saf_table(rows: &[AblationRow], stages: &[u32], class: ObjectClass) -> Option<String> {
+    assert_eq!(rows.len(), stages.len(), "one stage count per row");
     let (number, paper) = paper_table(class)?;
-    let iou = ours
-        .iter()
-        .find_map(|o| o.row.report.settings.first())
-        .and_then(|s| s.min_overlap(class, Metric::ThreeD))
-        .map_or("?".to_string(), |v| format!("{v:.2}"));
+    let iou = min_overlap_of(rows, class, 0, Metric::ThreeD);
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -202,12 +194,11 @@ pub fn saf_table(ours: &[OurRow], class: ObjectClass) -> Option<String> {
     .collect();
     let ap = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.2}"));
     let mut body = Vec::new();
-    for o in ours {
-        let r = o.row;
+    for (r, &n) in rows.iter().zip(stages) {
         let mut cells = vec![
             r.name.clone(),
             "ours".to_string(),
-            if o.stages == 1 { "one" } else { "two" }.to_string(),
+            if n == 1 { "one" } else { "two" }.to_string(),
             r.params
                 .map_or("n/a".to_string(), |p| group_thousands(p as u64)),
             r.frames_per_second
@@ -270,14 +261,8 @@ mod tests {
         let mut row = AblationRow::new("saf-people-sim", report.clone());
         row.params = Some(3_724_013);
         row.frames_per_second = Some(4.0);
-        let text = saf_table(
-            &[OurRow {
-                row: &row,
-                stages: 1,
-            }],
-            ObjectClass::Pedestrian,
-        )
-        .expect("the paper has a pedestrian table");
+        let text = saf_table(std::slice::from_ref(&row), &[1], ObjectClass::Pedestrian)
+            .expect("the paper has a pedestrian table");
         assert!(
             text.starts_with("Table 5 of the SAF paper, Pedestrian"),
             "{text}"
@@ -299,6 +284,6 @@ mod tests {
             lines[5].contains("SAF") && lines[5].contains("61.84"),
             "{text}"
         );
-        assert!(saf_table(&[], ObjectClass::Van).is_none());
+        assert!(saf_table(&[], &[], ObjectClass::Van).is_none());
     }
 }

@@ -9,7 +9,7 @@
 
 use crate::{out, outln};
 use anyhow::{Context, bail};
-use fusiondet_eval::saf_tables::{OurRow, saf_table};
+use fusiondet_eval::saf_tables::saf_table;
 use fusiondet_eval::{
     AblationRow, Difficulty, EvalConfig, Metric, SeedGroup, ablation_breakdown_table,
     ablation_table, count_lidar_points, evaluate, evaluate_breakdown, frame_ids, load_dirs,
@@ -163,15 +163,8 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
             }
         }
         // The frustum family's rows beside SAF's Tables 4–6 (one per class it has).
-        if frustum_only {
-            let ours: Vec<OurRow> = rows
-                .iter()
-                .zip(&row_stages)
-                .map(|(row, &stages)| OurRow { row, stages })
-                .collect();
-            if let Some(table) = saf_table(&ours, class) {
-                text += &format!("### {class}: beside the SAF paper\n\n{table}\n");
-            }
+        if frustum_only && let Some(table) = saf_table(&rows, &row_stages, class) {
+            text += &format!("### {class}: beside the SAF paper\n\n{table}\n");
         }
         for (metric, tag) in [(Metric::ThreeD, "3d"), (Metric::Bev, "bev")] {
             let curves: Vec<(&str, &fusiondet_eval::MetricResult)> = rows
