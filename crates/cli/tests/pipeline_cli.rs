@@ -576,6 +576,43 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("0 epoch(s) run"), "{}", text(&o));
     assert!(saf.join("model.bpk").is_file());
+
+    // The same trained models as rows without training (`--models`): each finds its
+    // configuration in its run (the refinement its own first stage) and scores what the
+    // training ablation scored.
+    let again = dir.path().join("from-models");
+    let o = fusiondet(&[
+        "ablation",
+        "--models",
+        out.join("runs/tiny/model.bpk").to_str().unwrap(),
+        out.join("runs/tiny-fconvnet-refine/model.bpk")
+            .to_str()
+            .unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+    ]);
+    let t2 = text(&o);
+    assert!(o.status.success(), "{t2}");
+    assert!(!t2.contains("training"), "nothing is trained\n{t2}");
+    assert!(!again.join("runs").exists());
+    let two_stage = t2
+        .lines()
+        .find(|l| l.starts_with("| tiny-fconvnet-refine ") && l.contains(" ours "))
+        .unwrap_or_else(|| panic!("no Table 4 row of the refinement\n{t2}"));
+    assert!(two_stage.contains(" two "), "{t2}");
+    let json2: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(again.join("ablation.json")).unwrap())
+            .unwrap();
+    let rows2 = json2["configurations"].as_array().unwrap();
+    assert_eq!(rows2.len(), 2);
+    for (a, b) in rows.iter().zip(rows2) {
+        assert_eq!(a["name"], b["name"]);
+        assert_eq!(a["params"], b["params"]);
+        assert_eq!(a["results"], b["results"], "{}: the same AP", a["name"]);
+        assert_eq!(a["breakdown"], b["breakdown"], "{}", a["name"]);
+    }
 }
 
 #[test]
@@ -609,6 +646,36 @@ fn ablation_and_omega_study_reject_bad_input() {
         "{}",
         text(&o)
     );
+    // Trained checkpoints are compared as they are: training flags are refused, and one
+    // of --configs and --models is needed.
+    let shipped = common::repo_root().join("models/fconvnet-car.bpk");
+    for (extra, says) in [
+        (vec!["--epochs", "2"], "cannot be given with it"),
+        (vec!["--seeds", "1,2"], "cannot be used with"),
+    ] {
+        let mut args = vec![
+            "ablation",
+            "--models",
+            shipped.to_str().unwrap(),
+            "--data",
+            "/nonexistent",
+            "--out",
+            "/tmp/unused-ablation",
+        ];
+        args.extend(extra);
+        let o = fusiondet(&args);
+        assert!(!o.status.success());
+        assert!(text(&o).contains(says), "{}", text(&o));
+    }
+    let o = fusiondet(&[
+        "ablation",
+        "--data",
+        "/nonexistent",
+        "--out",
+        "/tmp/unused-ablation",
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("--configs"), "{}", text(&o));
     let o = fusiondet(&[
         "omega-study",
         "--config",

@@ -1,5 +1,5 @@
-//! Ablations: train, detect and evaluate a list of configurations on one data set, and
-//! write the seeds' ablation tables (AP3D and APBEV, easy/moderate/hard, AP40 and AP11),
+//! Ablations: train, detect and evaluate a list of configurations on one data set (or
+//! detect and evaluate trained checkpoints), and write the seeds' ablation tables (AP3D and APBEV, easy/moderate/hard, AP40 and AP11),
 //! the per-occlusion / per-distance / per-LiDAR-points breakdown and the
 //! precision–recall curves.
 //!
@@ -29,6 +29,10 @@ pub struct AblationOptions {
     /// Configurations to compare, in table order; the first is the baseline. A refinement
     /// config refines the nearest first-stage config before it.
     pub configs: Vec<PathBuf>,
+    /// Trained checkpoints to compare instead of `configs`, in table order (nothing is
+    /// trained): each with the configuration `detect` finds for it (`<model>.toml` beside a
+    /// shipped model, `config.toml` in a run), a refinement model with its own first stage.
+    pub models: Vec<PathBuf>,
     /// Data set root with training/, ImageSets/{train,val}.txt and rgb_detections/.
     pub data: PathBuf,
     /// Output directory.
@@ -56,11 +60,29 @@ struct Entry {
 }
 
 pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
-    let configs: Vec<(PathBuf, ExperimentConfig)> = args
-        .configs
-        .iter()
-        .map(|p| Ok((p.clone(), ExperimentConfig::from_file(p)?)))
-        .collect::<anyhow::Result<_>>()?;
+    let trained = !args.models.is_empty();
+    if trained == !args.configs.is_empty() {
+        bail!(
+            "give either --configs (train, then compare) or --models (compare trained checkpoints)"
+        );
+    }
+    if trained && (!args.seeds.is_empty() || !args.train_flags.is_empty()) {
+        bail!(
+            "--models compares checkpoints that are already trained: --seeds, --epochs, --seed \
+             and --max-frames apply to training and cannot be given with it"
+        );
+    }
+    let configs: Vec<(PathBuf, ExperimentConfig)> = if trained {
+        args.models
+            .iter()
+            .map(|p| Ok((p.clone(), ExperimentConfig::for_checkpoint(p, None)?)))
+            .collect::<anyhow::Result<_>>()?
+    } else {
+        args.configs
+            .iter()
+            .map(|p| Ok((p.clone(), ExperimentConfig::from_file(p)?)))
+            .collect::<anyhow::Result<_>>()?
+    };
     let mut names: Vec<&str> = configs.iter().map(|(_, c)| c.name.as_str()).collect();
     names.sort_unstable();
     if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
@@ -78,11 +100,14 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
             "{}: detects {:?} but {} detects {:?}; an ablation compares models of the same classes",
             p.display(),
             c.frustum.kitti_classes(),
-            args.configs[0].display(),
+            configs[0].0.display(),
             classes
         );
     }
-    if let Some((p, _)) = configs.first().filter(|(_, c)| c.refine.is_some()) {
+    if let Some((p, _)) = configs
+        .first()
+        .filter(|(_, c)| !trained && c.refine.is_some())
+    {
         bail!(
             "{}: a refinement stage needs its first stage listed before it in --configs \
              (e.g. fconvnet-car.toml fconvnet-refine-car.toml)",
@@ -107,6 +132,17 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
         // (trained with the same seed).
         let mut first_stage: Option<PathBuf> = None;
         for ((path, config), runs) in configs.iter().zip(&mut groups) {
+            if trained {
+                let results = dir_of(args, "results", config, None);
+                let row = Row {
+                    name: &config.name,
+                    config,
+                    checkpoint: path,
+                    results: &results,
+                };
+                runs.push(evaluate_row(args, &row, &label_dir, &ids)?);
+                continue;
+            }
             let first = config.refine.as_ref().and(first_stage.as_deref());
             runs.push(run_one(args, path, config, seed, first, &label_dir, &ids)?);
             if config.refine.is_none() {
@@ -291,17 +327,49 @@ fn run_one(
     // The run directory holds the configuration it was trained with (overrides included).
     let trained = ExperimentConfig::from_file(&run_dir.join("config.toml"))?;
     let results = dir_of(args, "results", config, seed);
+    let row = Row {
+        name: &name,
+        config: &trained,
+        checkpoint: &run_dir.join("model.bpk"),
+        results: &results,
+    };
+    evaluate_row(args, &row, label_dir, ids)
+}
+
+/// A trained model to detect with and evaluate: its row name, its configuration, its
+/// checkpoint and where its result files go.
+struct Row<'a> {
+    name: &'a str,
+    config: &'a ExperimentConfig,
+    checkpoint: &'a Path,
+    results: &'a Path,
+}
+
+/// Detects on the val split with a trained model and evaluates it (AP, breakdown, size,
+/// speed).
+fn evaluate_row(
+    args: &AblationOptions,
+    row: &Row,
+    label_dir: &Path,
+    ids: &[String],
+) -> anyhow::Result<Entry> {
+    let Row {
+        name,
+        config: trained,
+        checkpoint,
+        results,
+    } = *row;
     if results.exists() {
-        std::fs::remove_dir_all(&results)
+        std::fs::remove_dir_all(results)
             .with_context(|| format!("{}: cannot clear", results.display()))?;
     }
     let summary = detect(&DetectOptions {
         device: args.device,
         config: trained.clone(),
-        checkpoint: run_dir.join("model.bpk"),
+        checkpoint: checkpoint.to_path_buf(),
         data_dir: args.data.clone(),
         split: "val".into(),
-        out_dir: results.clone(),
+        out_dir: results.to_path_buf(),
         detections: None,
         depth_dir: None,
         replace: true,
@@ -312,7 +380,7 @@ fn run_one(
         classes: trained.frustum.kitti_classes(),
         ..Default::default()
     };
-    let frames = load_dirs(label_dir, &results, ids)?;
+    let frames = load_dirs(label_dir, results, ids)?;
     let report = evaluate(&frames.gt, &frames.det, &eval_config)?;
     let training = DatasetDir::new(&args.data).training();
     let points = count_lidar_points(
@@ -330,7 +398,7 @@ fn run_one(
         summary.frames, summary.boxes_written
     );
     Ok(Entry {
-        name,
+        name: name.to_string(),
         report,
         breakdown,
         params,

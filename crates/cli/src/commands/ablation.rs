@@ -1,4 +1,5 @@
-//! `fusiondet ablation`: trains and evaluates a list of configurations on one dataset and
+//! `fusiondet ablation`: trains and evaluates a list of configurations (or evaluates trained
+//! checkpoints) on one dataset and
 //! prints the seeds' ablation tables (AP3D and APBEV, easy/moderate/hard, AP40 and AP11),
 //! the per-occlusion / per-distance / per-LiDAR-points breakdown, and draws the
 //! precision–recall curves.
@@ -20,8 +21,14 @@ without reading files from disk (frustums + network + decoding and NMS), divided
 pub struct AblationArgs {
     /// Configurations to compare (TOML files), in table order; the first is the baseline.
     /// A refinement config (`[refine]`) refines the nearest first-stage config before it.
-    #[arg(long, num_args = 1.., required = true)]
+    #[arg(long, num_args = 1.., required_unless_present = "models")]
     pub configs: Vec<PathBuf>,
+    /// Trained checkpoints to compare instead (nothing is trained), in table order: the
+    /// shipped models (`models/*.bpk`, their configuration beside them) or runs'
+    /// `model.bpk`; a refinement model brings its first stage. Results go to
+    /// OUT/results/<config name>/.
+    #[arg(long, num_args = 1.., conflicts_with_all = ["configs", "seeds"])]
+    pub models: Vec<PathBuf>,
     /// Dataset root with training/, ImageSets/{train,val}.txt and rgb_detections/.
     #[arg(long)]
     pub data: PathBuf,
@@ -41,6 +48,7 @@ pub struct AblationArgs {
 pub fn run(args: AblationArgs) -> anyhow::Result<()> {
     fusiondet_workflows::ablation::run(&AblationOptions {
         configs: args.configs,
+        models: args.models,
         data: args.data,
         out: args.out,
         train_flags: args.overrides.to_args(),
