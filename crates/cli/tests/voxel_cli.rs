@@ -26,6 +26,66 @@ fn info_counts_the_published_network_and_its_multiply_adds() {
     }
 }
 
+/// A training on part of a split (`--max-frames`) pastes the objects of its own frames
+/// only: the same losses whether the data set has a prepared database of the whole split
+/// or the run builds one from its frames (issue 34: the first made a 600-step ablation
+/// row score 18.5 3D AP instead of 64.5).
+#[test]
+fn a_run_on_part_of_a_split_pastes_the_same_objects_with_or_without_a_prepared_database() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let o = run(
+        "simulate",
+        &["--out", s(&data), "--frames", "8", "--seed", "5"],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+    let config = repo_root().join("configs/tiny-voxel-rcnn.toml");
+    let train = |out: &std::path::Path| {
+        let o = run(
+            "train",
+            &[
+                "--config",
+                s(&config),
+                "--data",
+                s(&data),
+                "--out",
+                s(out),
+                "--epochs",
+                "1",
+                "--max-frames",
+                "2",
+            ],
+        );
+        assert!(o.status.success(), "{}", all_output(&o));
+        // Every loss of the epoch (its duration aside).
+        let metrics = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
+        let mut record: serde_json::Value = serde_json::from_str(metrics.trim()).unwrap();
+        record.as_object_mut().unwrap().remove("seconds");
+        record
+    };
+    let own = dir.path().join("own");
+    let built = train(&own);
+    let o = run("gt-database", &["--data", s(&data)]);
+    assert!(o.status.success(), "{}", all_output(&o));
+    let cars = |index: &std::path::Path| {
+        let text = std::fs::read_to_string(index).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        v["objects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|o| o["class"] == "Car" && o["num_points"].as_u64().unwrap() >= 5)
+            .count()
+    };
+    // The prepared database holds more cars than the run's two frames do.
+    assert!(
+        cars(&data.join("gt_database/train/index.json"))
+            > cars(&own.join("gt_database/index.json"))
+    );
+    let prepared = train(&dir.path().join("prepared"));
+    assert_eq!(built, prepared);
+}
+
 #[test]
 fn trains_detects_and_evaluates_the_tiny_configuration() {
     let dir = tempfile::tempdir().unwrap();

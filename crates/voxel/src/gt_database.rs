@@ -225,6 +225,22 @@ impl GtDatabase {
         }));
     }
 
+    /// The objects of the frames `keep` says yes to, in their order, with their points:
+    /// a training on part of a split pastes only what those frames hold, whatever frames
+    /// the database was built from.
+    pub fn restricted_to_frames(&self, keep: impl Fn(&str) -> bool) -> GtDatabase {
+        let mut db = GtDatabase {
+            with_pseudo: self.with_pseudo,
+            ..GtDatabase::default()
+        };
+        for (i, o) in self.objects.iter().enumerate() {
+            if keep(&o.frame) {
+                db.push_with_pseudo(o.clone(), self.points_of(i), self.pseudo_of(i));
+            }
+        }
+        db
+    }
+
     pub fn objects(&self) -> &[DbObject] {
         &self.objects
     }
@@ -427,6 +443,27 @@ mod tests {
         assert_eq!(kitti_difficulty(&object(25.0, 0.5, 2)), 2);
         assert_eq!(kitti_difficulty(&object(24.0, 0.0, 0)), -1);
         assert_eq!(kitti_difficulty(&object(60.0, 0.0, 3)), -1);
+    }
+
+    /// Restricting a database to some frames gives what building it from those frames
+    /// alone gives (objects, order, points), and keeps its pseudo flag.
+    #[test]
+    fn a_database_restricted_to_frames_is_the_one_built_from_them() {
+        let (a, b) = (kitti_frame("000001"), kitti_frame("000002"));
+        let both = GtDatabase::from_frames([&a, &b]);
+        assert!(
+            both.len() > GtDatabase::of_frame(&b).len(),
+            "both frames hold objects"
+        );
+        assert_eq!(
+            both.restricted_to_frames(|f| f == "000002"),
+            GtDatabase::of_frame(&b)
+        );
+        assert_eq!(both.restricted_to_frames(|_| true), both);
+        let mut marked = both.clone();
+        marked.mark_pseudo();
+        let none = marked.restricted_to_frames(|_| false);
+        assert!(none.is_empty() && none.has_pseudo());
     }
 
     #[test]

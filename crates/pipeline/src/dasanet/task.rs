@@ -208,6 +208,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         let db = cached_gt_database(
             &data_pseudo_gt_database_dir(&options.data_dir, &cfg.train.split),
             &opened.run.root.join(PSEUDO_GT_DATABASE_DIR),
+            &frames,
             || build_pseudo_gt_database(&frames, &maker, &|| {}),
         )?;
         Some(

@@ -245,15 +245,23 @@ pub fn build_gt_database(
 }
 
 /// A training database: the data set's prepared one (`fusiondet gt-database`) when it has
-/// one, else the run's, read back on resume or built and written into the run directory.
+/// one, restricted to the objects of `frames` (those the run trains on), else the run's,
+/// read back on resume or built from `frames` and written into the run directory.
 pub(crate) fn cached_gt_database(
     prepared: &Path,
     run_dir: &Path,
+    frames: &InMemoryFrames<SensorFrame>,
     build: impl FnOnce() -> Result<GtDatabase>,
 ) -> Result<GtDatabase> {
     for dir in [prepared, run_dir] {
         if dir.join("index.json").is_file() {
-            return GtDatabase::load(dir).map_err(|e| PipelineError::Invalid(e.to_string()));
+            let db = GtDatabase::load(dir).map_err(|e| PipelineError::Invalid(e.to_string()))?;
+            // A prepared database holds the whole split; a run on part of it (`max_frames`)
+            // pastes only its own frames' objects, so that its result does not depend on
+            // whether the data set was prepared (issue 34: 18.5 against 64.5 3D AP).
+            let ids: std::collections::HashSet<&str> =
+                (0..frames.len()).map(|i| frames.frame_id(i)).collect();
+            return Ok(db.restricted_to_frames(|frame| ids.contains(frame)));
         }
     }
     let db = build()?;
@@ -280,6 +288,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         let db = cached_gt_database(
             &data_gt_database_dir(&options.data_dir, &cfg.train.split),
             &opened.run.root.join(GT_DATABASE_DIR),
+            &frames,
             || build_gt_database(&frames, &|| {}),
         )?;
         Some(
