@@ -11,6 +11,7 @@ pub mod detection;
 pub mod device;
 pub mod error;
 pub mod frustum;
+pub mod grad_clip;
 pub mod kernel_cache;
 pub mod metrics_log;
 pub mod result_dir;
@@ -21,8 +22,8 @@ pub mod voxel_rcnn;
 
 pub use bench::{BenchOptions, DetectBench, bench_detect, frames_per_second};
 pub use config::{
-    DatasetFormat, DatasetSection, DetectConfig, DetectorSection, ExperimentConfig, OptimizerKind,
-    RefineConfig, TrainConfig,
+    DatasetFormat, DatasetSection, DetectConfig, DetectorSection, ExperimentConfig, GradClipScope,
+    OptimizerKind, RefineConfig, TrainConfig,
 };
 pub use detect::{
     DETECT_CHUNK_FRAMES, DetectOptions, DetectSummary, Detector, FrameResults, ResultWriter,

@@ -4,7 +4,7 @@
 //! state) and metrics, and exact resume. [`train`] picks the family from the
 //! configuration's `[detector] kind`.
 
-use crate::config::{ExperimentConfig, OptimizerKind};
+use crate::config::{ExperimentConfig, GradClipScope, OptimizerKind};
 use crate::device::ComputeDevice;
 use crate::error::{PipelineError, Result};
 use crate::metrics_log::MetricsLog;
@@ -220,9 +220,15 @@ pub fn run_training<T: TrainingTask>(
     }
 
     let ad = options.device.device().autodiff();
+    // Per parameter: burn's clipping inside the optimizer; global: before the step.
+    let global_clip = cfg
+        .train
+        .grad_clip_norm
+        .filter(|_| cfg.train.grad_clip_scope == GradClipScope::Global);
     let clipping = cfg
         .train
         .grad_clip_norm
+        .filter(|_| global_clip.is_none())
         .map(|n| GradientClippingConfig::Norm(n as f32));
     let mut optim = match cfg.train.optimizer {
         OptimizerKind::Adam => AdamConfig::new()
@@ -290,7 +296,10 @@ pub fn run_training<T: TrainingTask>(
                         steps + 1
                     )));
                 }
-                let grads = GradientsParams::from_grads(loss.total.backward(), &net);
+                let mut grads = GradientsParams::from_grads(loss.total.backward(), &net);
+                if let Some(max_norm) = global_clip {
+                    grads = crate::grad_clip::clip_global_norm(&net, grads, max_norm).0;
+                }
                 slot = Some(optim.step(lr, net, grads));
                 for (k, (name, value)) in loss.components.into_iter().enumerate() {
                     if sums.len() <= k {
