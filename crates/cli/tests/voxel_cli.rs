@@ -26,6 +26,17 @@ fn info_counts_the_published_network_and_its_multiply_adds() {
     }
 }
 
+/// `simulate --frames FRAMES --seed 5` into `dir/data`.
+fn simulated(dir: &std::path::Path, frames: &str) -> std::path::PathBuf {
+    let data = dir.join("data");
+    let o = run(
+        "simulate",
+        &["--out", s(&data), "--frames", frames, "--seed", "5"],
+    );
+    assert!(o.status.success(), "{}", all_output(&o));
+    data
+}
+
 /// A training on part of a split (`--max-frames`) pastes the objects of its own frames
 /// only: the same losses whether the data set has a prepared database of the whole split
 /// or the run builds one from its frames (issue 34: the first made a 600-step ablation
@@ -33,12 +44,7 @@ fn info_counts_the_published_network_and_its_multiply_adds() {
 #[test]
 fn a_run_on_part_of_a_split_pastes_the_same_objects_with_or_without_a_prepared_database() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let o = run(
-        "simulate",
-        &["--out", s(&data), "--frames", "8", "--seed", "5"],
-    );
-    assert!(o.status.success(), "{}", all_output(&o));
+    let data = simulated(dir.path(), "8");
     let config = repo_root().join("configs/tiny-voxel-rcnn.toml");
     let train = |out: &std::path::Path| {
         let o = run(
@@ -89,12 +95,7 @@ fn a_run_on_part_of_a_split_pastes_the_same_objects_with_or_without_a_prepared_d
 #[test]
 fn trains_detects_and_evaluates_the_tiny_configuration() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let o = run(
-        "simulate",
-        &["--out", s(&data), "--frames", "6", "--seed", "5"],
-    );
-    assert!(o.status.success(), "{}", all_output(&o));
+    let data = simulated(dir.path(), "6");
     // One validation frame's scan is empty: it gets an empty result file, no error.
     let val: Vec<String> = std::fs::read_to_string(data.join("ImageSets/val.txt"))
         .unwrap()
