@@ -15,11 +15,22 @@ use std::process::Command;
 /// came to draw from streams named by frame (so that a split detected in chunks gives what
 /// it gives whole) and to put a small frustum's distinct points before its repeats.
 /// Voxel R-CNN's and DASANet's were pinned when each joined the demo, SAF's anew when the
-/// shipped SAF was retrained on the baseline's budget (each the same with 1 and 2 threads).
+/// shipped SAF was retrained on the baseline's budget, the two-stage and people models' when
+/// they were shipped (each the same with 1 and 2 threads).
 #[test]
 fn the_demo_writes_the_same_result_files_as_before_with_every_shipped_model() {
     let dir = tempfile::tempdir().unwrap();
-    for model in ["fconvnet", "fcam", "saf", "voxel-rcnn", "dasanet"] {
+    for model in [
+        "fconvnet",
+        "fcam",
+        "saf",
+        "voxel-rcnn",
+        "dasanet",
+        "fconvnet-refine",
+        "fconvnet-people",
+        "saf-people",
+        "fconvnet-refine-people",
+    ] {
         let out = dir.path().join(model);
         let o = Command::new(env!("CARGO_BIN_EXE_fusiondet"))
             .args(["demo", "--model", model, "--out", out.to_str().unwrap()])

@@ -74,25 +74,78 @@ fn demo_runs_the_shipped_model_and_can_be_rerun() {
 
 #[test]
 fn demo_runs_each_shipped_variant_from_the_clone() {
-    // (--model, file stem, title printed)
-    for (model, stem, title) in [
-        ("fcam", "fcam-car", "FCAM"),
-        ("saf", "saf-car", "SAF"),
-        ("voxel-rcnn", "voxel-rcnn-car", "Voxel R-CNN"),
-        ("dasanet", "dasanet-car", "DASANet"),
+    // (--model, file stem, what it says it runs, an evaluated class's line)
+    let car = "Car AP_R40@0.70, 0.70, 0.70";
+    let people = "Pedestrian AP_R40@0.50, 0.50, 0.50";
+    for (model, stem, title, class_line) in [
+        ("fcam", "fcam-car", "FCAM Car", car),
+        ("saf", "saf-car", "SAF Car", car),
+        ("voxel-rcnn", "voxel-rcnn-car", "Voxel R-CNN Car", car),
+        ("dasanet", "dasanet-car", "DASANet Car", car),
+        (
+            "fconvnet-refine",
+            "fconvnet-refine-car",
+            "two-stage F-ConvNet Car",
+            car,
+        ),
+        (
+            "fconvnet-people",
+            "fconvnet-people",
+            "F-ConvNet Pedestrian + Cyclist",
+            people,
+        ),
+        (
+            "saf-people",
+            "saf-people",
+            "SAF Pedestrian + Cyclist",
+            people,
+        ),
+        (
+            "fconvnet-refine-people",
+            "fconvnet-refine-people",
+            "two-stage F-ConvNet Pedestrian + Cyclist",
+            people,
+        ),
     ] {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("demo");
         let o = demo(&out, "6", &["--model", model]);
         let t = text(&o);
         assert!(o.status.success(), "{model}: {t}");
-        assert!(t.contains(&format!("the shipped {title} Car model")), "{t}");
-        assert!(t.contains("Car AP_R40@0.70, 0.70, 0.70"), "{t}");
-        assert_eq!(
-            std::fs::read(out.join(format!("model/{stem}.bpk"))).unwrap(),
-            std::fs::read(common::repo_root().join(format!("models/{stem}.bpk"))).unwrap()
-        );
+        assert!(t.contains(&format!("the shipped {title} model")), "{t}");
+        assert!(t.contains(class_line), "{t}");
+        let mut written = vec![stem];
+        // A two-stage model runs from the one configuration, its first stage beside it.
+        if let Some(first) = stem.strip_prefix("fconvnet-refine-").map(|rest| {
+            if rest == "car" {
+                "fconvnet-car"
+            } else {
+                "fconvnet-people"
+            }
+        }) {
+            written.push(first);
+        }
+        for stem in written {
+            assert_eq!(
+                std::fs::read(out.join(format!("model/{stem}.bpk"))).unwrap(),
+                std::fs::read(common::repo_root().join(format!("models/{stem}.bpk"))).unwrap()
+            );
+        }
         assert!(out.join("eval-kitti.json").is_file(), "{t}");
+        // A people model writes Pedestrian and Cyclist lines, no Car.
+        if class_line == people {
+            let lines: String = std::fs::read_dir(out.join("results/sim"))
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .filter(|p| p.extension().is_some_and(|x| x == "txt"))
+                .map(|p| std::fs::read_to_string(p).unwrap())
+                .collect();
+            assert!(
+                lines.contains("Pedestrian ") || lines.contains("Cyclist "),
+                "{model}: no people detected\n{lines}"
+            );
+            assert!(!lines.contains("Car "), "{model}\n{lines}");
+        }
     }
 }
 

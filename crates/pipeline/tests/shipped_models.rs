@@ -52,14 +52,18 @@ fn every_shipped_checkpoint_is_small_configured_and_loads() {
         stems.push(stem);
     }
     stems.sort();
-    // The frustum baseline and the seeds' variants (the refinement stage is optional), the
-    // second family's baseline and DASANet.
+    // The frustum baseline and the seeds' variants, the second family's baseline and
+    // DASANet, and the rows of SAF's Tables 4-6 (two-stage F-ConvNet, the people models).
     for needed in [
         "fcam-car",
         "fconvnet-car",
         "saf-car",
         "voxel-rcnn-car",
         "dasanet-car",
+        "fconvnet-refine-car",
+        "fconvnet-people",
+        "saf-people",
+        "fconvnet-refine-people",
     ] {
         assert!(
             stems.iter().any(|s| s == needed),

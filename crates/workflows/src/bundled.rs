@@ -156,7 +156,7 @@ pub fn write_kitti_sample(dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A shipped Car model: its checkpoint and the configuration it was trained with.
+/// A shipped model: its checkpoint and the configuration it was trained with.
 pub struct ShippedFiles {
     pub checkpoint: &'static [u8],
     pub config: &'static str,
@@ -181,6 +181,24 @@ pub const VOXEL_RCNN_CAR: ShippedFiles = ShippedFiles {
 pub const DASANET_CAR: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/dasanet-car.bpk"),
     config: include_str!("../../../models/dasanet-car.toml"),
+};
+/// The second stage only: its configuration names `fconvnet-car.bpk` as its first stage.
+pub const FCONVNET_REFINE_CAR: ShippedFiles = ShippedFiles {
+    checkpoint: include_bytes!("../../../models/fconvnet-refine-car.bpk"),
+    config: include_str!("../../../models/fconvnet-refine-car.toml"),
+};
+pub const FCONVNET_PEOPLE: ShippedFiles = ShippedFiles {
+    checkpoint: include_bytes!("../../../models/fconvnet-people.bpk"),
+    config: include_str!("../../../models/fconvnet-people.toml"),
+};
+pub const SAF_PEOPLE: ShippedFiles = ShippedFiles {
+    checkpoint: include_bytes!("../../../models/saf-people.bpk"),
+    config: include_str!("../../../models/saf-people.toml"),
+};
+/// The second stage only: its configuration names `fconvnet-people.bpk` as its first stage.
+pub const FCONVNET_REFINE_PEOPLE: ShippedFiles = ShippedFiles {
+    checkpoint: include_bytes!("../../../models/fconvnet-refine-people.bpk"),
+    config: include_str!("../../../models/fconvnet-refine-people.toml"),
 };
 
 /// The tiny network's configuration, as shipped in `configs/tiny.toml`.

@@ -1,4 +1,4 @@
-//! The demo chain: simulate a small street data set, run a shipped Car model (every
+//! The demo chain: simulate a small street data set, run a shipped model (every
 //! one is built into the binary, see [`crate::bundled`]) on its validation split and on
 //! the bundled real KITTI frames, evaluate both with the official protocol and draw
 //! pictures. With `train_tiny`, the tiny network is trained on the simulated frames
@@ -31,7 +31,7 @@ pub struct DemoOptions {
     pub frames: usize,
     /// Seed of the simulated world (and of training, with `train_tiny`).
     pub seed: u64,
-    /// Which shipped Car model detects.
+    /// Which shipped model detects.
     pub model: ShippedModel,
     /// Train the tiny network and detect with it instead of a shipped model.
     pub train_tiny: bool,
@@ -39,7 +39,8 @@ pub struct DemoOptions {
     pub epochs: usize,
 }
 
-/// The shipped Car models (all trained on simulated data; see the README).
+/// The shipped models (all trained on simulated data; see the README): five Car models,
+/// F-ConvNet's two-stage Car model, and the Pedestrian + Cyclist models of SAF's Tables 5-6.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ShippedModel {
     /// F-ConvNet.
@@ -52,15 +53,27 @@ pub enum ShippedModel {
     VoxelRcnn,
     /// DASANet: the scan and pseudo points completed from the image, fused by TDIS and STCA.
     Dasanet,
+    /// F-ConvNet with its refinement stage over the shipped F-ConvNet's boxes.
+    FconvnetRefine,
+    /// F-ConvNet's Pedestrian + Cyclist network.
+    FconvnetPeople,
+    /// SAF's Pedestrian + Cyclist network.
+    SafPeople,
+    /// F-ConvNet's refinement stage over the shipped people model's boxes.
+    FconvnetRefinePeople,
 }
 
 impl ShippedModel {
-    pub const ALL: [ShippedModel; 5] = [
+    pub const ALL: [ShippedModel; 9] = [
         Self::Fconvnet,
         Self::Fcam,
         Self::Saf,
         Self::VoxelRcnn,
         Self::Dasanet,
+        Self::FconvnetRefine,
+        Self::FconvnetPeople,
+        Self::SafPeople,
+        Self::FconvnetRefinePeople,
     ];
 
     /// The file stem under `models/`, also the name `--model` takes without `-car`.
@@ -71,6 +84,10 @@ impl ShippedModel {
             ShippedModel::Saf => "saf-car",
             ShippedModel::VoxelRcnn => "voxel-rcnn-car",
             ShippedModel::Dasanet => "dasanet-car",
+            ShippedModel::FconvnetRefine => "fconvnet-refine-car",
+            ShippedModel::FconvnetPeople => "fconvnet-people",
+            ShippedModel::SafPeople => "saf-people",
+            ShippedModel::FconvnetRefinePeople => "fconvnet-refine-people",
         }
     }
 
@@ -87,11 +104,33 @@ impl ShippedModel {
 
     pub fn title(self) -> &'static str {
         match self {
-            ShippedModel::Fconvnet => "F-ConvNet",
+            ShippedModel::Fconvnet | ShippedModel::FconvnetPeople => "F-ConvNet",
             ShippedModel::Fcam => "FCAM",
-            ShippedModel::Saf => "SAF",
+            ShippedModel::Saf | ShippedModel::SafPeople => "SAF",
             ShippedModel::VoxelRcnn => "Voxel R-CNN",
             ShippedModel::Dasanet => "DASANet",
+            ShippedModel::FconvnetRefine | ShippedModel::FconvnetRefinePeople => {
+                "two-stage F-ConvNet"
+            }
+        }
+    }
+
+    /// The classes it detects, as the demo names them.
+    pub fn classes(self) -> &'static str {
+        if self.stem().ends_with("-people") {
+            "Pedestrian + Cyclist"
+        } else {
+            "Car"
+        }
+    }
+
+    /// The shipped model whose boxes a refinement stage refines (its configuration names
+    /// the first stage's file, which the demo writes beside it).
+    pub fn first_stage(self) -> Option<ShippedModel> {
+        match self {
+            ShippedModel::FconvnetRefine => Some(ShippedModel::Fconvnet),
+            ShippedModel::FconvnetRefinePeople => Some(ShippedModel::FconvnetPeople),
+            _ => None,
         }
     }
 
@@ -102,6 +141,10 @@ impl ShippedModel {
             ShippedModel::Saf => &bundled::SAF_CAR,
             ShippedModel::VoxelRcnn => &bundled::VOXEL_RCNN_CAR,
             ShippedModel::Dasanet => &bundled::DASANET_CAR,
+            ShippedModel::FconvnetRefine => &bundled::FCONVNET_REFINE_CAR,
+            ShippedModel::FconvnetPeople => &bundled::FCONVNET_PEOPLE,
+            ShippedModel::SafPeople => &bundled::SAF_PEOPLE,
+            ShippedModel::FconvnetRefinePeople => &bundled::FCONVNET_REFINE_PEOPLE,
         }
     }
 }
@@ -337,8 +380,9 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
         "a tiny network trained for seconds: the numbers show the pipeline, not F-ConvNet's accuracy".to_string()
     } else {
         format!(
-            "the shipped {} Car model, trained on simulated data only; see the README for its full evaluation",
-            args.model.title()
+            "the shipped {} {} model, trained on simulated data only; see the README for its full evaluation",
+            args.model.title(),
+            args.model.classes()
         )
     };
     outln!(
@@ -353,24 +397,33 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes a shipped Car model and its configuration to `out/model/`.
+/// Writes a shipped model and its configuration to `out/model/` (a refinement model with
+/// its first stage beside it, where its configuration looks for it).
 fn shipped_model(out: &Path, which: ShippedModel) -> anyhow::Result<(ExperimentConfig, PathBuf)> {
     let dir = out.join("model");
     std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
-    let ShippedFiles {
-        checkpoint: bytes,
-        config: toml,
-    } = which.files();
-    let config_path = dir.join(format!("{}.toml", which.stem()));
-    let model = dir.join(format!("{}.bpk", which.stem()));
-    fusiondet_kitti::write_atomic(&config_path, toml.as_bytes())?;
-    fusiondet_kitti::write_atomic(&model, bytes)?;
-    let size = bytes.len();
+    let write = |m: ShippedModel| -> anyhow::Result<(PathBuf, PathBuf)> {
+        let ShippedFiles {
+            checkpoint: bytes,
+            config: toml,
+        } = m.files();
+        let config_path = dir.join(format!("{}.toml", m.stem()));
+        let model = dir.join(format!("{}.bpk", m.stem()));
+        fusiondet_kitti::write_atomic(&config_path, toml.as_bytes())?;
+        fusiondet_kitti::write_atomic(&model, bytes)?;
+        Ok((config_path, model))
+    };
+    if let Some(first) = which.first_stage() {
+        write(first)?;
+    }
+    let (config_path, model) = write(which)?;
+    let size = which.files().checkpoint.len();
     let config = ExperimentConfig::from_file(&config_path)?;
     let params = trained_parameters(&config)?;
     outln!(
-        "== the shipped {} Car model ({:.1} MB, {params} parameters) -> {}",
+        "== the shipped {} {} model ({:.1} MB, {params} parameters) -> {}",
         which.title(),
+        which.classes(),
         size as f64 / 1e6,
         model.display()
     );

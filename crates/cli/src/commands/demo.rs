@@ -19,8 +19,9 @@ pub struct DemoArgs {
     /// Seed of the simulated world (and of training, with --train-tiny or --indoor).
     #[arg(long, default_value_t = 2026)]
     pub seed: u64,
-    /// Which shipped Car model detects (all trained on simulated data and built into the
-    /// binary; see the README).
+    /// Which shipped model detects (all trained on simulated data and built into the
+    /// binary; see the README): a Car model, or with `-people` a Pedestrian + Cyclist one;
+    /// `fconvnet-refine*` is F-ConvNet with its refinement stage.
     #[arg(long, default_value = "fconvnet", value_parser = clap::builder::PossibleValuesParser::new(ShippedModel::names()))]
     pub model: String,
     /// Train the tiny network on the simulated train split and detect with it instead of
