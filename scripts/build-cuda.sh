@@ -18,6 +18,9 @@
 #   XDG_DATA_HOME     where the bundler looks for its LLVM (default: ~/.local/share)
 #   CUDARC_CUDA_VERSION  CUDA API version to bind, e.g. 12080; without it and without nvcc,
 #                     cudarc binds the newest it knows (13.4) and loads the driver at run time.
+#   EMBED_MODELS      0 to leave the shipped models out of the binary (125 MB of weights), so
+#                     that it fits a call to a lent GPU machine; scripts/gpu-check.sh reads
+#                     the models from disk anyway (default: 1, as the CPU build)
 # Idempotent: installed packages, links and the marker are checked before being made.
 set -euo pipefail
 
@@ -91,7 +94,11 @@ export LIBRARY_PATH="$shims${LIBRARY_PATH:+:$LIBRARY_PATH}"
 if (($#)); then
     exec "$@"
 fi
-cargo build --release --locked --offline -p fusiondet --features cuda
+if [[ "${EMBED_MODELS:-1}" == 0 ]]; then
+    cargo build --release --locked --offline -p fusiondet --no-default-features --features cuda
+else
+    cargo build --release --locked --offline -p fusiondet --features cuda
+fi
 
 # 5. What was built: its size as built, stripped and (when zstd is here) compressed, and the
 #    shared libraries it needs at load time. The CUDA driver (libcuda) and NVRTC are not among

@@ -18,9 +18,10 @@
 #   MODELS_DIR     where their checkpoints are (default: models/ of this repository). A call
 #                  to a lent machine sends at most 64 MiB: the five Car models are 70 MB, and
 #                  the binary embeds all nine shipped models (125 MB of weights; xz takes
-#                  about 9% off them), so a CUDA binary built as it is now no longer fits one
-#                  call (it was about 55 MB stripped and compressed with fewer models in it);
-#                  send the tree without models/ and data/, and split the models over calls with MODELS and
+#                  about 9% off them): build the CUDA binary without them
+#                  (EMBED_MODELS=0 scripts/build-cuda.sh; this script reads the models from
+#                  disk), send the tree without models/ and data/, and split the models over
+#                  calls with MODELS and
 #                  MODELS_DIR (a git-ignored folder carried with the call); OUT is kept
 #                  between calls on a warm machine, so later calls reuse the simulated frames.
 #   TRAIN          1 (default) to time training steps, 0 to skip them

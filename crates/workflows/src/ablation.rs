@@ -61,7 +61,7 @@ struct Entry {
 
 pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
     let trained = !args.models.is_empty();
-    if trained == !args.configs.is_empty() {
+    if trained != args.configs.is_empty() {
         bail!(
             "give either --configs (train, then compare) or --models (compare trained checkpoints)"
         );
@@ -391,8 +391,8 @@ fn evaluate_row(
     )?;
     let breakdown = evaluate_breakdown(&frames.gt, &frames.det, &eval_config, Some(&points))?;
     // A refinement row counts both stages, as the papers do.
-    let params = trained_parameters(&trained)?;
-    let multiply_adds = inference_multiply_adds(&trained)?;
+    let params = trained_parameters(trained)?;
+    let multiply_adds = inference_multiply_adds(trained)?;
     eprintln!(
         "== {name}: {} frames, {} boxes, {frames_per_second:.1} frames/s, {params} parameters",
         summary.frames, summary.boxes_written

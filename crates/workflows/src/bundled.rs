@@ -162,40 +162,49 @@ pub struct ShippedFiles {
     pub config: &'static str,
 }
 
+#[cfg(feature = "embedded-models")]
 pub const FCONVNET_CAR: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/fconvnet-car.bpk"),
     config: include_str!("../../../models/fconvnet-car.toml"),
 };
+#[cfg(feature = "embedded-models")]
 pub const FCAM_CAR: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/fcam-car.bpk"),
     config: include_str!("../../../models/fcam-car.toml"),
 };
+#[cfg(feature = "embedded-models")]
 pub const SAF_CAR: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/saf-car.bpk"),
     config: include_str!("../../../models/saf-car.toml"),
 };
+#[cfg(feature = "embedded-models")]
 pub const VOXEL_RCNN_CAR: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/voxel-rcnn-car.bpk"),
     config: include_str!("../../../models/voxel-rcnn-car.toml"),
 };
+#[cfg(feature = "embedded-models")]
 pub const DASANET_CAR: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/dasanet-car.bpk"),
     config: include_str!("../../../models/dasanet-car.toml"),
 };
 /// The second stage only: its configuration names `fconvnet-car.bpk` as its first stage.
+#[cfg(feature = "embedded-models")]
 pub const FCONVNET_REFINE_CAR: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/fconvnet-refine-car.bpk"),
     config: include_str!("../../../models/fconvnet-refine-car.toml"),
 };
+#[cfg(feature = "embedded-models")]
 pub const FCONVNET_PEOPLE: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/fconvnet-people.bpk"),
     config: include_str!("../../../models/fconvnet-people.toml"),
 };
+#[cfg(feature = "embedded-models")]
 pub const SAF_PEOPLE: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/saf-people.bpk"),
     config: include_str!("../../../models/saf-people.toml"),
 };
 /// The second stage only: its configuration names `fconvnet-people.bpk` as its first stage.
+#[cfg(feature = "embedded-models")]
 pub const FCONVNET_REFINE_PEOPLE: ShippedFiles = ShippedFiles {
     checkpoint: include_bytes!("../../../models/fconvnet-refine-people.bpk"),
     config: include_str!("../../../models/fconvnet-refine-people.toml"),

@@ -134,8 +134,11 @@ impl ShippedModel {
         }
     }
 
-    fn files(self) -> &'static ShippedFiles {
-        match self {
+    /// Its checkpoint and configuration as built into the binary; `None` in a build
+    /// without the `embedded-models` feature.
+    fn files(self) -> Option<&'static ShippedFiles> {
+        #[cfg(feature = "embedded-models")]
+        return Some(match self {
             ShippedModel::Fconvnet => &bundled::FCONVNET_CAR,
             ShippedModel::Fcam => &bundled::FCAM_CAR,
             ShippedModel::Saf => &bundled::SAF_CAR,
@@ -145,7 +148,9 @@ impl ShippedModel {
             ShippedModel::FconvnetPeople => &bundled::FCONVNET_PEOPLE,
             ShippedModel::SafPeople => &bundled::SAF_PEOPLE,
             ShippedModel::FconvnetRefinePeople => &bundled::FCONVNET_REFINE_PEOPLE,
-        }
+        });
+        #[cfg(not(feature = "embedded-models"))]
+        None
     }
 }
 
@@ -402,11 +407,22 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
 fn shipped_model(out: &Path, which: ShippedModel) -> anyhow::Result<(ExperimentConfig, PathBuf)> {
     let dir = out.join("model");
     std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    let files = |m: ShippedModel| {
+        m.files().with_context(|| {
+            format!(
+                "this fusiondet was built without its models (cargo feature `embedded-models` \
+                 off), so `demo --model {}` has nothing to run; use `demo --train-tiny`, or \
+                 `detect --checkpoint models/{}.bpk` from the repository",
+                which.name(),
+                m.stem()
+            )
+        })
+    };
     let write = |m: ShippedModel| -> anyhow::Result<(PathBuf, PathBuf)> {
         let ShippedFiles {
             checkpoint: bytes,
             config: toml,
-        } = m.files();
+        } = files(m)?;
         let config_path = dir.join(format!("{}.toml", m.stem()));
         let model = dir.join(format!("{}.bpk", m.stem()));
         fusiondet_kitti::write_atomic(&config_path, toml.as_bytes())?;
@@ -417,7 +433,7 @@ fn shipped_model(out: &Path, which: ShippedModel) -> anyhow::Result<(ExperimentC
         write(first)?;
     }
     let (config_path, model) = write(which)?;
-    let size = which.files().checkpoint.len();
+    let size = files(which)?.checkpoint.len();
     let config = ExperimentConfig::from_file(&config_path)?;
     let params = trained_parameters(&config)?;
     outln!(
