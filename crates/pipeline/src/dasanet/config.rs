@@ -302,4 +302,48 @@ mod tests {
         );
         assert_eq!((&v3.train, &v3.dataset), (&base.train, &base.dataset));
     }
+
+    /// The third form's +STCA and full rows are its +TDIS row with only the modules
+    /// switched, and each is the second form's row of the same modules but for the levels:
+    /// the four rows over `voxel-rcnn-local-aug-car-sim.toml` differ only in the modules.
+    #[test]
+    fn the_third_form_rows_differ_only_in_the_modules() {
+        let tdis = load("dasanet-v3-tdis-car-sim.toml");
+        for (new, v2, has_tdis, has_stca) in [
+            (
+                "dasanet-v3-stca-car-sim.toml",
+                "dasanet-v2-stca-car-sim.toml",
+                false,
+                true,
+            ),
+            (
+                "dasanet-v3-car-sim.toml",
+                "dasanet-v2-car-sim.toml",
+                true,
+                true,
+            ),
+        ] {
+            let (row, second) = (load(new), load(v2));
+            let (d, m) = (
+                row.dasanet.clone().unwrap(),
+                &row.dasanet.as_ref().unwrap().modules,
+            );
+            assert_eq!((m.tdis, m.stca), (has_tdis, has_stca), "{new}");
+            let mut as_tdis = d.clone();
+            as_tdis.modules.tdis = true;
+            as_tdis.modules.stca = false;
+            as_tdis.modules.tdis_form = TdisForm::Gated;
+            assert_eq!(Some(as_tdis), tdis.dasanet, "{new}");
+            assert_eq!(
+                (&row.voxel_rcnn, &row.train, &row.dataset),
+                (&tdis.voxel_rcnn, &tdis.train, &tdis.dataset),
+                "{new}"
+            );
+            assert_eq!(row.dasanet, second.dasanet, "{new}");
+            let (r, r2) = (row.voxel_rcnn.unwrap(), second.voxel_rcnn.unwrap());
+            let mut r_as_v2 = r.clone();
+            r_as_v2.network.roi = r2.network.roi.clone();
+            assert_eq!(r_as_v2, r2, "{new}");
+        }
+    }
 }
