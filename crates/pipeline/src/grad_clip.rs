@@ -8,22 +8,29 @@ use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 
-/// L2 norm of all the gradients `grads` holds for `module`'s float parameters.
+/// L2 norm of all the gradients `grads` holds for `module`'s float parameters. The squared
+/// sums stay on the device and are read back once, not once per parameter tensor.
 pub fn global_norm<M: Module>(module: &M, grads: &GradientsParams) -> f64 {
     struct SquaredSum<'a> {
         grads: &'a GradientsParams,
-        sum: f64,
+        sum: Option<Tensor<1>>,
     }
     impl ModuleVisitor for SquaredSum<'_> {
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
             if let Some(g) = self.grads.get::<D>(param.id) {
-                self.sum += g.powi_scalar(2).sum().into_scalar::<f32>() as f64;
+                let part = g.powi_scalar(2).sum();
+                self.sum = Some(match self.sum.take() {
+                    Some(sum) => sum + part,
+                    None => part,
+                });
             }
         }
     }
-    let mut visitor = SquaredSum { grads, sum: 0.0 };
+    let mut visitor = SquaredSum { grads, sum: None };
     module.visit(&mut visitor);
-    visitor.sum.sqrt()
+    visitor
+        .sum
+        .map_or(0.0, |s| (s.into_scalar::<f32>() as f64).sqrt())
 }
 
 /// Scales every gradient by `max_norm / norm` when their global norm exceeds `max_norm`

@@ -1,7 +1,7 @@
 //! Ablations: train, detect and evaluate a list of configurations on one data set (or
-//! detect and evaluate trained checkpoints), and write the seeds' ablation tables (AP3D and APBEV, easy/moderate/hard, AP40 and AP11),
-//! the per-occlusion / per-distance / per-LiDAR-points breakdown and the
-//! precision–recall curves.
+//! detect and evaluate trained checkpoints), and write the seeds' ablation tables (AP3D and
+//! APBEV, easy/moderate/hard, AP40 and AP11), the per-occlusion / per-distance /
+//! per-LiDAR-points breakdown and the precision–recall curves.
 //!
 //! Each training runs in its own `fusiondet train` process: a training is bit-reproducible
 //! in a process of its own (two in one process share rayon's pool), and a finished run is

@@ -1,5 +1,6 @@
-//! The demo chain: simulate a small street data set, run a shipped model (every
-//! one is built into the binary, see [`crate::bundled`]) on its validation split and on
+//! The demo chain: simulate a small street data set, run a shipped model (built into the
+//! binary unless the `embedded-models` feature is off, see [`crate::bundled`]) on its
+//! validation split and on
 //! the bundled real KITTI frames, evaluate both with the official protocol and draw
 //! pictures. With `train_tiny`, the tiny network is trained on the simulated frames
 //! first (seconds) and detects instead.
