@@ -1,9 +1,8 @@
 //! The demo chain: simulate a small street data set, run a shipped model (built into the
 //! binary unless the `embedded-models` feature is off, see [`crate::bundled`]) on its
-//! validation split and on
-//! the bundled real KITTI frames, evaluate both with the official protocol and draw
-//! pictures. With `train_tiny`, the tiny network is trained on the simulated frames
-//! first (seconds) and detects instead.
+//! validation split and on the bundled real KITTI frames, evaluate both with the official
+//! protocol and draw pictures. With `train_tiny`, the tiny network is trained on the
+//! simulated frames first (seconds) and detects instead.
 //!
 //! Nothing here reads the source tree: an installed binary runs it from any directory.
 
