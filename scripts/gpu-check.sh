@@ -30,6 +30,9 @@
 #   FRAMES         simulated frames, half of them val (default: 48)
 #   REPEATS        bench repeats after the warm-up run (default: 3)
 #   STEPS_FRAMES   training frames per epoch for the step timing (default: 8)
+#   LAYOUT_AB      models also benched on the device with the per-offset sparse layout
+#                  (FUSIONDET_SPARSE_RULES=per-offset), beside the kernel map the device takes
+#                  by default (default: voxel-rcnn-car dasanet-car; empty to skip)
 #
 # What each figure is:
 #   parity     `fusiondet compare` of the CPU's and the device's result files of the val frames:
@@ -37,6 +40,9 @@
 #              scores within 1e-3 (the issue's tolerance), and the largest differences seen.
 #   frames/s   `fusiondet bench` on the val frames, median of REPEATS runs after one warm-up,
 #              without reading files (as `bench` always measures), on each device.
+#   frames/s   of a published configuration: `bench` on the device of the model its device
+#              training run wrote (two epochs: the weights are untrained, the work per frame is
+#              the configuration's), in both sparse layouts.
 #   s/step     a training run of two epochs of STEPS_FRAMES frames: the second epoch's seconds
 #              divided by its steps (the first holds kernel compilation and tuning), on each
 #              device; and the first epoch's mean training loss on both, which must agree
@@ -71,6 +77,7 @@ out="${OUT:-$repo/gpu-check-out}"
 frames="${FRAMES:-48}"
 repeats="${REPEATS:-3}"
 steps_frames="${STEPS_FRAMES:-8}"
+layout_ab="${LAYOUT_AB-voxel-rcnn-car dasanet-car}"
 
 for m in $models; do
     [ -f "$models_dir/$m.bpk" ] || {
@@ -147,8 +154,14 @@ for m in $models; do
     fps_cpu=$(frames_per_second "$det/bench-cpu.log" || true)
     fps_dev=$(frames_per_second "$det/bench-dev.log" || true)
     [ -n "$fps_dev" ] || { echo "  $device bench failed:"; tail -5 "$det/bench-dev.log"; failures=$((failures + 1)); }
-    summary+=("$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s' \
-        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}")")
+    per_offset=""
+    if [[ " $layout_ab " == *" $m "* ]]; then
+        FUSIONDET_SPARSE_RULES=per-offset "$bin" bench --checkpoint "$ckpt" --data "$data" --repeats "$repeats" \
+            --device "$device" >"$det/bench-dev-per-offset.log" 2>&1 || true
+        per_offset=" (per-offset layout $(frames_per_second "$det/bench-dev-per-offset.log" || echo '?'))"
+    fi
+    summary+=("$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
+        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$per_offset")")
 done
 
 # 3. Training steps of the published configurations, on both devices.
@@ -171,6 +184,16 @@ if [ "$train" = 1 ]; then
                 --max-frames "$steps_frames" --device "$d" >"$run.log" 2>&1; then
                 row+=("$d $(step_seconds "$run/metrics.jsonl") s/step")
                 losses+=("$(first_loss "$run/metrics.jsonl")")
+                if [ "$d" != cpu ] && [ -f "$run/model.bpk" ]; then
+                    # The configuration's detection speed on the device, both sparse layouts.
+                    "$bin" bench --checkpoint "$run/model.bpk" --data "$data" --repeats "$repeats" \
+                        --device "$d" >"$run-bench.log" 2>&1 || true
+                    FUSIONDET_SPARSE_RULES=per-offset "$bin" bench --checkpoint "$run/model.bpk" --data "$data" \
+                        --repeats "$repeats" --device "$d" >"$run-bench-per-offset.log" 2>&1 || true
+                    summary+=("$(printf '%-26s bench on %s: %s frames/s (per-offset layout %s)' "$name" "$d" \
+                        "$(frames_per_second "$run-bench.log" || echo '?')" \
+                        "$(frames_per_second "$run-bench-per-offset.log" || echo '?')")")
+                fi
             else
                 echo "  training on $d failed:"; tail -5 "$run.log" || true
                 failures=$((failures + 1))

@@ -1,7 +1,8 @@
 //! Sparse 3D convolution over voxel grids (Graham & van der Maaten's submanifold and
 //! regular sparse convolutions, as spconv runs them): active sites with a hashed lookup,
 //! a rulebook of (input row, output row) pairs per kernel offset, and each convolution as
-//! gather → matrix multiply → scatter-add through burn's autodiff.
+//! gather → matrix multiply → scatter-add through burn's autodiff (per offset on the CPU,
+//! through one kernel map on GPUs).
 //!
 //! Written here because no Rust crate does sparse convolution; the operations it is made
 //! of (select, matmul, select_assign with add) are burn's, so gradients and every backend
@@ -14,5 +15,5 @@ pub mod sites;
 
 pub use conv::{SparseConv3d, SparseConvBlock};
 pub use dense::to_dense_bev;
-pub use rulebook::{ConvGeometry, OffsetRule, Rulebook};
+pub use rulebook::{ConvGeometry, OffsetRule, RuleGather, RuleLayout, Rulebook};
 pub use sites::{SitesError, SparseSites};

@@ -1,13 +1,14 @@
 //! Rulebooks: for each kernel offset, the (input row, output row) pairs a sparse
 //! convolution multiplies by that offset's weight. Built once per layer shape from the
 //! sites, then shared by every layer of that shape (all submanifold layers of a backbone
-//! stage share one).
+//! stage share one). The pairs reach the device in one of two layouts ([`RuleLayout`]):
+//! a list per offset for the CPU, one kernel map for GPUs.
 
 use super::sites::SparseSites;
 use burn::prelude::*;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 /// Kernel, stride and padding of a 3D convolution, per axis in (z, y, x) order
 /// (dilation 1). The output site `o` of offset `k` reads the input site `o·s − p + k`,
@@ -64,6 +65,52 @@ impl ConvGeometry {
     }
 }
 
+/// How a rulebook's pairs are laid out for the device that runs the convolution.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RuleLayout {
+    /// A list of (input row, output row) pairs per kernel offset: per offset one gather, one
+    /// matrix product and one scatter-add. The fewest multiply-adds, and the order of sums
+    /// every CPU result of this project was made with.
+    PerOffset,
+    /// One kernel map, [output rows × kernel volume] input rows (a zero row where an offset
+    /// has no input): the convolution is one gather and one matrix product whatever the
+    /// kernel volume, the "implicit GEMM" form of spconv and TorchSparse. It multiplies the
+    /// zeros of absent neighbours too (a submanifold layer over LiDAR voxels fills about a
+    /// third of its 27 offsets), which a GPU does faster than it launches the 80-odd
+    /// kernels a per-offset layer takes.
+    KernelMap,
+}
+
+impl RuleLayout {
+    /// Per offset on burn's flex CPU backend (where sums keep the order of every pinned CPU
+    /// result), a kernel map on every other backend. `FUSIONDET_SPARSE_RULES=per-offset` or
+    /// `kernel-map` overrides this for the whole process, so that both layouts can be timed
+    /// side by side on one device.
+    pub fn for_device(device: &Device) -> RuleLayout {
+        static FORCED: OnceLock<Option<RuleLayout>> = OnceLock::new();
+        let forced = FORCED.get_or_init(|| {
+            let value = std::env::var("FUSIONDET_SPARSE_RULES").ok()?;
+            let layout = match value.as_str() {
+                "per-offset" => Some(RuleLayout::PerOffset),
+                "kernel-map" => Some(RuleLayout::KernelMap),
+                _ => None,
+            };
+            if layout.is_none() {
+                eprintln!(
+                    "warning: FUSIONDET_SPARSE_RULES={value:?} is neither \"per-offset\" nor \
+                     \"kernel-map\"; each device takes its default layout"
+                );
+            }
+            layout
+        });
+        forced.unwrap_or(if device.clone().without_autodiff() == Device::flex() {
+            RuleLayout::PerOffset
+        } else {
+            RuleLayout::KernelMap
+        })
+    }
+}
+
 /// The pairs of one kernel offset.
 #[derive(Debug, Clone)]
 pub struct OffsetRule {
@@ -76,6 +123,24 @@ pub struct OffsetRule {
     pub output: Tensor<1, Int>,
 }
 
+/// A rulebook's pairs on the device, in one [`RuleLayout`].
+#[derive(Debug, Clone)]
+pub enum RuleGather {
+    PerOffset {
+        /// The offset whose pairs are every row onto itself (a submanifold kernel's
+        /// centre): a plain matrix product, no gather or scatter.
+        identity_offset: Option<usize>,
+        /// The other offsets that have pairs, in offset order.
+        rules: Vec<OffsetRule>,
+    },
+    KernelMap {
+        /// [output rows · kernel volume]: row `o · volume + k` holds the input row output
+        /// `o` reads at offset `k`, or `input_rows` (the zero row appended to the features)
+        /// where it reads none.
+        table: Tensor<1, Int>,
+    },
+}
+
 /// Everything a sparse convolution of one geometry needs on given input sites.
 #[derive(Debug, Clone)]
 pub struct Rulebook {
@@ -84,17 +149,25 @@ pub struct Rulebook {
     pub submanifold: bool,
     pub input_rows: usize,
     pub output: Arc<SparseSites>,
-    /// The offset whose pairs are every row onto itself (a submanifold kernel's centre):
-    /// a plain matrix product, no gather or scatter.
-    pub identity_offset: Option<usize>,
-    /// The other offsets that have pairs, in offset order.
-    pub rules: Vec<OffsetRule>,
+    /// All (input, output) pairs, a submanifold kernel's centre included.
+    pub pairs: usize,
+    pub gather: RuleGather,
 }
 
 impl Rulebook {
     /// A submanifold convolution's rulebook: output sites are the input sites, and an
     /// output reads only active inputs of its neighbourhood, so sparsity does not dilate.
     pub fn submanifold(sites: &Arc<SparseSites>, kernel: [usize; 3], device: &Device) -> Rulebook {
+        Self::submanifold_in(sites, kernel, RuleLayout::for_device(device), device)
+    }
+
+    /// [`Rulebook::submanifold`] in a given layout.
+    pub fn submanifold_in(
+        sites: &Arc<SparseSites>,
+        kernel: [usize; 3],
+        layout: RuleLayout,
+        device: &Device,
+    ) -> Rulebook {
         let geometry = ConvGeometry::same(kernel);
         let volume = geometry.volume();
         let centre = volume / 2;
@@ -128,13 +201,22 @@ impl Rulebook {
         }
         pairs.extend(half);
         pairs.sort_by_key(|(k, _, _)| *k);
+        let identity = (!sites.is_empty()).then_some(centre);
         Rulebook {
             geometry,
             submanifold: true,
             input_rows: sites.len(),
             output: sites.clone(),
-            identity_offset: (!sites.is_empty()).then_some(centre),
-            rules: to_rules(pairs, device),
+            pairs: count_pairs(&pairs) + identity.map_or(0, |_| sites.len()),
+            gather: gather(
+                pairs,
+                identity,
+                sites.len(),
+                sites.len(),
+                volume,
+                layout,
+                device,
+            ),
         }
     }
 
@@ -142,6 +224,16 @@ impl Rulebook {
     /// input site lies in its receptive field. Output sites are listed in batch-major
     /// (b, z, y, x) order, so the result does not depend on the order of the input rows.
     pub fn strided(sites: &SparseSites, geometry: ConvGeometry, device: &Device) -> Rulebook {
+        Self::strided_in(sites, geometry, RuleLayout::for_device(device), device)
+    }
+
+    /// [`Rulebook::strided`] in a given layout.
+    pub fn strided_in(
+        sites: &SparseSites,
+        geometry: ConvGeometry,
+        layout: RuleLayout,
+        device: &Device,
+    ) -> Rulebook {
         let out_shape = geometry.output_shape(sites.spatial_shape());
         let volume = geometry.volume();
         // The output site offset `k` of input site `c` feeds, if any.
@@ -182,13 +274,22 @@ impl Rulebook {
                 (k, input, out_rows)
             })
             .collect();
+        let output_rows = output.len();
         Rulebook {
             geometry,
             submanifold: false,
             input_rows: sites.len(),
             output,
-            identity_offset: None,
-            rules: to_rules(pairs, device),
+            pairs: count_pairs(&pairs),
+            gather: gather(
+                pairs,
+                None,
+                sites.len(),
+                output_rows,
+                volume,
+                layout,
+                device,
+            ),
         }
     }
 
@@ -197,27 +298,65 @@ impl Rulebook {
     }
 
     /// All (input, output) pairs, the identity offset's included: a convolution over
-    /// these sites costs `pairs · C_in · C_out` multiply-adds.
+    /// these sites costs `pairs · C_in · C_out` multiply-adds (in the per-offset layout).
     pub fn total_pairs(&self) -> usize {
-        self.rules.iter().map(|r| r.pairs).sum::<usize>()
-            + self.identity_offset.map_or(0, |_| self.input_rows)
+        self.pairs
     }
 }
 
-fn to_rules(pairs: Vec<(usize, Vec<i64>, Vec<i64>)>, device: &Device) -> Vec<OffsetRule> {
-    pairs
-        .into_iter()
-        .filter(|(_, input, _)| !input.is_empty())
-        .map(|(offset, input, output)| {
-            let n = input.len();
-            OffsetRule {
-                offset,
-                pairs: n,
-                input: Tensor::from_data(TensorData::new(input, [n]), device),
-                output: Tensor::from_data(TensorData::new(output, [n]), device),
+/// (offset, input rows, output rows) of every offset but a submanifold kernel's centre.
+type OffsetPairs = Vec<(usize, Vec<i64>, Vec<i64>)>;
+
+fn count_pairs(pairs: &OffsetPairs) -> usize {
+    pairs.iter().map(|(_, input, _)| input.len()).sum()
+}
+
+/// The pairs in `layout`, on the device: `identity` is the offset that pairs every input
+/// row with the same output row (not listed in `pairs`).
+fn gather(
+    pairs: OffsetPairs,
+    identity: Option<usize>,
+    input_rows: usize,
+    output_rows: usize,
+    volume: usize,
+    layout: RuleLayout,
+    device: &Device,
+) -> RuleGather {
+    match layout {
+        RuleLayout::PerOffset => RuleGather::PerOffset {
+            identity_offset: identity,
+            rules: pairs
+                .into_iter()
+                .filter(|(_, input, _)| !input.is_empty())
+                .map(|(offset, input, output)| {
+                    let n = input.len();
+                    OffsetRule {
+                        offset,
+                        pairs: n,
+                        input: Tensor::from_data(TensorData::new(input, [n]), device),
+                        output: Tensor::from_data(TensorData::new(output, [n]), device),
+                    }
+                })
+                .collect(),
+        },
+        RuleLayout::KernelMap => {
+            let mut table = vec![input_rows as i64; output_rows * volume];
+            if let Some(k) = identity {
+                for o in 0..output_rows {
+                    table[o * volume + k] = o as i64;
+                }
             }
-        })
-        .collect()
+            for (k, input, output) in &pairs {
+                for (&i, &o) in input.iter().zip(output) {
+                    table[o as usize * volume + k] = i;
+                }
+            }
+            let n = table.len();
+            RuleGather::KernelMap {
+                table: Tensor::from_data(TensorData::new(table, [n]), device),
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -230,6 +369,39 @@ mod tests {
             .convert::<i64>()
             .try_to_vec::<i64>()
             .unwrap()
+    }
+
+    /// A per-offset rulebook's identity offset and (offset, inputs, outputs) lists.
+    fn per_offset(book: &Rulebook) -> (Option<usize>, Vec<(usize, Vec<i64>, Vec<i64>)>) {
+        match &book.gather {
+            RuleGather::PerOffset {
+                identity_offset,
+                rules,
+            } => (
+                *identity_offset,
+                rules
+                    .iter()
+                    .map(|r| (r.offset, rows(&r.input), rows(&r.output)))
+                    .collect(),
+            ),
+            RuleGather::KernelMap { .. } => panic!("a per-offset rulebook"),
+        }
+    }
+
+    fn kernel_map(book: &Rulebook) -> Vec<i64> {
+        match &book.gather {
+            RuleGather::KernelMap { table } => rows(table),
+            RuleGather::PerOffset { .. } => panic!("a kernel-map rulebook"),
+        }
+    }
+
+    #[test]
+    fn the_cpu_takes_the_per_offset_layout() {
+        // (Unless FUSIONDET_SPARSE_RULES says otherwise, which tests do not set.)
+        assert_eq!(
+            RuleLayout::for_device(&Device::flex().autodiff()),
+            RuleLayout::PerOffset
+        );
     }
 
     #[test]
@@ -258,16 +430,26 @@ mod tests {
             )
             .unwrap(),
         );
-        let book = Rulebook::submanifold(&sites, [3, 3, 3], &device);
-        assert_eq!(book.identity_offset, Some(13));
+        let book = Rulebook::submanifold_in(&sites, [3, 3, 3], RuleLayout::PerOffset, &device);
+        let (identity, rules) = per_offset(&book);
+        assert_eq!(identity, Some(13));
         // Offset (1,1,2) = 14 reads x+1: row 0 reads row 1. Offset 12 reads x−1: row 1 reads row 0.
-        let rules: Vec<(usize, Vec<i64>, Vec<i64>)> = book
-            .rules
-            .iter()
-            .map(|r| (r.offset, rows(&r.input), rows(&r.output)))
-            .collect();
         assert_eq!(rules, vec![(12, vec![0], vec![1]), (14, vec![1], vec![0])]);
         assert_eq!(book.total_pairs(), 4 + 2);
+
+        // The same pairs as a kernel map: 27 entries per output row, 4 (the zero row) where
+        // the offset reads nothing.
+        let book = Rulebook::submanifold_in(&sites, [3, 3, 3], RuleLayout::KernelMap, &device);
+        assert_eq!(book.total_pairs(), 4 + 2);
+        let table = kernel_map(&book);
+        assert_eq!(table.len(), 4 * 27);
+        let mut expected = vec![4i64; 4 * 27];
+        for o in 0..4 {
+            expected[o * 27 + 13] = o as i64;
+        }
+        expected[27 + 12] = 0;
+        expected[14] = 1;
+        assert_eq!(table, expected);
     }
 
     #[test]
@@ -275,19 +457,19 @@ mod tests {
         let device = Device::flex();
         let sites = SparseSites::new(vec![[0, 0, 0, 3], [0, 0, 0, 0]], [1, 1, 4], 1).unwrap();
         // Kernel 3 along x, stride 2, padding 1: output x=o reads inputs 2o−1, 2o, 2o+1.
-        let book = Rulebook::strided(
-            &sites,
-            ConvGeometry::strided([1, 1, 3], [1, 1, 2], [0, 0, 1]),
-            &device,
-        );
+        let geometry = ConvGeometry::strided([1, 1, 3], [1, 1, 2], [0, 0, 1]);
+        let book = Rulebook::strided_in(&sites, geometry, RuleLayout::PerOffset, &device);
         assert_eq!(book.output.spatial_shape(), [1, 1, 2]);
         // Input x=0 feeds output 0 (k=1); x=3 feeds output 1 (k=2) and output 2 (out of range).
         assert_eq!(book.output.coords(), &[[0, 0, 0, 0], [0, 0, 0, 1]]);
-        let rules: Vec<(usize, Vec<i64>, Vec<i64>)> = book
-            .rules
-            .iter()
-            .map(|r| (r.offset, rows(&r.input), rows(&r.output)))
-            .collect();
+        let (identity, rules) = per_offset(&book);
+        assert_eq!(identity, None);
         assert_eq!(rules, vec![(1, vec![1], vec![0]), (2, vec![0], vec![1])]);
+
+        // As a kernel map: output 0 reads input 1 at k=1, output 1 input 0 at k=2, and the
+        // zero row (2) elsewhere.
+        let book = Rulebook::strided_in(&sites, geometry, RuleLayout::KernelMap, &device);
+        assert_eq!(kernel_map(&book), vec![2, 1, 2, 2, 2, 0]);
+        assert_eq!(book.total_pairs(), 2);
     }
 }
