@@ -90,6 +90,11 @@ started=$(date +%s)
 stamp() { echo "[$(($(date +%s) - started)) s] $*"; }
 summary=()
 failures=0
+# A summary line, printed as soon as it is known too (a run cut off by a time limit keeps it).
+record() {
+    summary+=("$1")
+    echo "  => $1"
+}
 
 echo "fusiondet GPU check: $("$bin" --version), device $device, $(date -u +%FT%TZ)"
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
@@ -145,7 +150,7 @@ for m in $models; do
         # A second process on the device: what the kernel cache (kernel_cache.rs) saves.
         t_again=$(timed "$det/dev-again.log" "$bin" detect --checkpoint "$ckpt" --data "$data" --split val \
             --out "$det/dev-again" --device "$device") || t_again="failed"
-        summary+=("start-up: detect of $(wc -l <"$data/ImageSets/val.txt") frames with $m: cpu ${t_cpu} s, $device ${t_dev} s, $device again ${t_again} s")
+        record "start-up: detect of $(wc -l <"$data/ImageSets/val.txt") frames with $m: cpu ${t_cpu} s, $device ${t_dev} s, $device again ${t_again} s"
         first=0
     fi
     stamp "$m: bench on cpu and $device"
@@ -160,8 +165,8 @@ for m in $models; do
             --device "$device" >"$det/bench-dev-per-offset.log" 2>&1 || true
         per_offset=" (per-offset layout $(frames_per_second "$det/bench-dev-per-offset.log" || echo '?'))"
     fi
-    summary+=("$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
-        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$per_offset")")
+    record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
+        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$per_offset")"
 done
 
 # 3. Training steps of the published configurations, on both devices.
@@ -190,9 +195,9 @@ if [ "$train" = 1 ]; then
                         --device "$d" >"$run-bench.log" 2>&1 || true
                     FUSIONDET_SPARSE_RULES=per-offset "$bin" bench --checkpoint "$run/model.bpk" --data "$data" \
                         --repeats "$repeats" --device "$d" >"$run-bench-per-offset.log" 2>&1 || true
-                    summary+=("$(printf '%-26s bench on %s: %s frames/s (per-offset layout %s)' "$name" "$d" \
+                    record "$(printf '%-26s bench on %s: %s frames/s (per-offset layout %s)' "$name" "$d" \
                         "$(frames_per_second "$run-bench.log" || echo '?')" \
-                        "$(frames_per_second "$run-bench-per-offset.log" || echo '?')")")
+                        "$(frames_per_second "$run-bench-per-offset.log" || echo '?')")"
                 fi
             else
                 echo "  training on $d failed:"; tail -5 "$run.log" || true
@@ -205,8 +210,8 @@ if [ "$train" = 1 ]; then
             agree=$(awk -v a="${losses[0]}" -v b="${losses[1]}" \
                 'BEGIN { d = a - b; if (d < 0) d = -d; r = d / (a > 0 ? a : 1); printf "%.2e", r }')
         fi
-        summary+=("$(printf '%-26s %s; first-epoch loss %s, relative difference %s' \
-            "$name" "$(IFS=,; echo "${row[*]}")" "$(IFS=/; echo "${losses[*]:-?}")" "$agree")")
+        record "$(printf '%-26s %s; first-epoch loss %s, relative difference %s' \
+            "$name" "$(IFS=,; echo "${row[*]}")" "$(IFS=/; echo "${losses[*]:-?}")" "$agree")"
     done
 fi
 
