@@ -88,7 +88,7 @@ fn stage_one(c: &mut Criterion) {
 fn sparse_vs_dense(c: &mut Criterion) {
     use burn::tensor::module::conv3d;
     use burn::tensor::ops::ConvOptions;
-    use fusiondet_nn::sparse::{Rulebook, SparseConv3d, SparseSites};
+    use fusiondet_nn::sparse::{RuleLayout, Rulebook, SparseConv3d, SparseSites};
     let device = Device::flex();
     let sweep = synthetic_sweep(1, PUBLISHED_RANGE, PUBLISHED_VOXEL);
     let window = [41usize, 320, 320];
@@ -135,6 +135,12 @@ fn sparse_vs_dense(c: &mut Criterion) {
     });
     g.bench_function("sparse (conv, rulebook given)", |b| {
         b.iter(|| sync(&conv.forward(x.clone(), &book)))
+    });
+    // The layout GPUs take, here on the CPU: what its multiplied zeros cost where launches
+    // are cheap.
+    let kernel_map = Rulebook::submanifold_in(&sites, [3; 3], RuleLayout::KernelMap, &device);
+    g.bench_function("sparse kernel map (conv, rulebook given)", |b| {
+        b.iter(|| sync(&conv.forward(x.clone(), &kernel_map)))
     });
     g.bench_function("dense conv3d", |b| {
         b.iter(|| {
