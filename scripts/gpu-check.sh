@@ -174,6 +174,14 @@ step_seconds() { # metrics.jsonl → the second epoch's seconds per step
     sed -n 2p "$1" | grep -o '"batches":[0-9]*\|"seconds":[0-9.e+-]*' | cut -d: -f2 | paste -sd' ' |
         awk '{ if ($1 > 0) printf "%.3f", $2 / $1; else print "?" }'
 }
+step_parts() { # metrics.jsonl → the second epoch's seconds per step: data wait / forward+loss / backward+update
+    local line batches
+    line="$(sed -n 2p "$1")"
+    batches="$(echo "$line" | grep -o '"batches":[0-9]*' | cut -d: -f2)"
+    for k in data_wait forward_loss backward_update; do
+        echo "$line" | grep -o "\"$k\":[0-9.e+-]*" | cut -d: -f2
+    done | awk -v n="${batches:-0}" '{ if (n > 0) printf "%s%.3f", (NR > 1 ? "/" : ""), $1 / n }'
+}
 first_loss() { head -1 "$1" | grep -o '"loss_total":[0-9.e+-]*' | cut -d: -f2; }
 if [ "$train" = 1 ]; then
     for config in $train_configs; do
@@ -187,7 +195,7 @@ if [ "$train" = 1 ]; then
             stamp "$name: two epochs of $steps_frames frames on $d"
             if "$bin" train --config "$config" --data "$data" --out "$run" --epochs 2 \
                 --max-frames "$steps_frames" --device "$d" >"$run.log" 2>&1; then
-                row+=("$d $(step_seconds "$run/metrics.jsonl") s/step")
+                row+=("$d $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"))")
                 losses+=("$(first_loss "$run/metrics.jsonl")")
                 if [ "$d" != cpu ] && [ -f "$run/model.bpk" ]; then
                     # The configuration's detection speed on the device, both sparse layouts.

@@ -266,6 +266,7 @@ pub fn run_training<T: TrainingTask>(
         progress.set_prefix(format!("epoch {}/{}", epoch + 1, cfg.train.epochs));
         let mut sums: Vec<(&'static str, f64)> = Vec::new();
         let mut steps = 0usize;
+        let mut time = StepTime::default();
         // The data thread prepares batch k+1 while the network trains on batch k.
         let mut slot = Some(model);
         let outcome: Result<()> = std::thread::scope(|scope| {
@@ -277,14 +278,20 @@ pub fn run_training<T: TrainingTask>(
                     }
                 }
             });
-            for prepared in rx {
+            loop {
+                let waited = Instant::now();
+                let Ok(prepared) = rx.recv() else { break };
+                time.data_wait += waited.elapsed().as_secs_f64();
                 if stop_requested() {
                     return Err(PipelineError::Interrupted { epochs_done: epoch });
                 }
                 let batch = prepared?;
                 let net = slot.take().expect("the model is put back after every step");
                 lr = cfg.train.lr_at(epoch, steps, steps_per_epoch);
+                let forward = Instant::now();
                 let loss = task.loss(&net, batch, &ad)?;
+                time.forward_loss += forward.elapsed().as_secs_f64();
+                let update = Instant::now();
                 if let Some((name, value)) = loss.components.iter().find(|(_, v)| !v.is_finite()) {
                     // Stop before the step spreads it into the weights; the run keeps its
                     // last committed epoch.
@@ -301,6 +308,7 @@ pub fn run_training<T: TrainingTask>(
                     grads = crate::grad_clip::clip_global_norm(&net, grads, max_norm).0;
                 }
                 slot = Some(optim.step(lr, net, grads));
+                time.backward_update += update.elapsed().as_secs_f64();
                 for (k, (name, value)) in loss.components.into_iter().enumerate() {
                     if sums.len() <= k {
                         sums.push((name, 0.0));
@@ -346,6 +354,7 @@ pub fn run_training<T: TrainingTask>(
             "batches": steps,
             task.sample_noun(): steps * cfg.train.batch_size,
             "seconds": started.elapsed().as_secs_f64(),
+            "step_seconds": time.to_json(),
         });
         for (name, sum) in &sums {
             record[format!("loss_{name}")] = json!(sum / steps.max(1) as f64);
@@ -379,6 +388,29 @@ pub fn run_training<T: TrainingTask>(
         final_loss,
         model: run.model(),
     })
+}
+
+/// Where an epoch's seconds went, summed over its steps: waiting for the data thread's next
+/// batch, the forward pass with the loss (the host work a task does inside it, such as targets
+/// and the RoI query, included; it reads the loss back, so on a GPU it also waits for the
+/// kernels the previous step queued), and backward with the optimizer update (on a GPU only
+/// their queuing). Written into `metrics.jsonl` as `step_seconds`, so that a slow step can be
+/// told data-bound from compute-bound on any device.
+#[derive(Debug, Default, Clone, Copy)]
+struct StepTime {
+    data_wait: f64,
+    forward_loss: f64,
+    backward_update: f64,
+}
+
+impl StepTime {
+    fn to_json(self) -> serde_json::Value {
+        json!({
+            "data_wait": self.data_wait,
+            "forward_loss": self.forward_loss,
+            "backward_update": self.backward_update,
+        })
+    }
 }
 
 #[cfg(test)]

@@ -113,6 +113,24 @@ fn resume_after_an_epoch_gives_the_same_weights_as_an_uninterrupted_run() {
     let metrics = std::fs::read_to_string(straight.path().join("metrics.jsonl")).unwrap();
     assert_eq!(metrics.lines().count(), 2);
     assert!(metrics.contains("\"loss_total\""), "{metrics}");
+    // Each epoch says where its seconds went: the three parts, none negative, within the
+    // epoch's whole (which also holds the checkpoint writes).
+    for line in metrics.lines() {
+        let record: serde_json::Value = serde_json::from_str(line).unwrap();
+        let parts = &record["step_seconds"];
+        let sum: f64 = ["data_wait", "forward_loss", "backward_update"]
+            .iter()
+            .map(|k| {
+                let v = parts[k].as_f64().unwrap_or_else(|| panic!("{k} in {line}"));
+                assert!(v >= 0.0, "{line}");
+                v
+            })
+            .sum();
+        assert!(
+            sum > 0.0 && sum <= record["seconds"].as_f64().unwrap(),
+            "{line}"
+        );
+    }
 
     let interrupted = tempfile::tempdir().unwrap();
     train_run(interrupted.path(), 1, false);
