@@ -70,6 +70,37 @@ fn stage_one(c: &mut Criterion) {
             })
         },
     );
+    // The RoI grid query over stages 2–4 (the published levels), 100 RoIs as at test time:
+    // the sweep's cars, repeated with 0.3 m shifts along x.
+    let geometry = VoxelGeometry {
+        origin: [PUBLISHED_RANGE[0], PUBLISHED_RANGE[1], PUBLISHED_RANGE[2]],
+        voxel_size: PUBLISHED_VOXEL,
+    };
+    let cars = &sweep.cars;
+    let rois: Vec<RoiBox> = (0..100)
+        .map(|i| {
+            let mut roi = cars[i % cars.len()];
+            roi[0] += 0.3 * (i / cars.len()) as f64;
+            roi
+        })
+        .collect();
+    let rois = vec![rois];
+    let levels = &config.roi.levels;
+    let level_sites: Vec<&fusiondet_nn::sparse::SparseSites> = levels
+        .iter()
+        .map(|l| plan.stages[l.stage - 1].1.output.as_ref())
+        .collect();
+    g.bench_function("roi_grid_index (100 RoIs, 6^3 points, 3 levels)", |b| {
+        b.iter(|| {
+            RoiGridIndex::new(
+                black_box(&rois),
+                &level_sites,
+                levels,
+                config.roi.grid_size,
+                &geometry,
+            )
+        })
+    });
     g.finish();
 
     // The machine's matrix-multiply rate, for the ratio in the notes.
