@@ -116,7 +116,7 @@ impl SparseConv3d {
                 // with it.
                 let padded = Tensor::cat(vec![features, Tensor::zeros([1, c_in], &device)], 0);
                 padded
-                    .select(0, table.clone())
+                    .select(0, table.as_ref().clone())
                     .reshape([out_rows, volume * c_in])
                     .matmul(weight.reshape([volume * c_in, c_out]))
             }

@@ -136,8 +136,9 @@ pub enum RuleGather {
     KernelMap {
         /// [output rows · kernel volume]: row `o · volume + k` holds the input row output
         /// `o` reads at offset `k`, or `input_rows` (the zero row appended to the features)
-        /// where it reads none.
-        table: Tensor<1, Int>,
+        /// where it reads none. Boxed: a tensor handle is several times the size of the
+        /// per-offset variant.
+        table: Box<Tensor<1, Int>>,
     },
 }
 
@@ -353,7 +354,7 @@ fn gather(
             }
             let n = table.len();
             RuleGather::KernelMap {
-                table: Tensor::from_data(TensorData::new(table, [n]), device),
+                table: Box::new(Tensor::from_data(TensorData::new(table, [n]), device)),
             }
         }
     }
@@ -372,7 +373,7 @@ mod tests {
     }
 
     /// A per-offset rulebook's identity offset and (offset, inputs, outputs) lists.
-    fn per_offset(book: &Rulebook) -> (Option<usize>, Vec<(usize, Vec<i64>, Vec<i64>)>) {
+    fn per_offset(book: &Rulebook) -> (Option<usize>, OffsetPairs) {
         match &book.gather {
             RuleGather::PerOffset {
                 identity_offset,
