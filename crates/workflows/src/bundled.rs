@@ -162,53 +162,38 @@ pub struct ShippedFiles {
     pub config: &'static str,
 }
 
+/// The checkpoint and configuration of `models/<name>.bpk` / `.toml`, built into the binary.
 #[cfg(feature = "embedded-models")]
-pub const FCONVNET_CAR: ShippedFiles = ShippedFiles {
-    checkpoint: include_bytes!("../../../models/fconvnet-car.bpk"),
-    config: include_str!("../../../models/fconvnet-car.toml"),
-};
+macro_rules! shipped {
+    ($name:literal) => {
+        ShippedFiles {
+            checkpoint: include_bytes!(concat!("../../../models/", $name, ".bpk")),
+            config: include_str!(concat!("../../../models/", $name, ".toml")),
+        }
+    };
+}
+
 #[cfg(feature = "embedded-models")]
-pub const FCAM_CAR: ShippedFiles = ShippedFiles {
-    checkpoint: include_bytes!("../../../models/fcam-car.bpk"),
-    config: include_str!("../../../models/fcam-car.toml"),
-};
+pub use embedded::*;
+
+/// The shipped models, present with the `embedded-models` feature.
 #[cfg(feature = "embedded-models")]
-pub const SAF_CAR: ShippedFiles = ShippedFiles {
-    checkpoint: include_bytes!("../../../models/saf-car.bpk"),
-    config: include_str!("../../../models/saf-car.toml"),
-};
-#[cfg(feature = "embedded-models")]
-pub const VOXEL_RCNN_CAR: ShippedFiles = ShippedFiles {
-    checkpoint: include_bytes!("../../../models/voxel-rcnn-car.bpk"),
-    config: include_str!("../../../models/voxel-rcnn-car.toml"),
-};
-#[cfg(feature = "embedded-models")]
-pub const DASANET_CAR: ShippedFiles = ShippedFiles {
-    checkpoint: include_bytes!("../../../models/dasanet-car.bpk"),
-    config: include_str!("../../../models/dasanet-car.toml"),
-};
-/// The second stage only: its configuration names `fconvnet-car.bpk` as its first stage.
-#[cfg(feature = "embedded-models")]
-pub const FCONVNET_REFINE_CAR: ShippedFiles = ShippedFiles {
-    checkpoint: include_bytes!("../../../models/fconvnet-refine-car.bpk"),
-    config: include_str!("../../../models/fconvnet-refine-car.toml"),
-};
-#[cfg(feature = "embedded-models")]
-pub const FCONVNET_PEOPLE: ShippedFiles = ShippedFiles {
-    checkpoint: include_bytes!("../../../models/fconvnet-people.bpk"),
-    config: include_str!("../../../models/fconvnet-people.toml"),
-};
-#[cfg(feature = "embedded-models")]
-pub const SAF_PEOPLE: ShippedFiles = ShippedFiles {
-    checkpoint: include_bytes!("../../../models/saf-people.bpk"),
-    config: include_str!("../../../models/saf-people.toml"),
-};
-/// The second stage only: its configuration names `fconvnet-people.bpk` as its first stage.
-#[cfg(feature = "embedded-models")]
-pub const FCONVNET_REFINE_PEOPLE: ShippedFiles = ShippedFiles {
-    checkpoint: include_bytes!("../../../models/fconvnet-refine-people.bpk"),
-    config: include_str!("../../../models/fconvnet-refine-people.toml"),
-};
+mod embedded {
+    use super::ShippedFiles;
+
+    pub const FCONVNET_CAR: ShippedFiles = shipped!("fconvnet-car");
+    pub const FCAM_CAR: ShippedFiles = shipped!("fcam-car");
+    pub const SAF_CAR: ShippedFiles = shipped!("saf-car");
+    pub const VOXEL_RCNN_CAR: ShippedFiles = shipped!("voxel-rcnn-car");
+    pub const DASANET_CAR: ShippedFiles = shipped!("dasanet-car");
+    /// The second stage only: its configuration names `fconvnet-car.bpk` as its first stage.
+    pub const FCONVNET_REFINE_CAR: ShippedFiles = shipped!("fconvnet-refine-car");
+    pub const FCONVNET_PEOPLE: ShippedFiles = shipped!("fconvnet-people");
+    pub const SAF_PEOPLE: ShippedFiles = shipped!("saf-people");
+    /// The second stage only: its configuration names `fconvnet-people.bpk` as its first
+    /// stage.
+    pub const FCONVNET_REFINE_PEOPLE: ShippedFiles = shipped!("fconvnet-refine-people");
+}
 
 /// The tiny network's configuration, as shipped in `configs/tiny.toml`.
 pub const TINY_CONFIG: &str = include_str!("../../../configs/tiny.toml");
