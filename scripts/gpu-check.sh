@@ -122,6 +122,13 @@ timed() {
     t1=$(date +%s%N)
     awk -v ns="$((t1 - t0))" 'BEGIN { printf "%.1f", ns / 1e9 }'
 }
+# `bench` of a checkpoint on a device into a log, in the sparse layout given (or the device's
+# own); a failed bench shows as a missing frames/s figure, never stops the script.
+bench_into() {
+    local log="$1" ckpt="$2" dev="$3" layout="${4:-}"
+    env ${layout:+FUSIONDET_SPARSE_RULES="$layout"} "$bin" bench --checkpoint "$ckpt" --data "$data" \
+        --repeats "$repeats" --device "$dev" >"$log" 2>&1 || true
+}
 frames_per_second() { grep -o '[0-9.]* frames/s' "$1" | head -1 | cut -d' ' -f1; }
 
 # 2. Per shipped model: detect on both devices, compare, bench on both.
@@ -154,15 +161,14 @@ for m in $models; do
         first=0
     fi
     stamp "$m: bench on cpu and $device"
-    "$bin" bench --checkpoint "$ckpt" --data "$data" --repeats "$repeats" >"$det/bench-cpu.log" 2>&1 || true
-    "$bin" bench --checkpoint "$ckpt" --data "$data" --repeats "$repeats" --device "$device" >"$det/bench-dev.log" 2>&1 || true
+    bench_into "$det/bench-cpu.log" "$ckpt" cpu
+    bench_into "$det/bench-dev.log" "$ckpt" "$device"
     fps_cpu=$(frames_per_second "$det/bench-cpu.log" || true)
     fps_dev=$(frames_per_second "$det/bench-dev.log" || true)
     [ -n "$fps_dev" ] || { echo "  $device bench failed:"; tail -5 "$det/bench-dev.log"; failures=$((failures + 1)); }
     per_offset=""
     if [[ " $layout_ab " == *" $m "* ]]; then
-        FUSIONDET_SPARSE_RULES=per-offset "$bin" bench --checkpoint "$ckpt" --data "$data" --repeats "$repeats" \
-            --device "$device" >"$det/bench-dev-per-offset.log" 2>&1 || true
+        bench_into "$det/bench-dev-per-offset.log" "$ckpt" "$device" per-offset
         per_offset=" (per-offset layout $(frames_per_second "$det/bench-dev-per-offset.log" || echo '?'))"
     fi
     record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
@@ -199,10 +205,8 @@ if [ "$train" = 1 ]; then
                 losses+=("$(first_loss "$run/metrics.jsonl")")
                 if [ "$d" != cpu ] && [ -f "$run/model.bpk" ]; then
                     # The configuration's detection speed on the device, both sparse layouts.
-                    "$bin" bench --checkpoint "$run/model.bpk" --data "$data" --repeats "$repeats" \
-                        --device "$d" >"$run-bench.log" 2>&1 || true
-                    FUSIONDET_SPARSE_RULES=per-offset "$bin" bench --checkpoint "$run/model.bpk" --data "$data" \
-                        --repeats "$repeats" --device "$d" >"$run-bench-per-offset.log" 2>&1 || true
+                    bench_into "$run-bench.log" "$run/model.bpk" "$d"
+                    bench_into "$run-bench-per-offset.log" "$run/model.bpk" "$d" per-offset
                     record "$(printf '%-26s bench on %s: %s frames/s (per-offset layout %s)' "$name" "$d" \
                         "$(frames_per_second "$run-bench.log" || echo '?')" \
                         "$(frames_per_second "$run-bench-per-offset.log" || echo '?')")"
