@@ -11,6 +11,18 @@ use fusiondet_models::loss::{box_corners_tensor, focal_loss};
 use fusiondet_models::synthetic::{SyntheticSpec, synthetic_batch};
 use fusiondet_models::*;
 
+/// burn's flex backend draws every random tensor (weight initialisation included) from one
+/// process-wide generator, seeded from the operating system unless `seed` is called. Tests
+/// that draw random numbers hold this lock and seed first, so that each sees the same
+/// numbers on every run whatever runs beside it.
+static RANDOM_DRAWS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn seeded(device: &Device, seed: u64) -> std::sync::MutexGuard<'static, ()> {
+    let guard = RANDOM_DRAWS.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    device.seed(seed);
+    guard
+}
+
 fn vec_of<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
     t.try_to_vec_as::<f32>().unwrap()
 }
@@ -58,6 +70,10 @@ fn stride_two_convolutions_give_the_published_lengths() {
 fn ragged_and_padded_pointnets_agree_in_outputs_and_gradients() {
     let config = ModelConfig::tiny();
     let device = Device::flex().autodiff();
+    // Fixed draws: the max-pool sends each gradient to one pair, and for unlucky weights two
+    // pairs can tie within the rounding by which the two forms' batch statistics differ
+    // (about 1 weight draw in 300), which routes a gradient to a different pair.
+    let _draws = seeded(&device, 7);
     let model = FConvNet::new(&config, &device).unwrap();
     let batch = batch_with_empty_slices(&SyntheticSpec::tiny(3), 7);
     let inputs = model.inputs(&batch, &device).unwrap();
@@ -152,6 +168,7 @@ fn ragged_and_padded_pointnets_agree_in_outputs_and_gradients() {
 #[test]
 fn output_shapes_for_car_and_tiny() {
     let device = Device::flex();
+    let _draws = seeded(&device, 1);
     for (config, spec, positions) in [
         (ModelConfig::car(), SyntheticSpec::car(2), 140),
         (ModelConfig::tiny(), SyntheticSpec::tiny(5), 12),
@@ -168,6 +185,7 @@ fn output_shapes_for_car_and_tiny() {
 #[test]
 fn car_parameter_count() {
     let device = Device::flex();
+    let _draws = seeded(&device, 2);
     let model = FConvNet::new(&ModelConfig::car(), &device).unwrap();
     let table = ParamTable::new(&model);
     println!("{table}");
@@ -203,6 +221,7 @@ fn car_parameter_count() {
 fn loss_decreases_when_overfitting_a_tiny_batch() {
     let config = FConvNetConfig::tiny();
     let device = Device::flex().autodiff();
+    let _draws = seeded(&device, 3);
     let mut model = FConvNet::new(&config.model, &device).unwrap();
     let batch = synthetic_batch(&SyntheticSpec::tiny(4), 3);
     let inputs = model.inputs(&batch, &device).unwrap();
@@ -474,6 +493,7 @@ fn decode_picks_the_best_position() {
 fn checkpoint_round_trip_and_config_mismatch() {
     let config = FConvNetConfig::tiny();
     let device = Device::flex().autodiff();
+    let _draws = seeded(&device, 4);
     let mut model = FConvNet::new(&config.model, &device).unwrap();
     let batch = synthetic_batch(&SyntheticSpec::tiny(3), 5);
     // Two training steps so the weights and batch-norm running statistics leave their init.
