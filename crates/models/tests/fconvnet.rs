@@ -18,7 +18,9 @@ use fusiondet_models::*;
 static RANDOM_DRAWS: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 fn seeded(device: &Device, seed: u64) -> std::sync::MutexGuard<'static, ()> {
-    let guard = RANDOM_DRAWS.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let guard = RANDOM_DRAWS
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
     device.seed(seed);
     guard
 }

@@ -8,6 +8,7 @@
 //! inference ([`host_max`]), custom operations with their own backward passes in training
 //! ([`ragged`]).
 
+pub mod conv2d;
 pub mod host_max;
 pub mod mlp;
 pub mod norm;

@@ -37,6 +37,25 @@ use std::sync::atomic::{AtomicBool, Ordering};
 /// Whether the custom operations are used where they apply (the default).
 static ENABLED: AtomicBool = AtomicBool::new(true);
 
+/// `FUSIONDET_CUSTOM_OPS=off` in the environment turns the custom operations (these and
+/// [`crate::conv2d`]) off for the whole process, so that a training or detection through
+/// the binary can be timed, or its results compared, against burn's generic operations;
+/// `on` (or no variable) keeps them.
+fn enabled_by_environment() -> bool {
+    static FROM_ENV: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *FROM_ENV.get_or_init(|| match std::env::var("FUSIONDET_CUSTOM_OPS").as_deref() {
+        Err(_) | Ok("on") => true,
+        Ok("off") => false,
+        Ok(value) => {
+            eprintln!(
+                "warning: FUSIONDET_CUSTOM_OPS={value:?} is neither \"on\" nor \"off\"; the \
+                 custom operations stay on"
+            );
+            true
+        }
+    })
+}
+
 /// Turns the custom operations off (or back on) for the whole process, so that burn's
 /// generic operations run everywhere: for side-by-side benchmarks and for comparing
 /// trainings of both paths. Set it before a computation starts, not during one.
@@ -45,10 +64,12 @@ pub fn set_custom_ops(enabled: bool) {
 }
 
 /// Whether `x` takes the custom operations: on the flex CPU device, with or without
-/// autodiff, unless [`set_custom_ops`] turned them off. Elsewhere callers use burn's
-/// generic operations.
+/// autodiff, unless [`set_custom_ops`] or the environment ([`enabled_by_environment`])
+/// turned them off. Elsewhere callers use burn's generic operations.
 pub fn custom_path<const D: usize>(x: &Tensor<D>) -> bool {
-    ENABLED.load(Ordering::Relaxed) && x.device().without_autodiff() == Device::flex()
+    ENABLED.load(Ordering::Relaxed)
+        && enabled_by_environment()
+        && x.device().without_autodiff() == Device::flex()
 }
 
 /// Runs of rows: run s covers rows `starts[s]..starts[s] + counts[s]` of a [rows, C]

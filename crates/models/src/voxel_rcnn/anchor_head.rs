@@ -4,6 +4,7 @@
 use burn::module::Param;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::prelude::*;
+use fusiondet_nn::conv2d::conv2d;
 
 #[derive(Module, Debug)]
 pub struct AnchorHead {
@@ -69,9 +70,9 @@ impl AnchorHead {
         let anchors = h * w * self.anchors_per_location;
         let flat = |x: Tensor<4>, per: usize| x.permute([0, 2, 3, 1]).reshape([b, anchors, per]);
         AnchorPredictions {
-            cls: flat(self.cls.forward(bev.clone()), self.num_classes),
-            boxes: flat(self.boxes.forward(bev.clone()), 7),
-            direction: flat(self.direction.forward(bev), self.num_direction_bins),
+            cls: flat(conv2d(&self.cls, bev.clone()), self.num_classes),
+            boxes: flat(conv2d(&self.boxes, bev.clone()), 7),
+            direction: flat(conv2d(&self.direction, bev), self.num_direction_bins),
         }
     }
 

@@ -12,6 +12,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 use fusiondet_nn::NormConfig;
 use fusiondet_nn::batch_norm;
+use fusiondet_nn::conv2d::conv2d;
 use fusiondet_nn::sparse::to_dense_bev;
 
 /// The backbone's output map as a dense [B, C·heights, Y, X] image.
@@ -39,7 +40,7 @@ impl ConvBnRelu {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        relu(self.norm.forward(self.conv.forward(x)))
+        relu(self.norm.forward(conv2d(&self.conv, x)))
     }
 }
 
