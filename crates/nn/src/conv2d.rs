@@ -19,7 +19,7 @@
 //! grouped convolutions) keep `Conv2d::forward`. [`crate::ragged::set_custom_ops`] turns
 //! this off with the other custom operations.
 
-use crate::ragged::custom_path;
+use crate::ragged::{custom_path, values};
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -32,7 +32,6 @@ use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
-use burn::tensor::DType;
 use rayon::prelude::*;
 
 /// The custom operations (see the module's documentation): burn's `conv2d` (x [B, C_in, H,
@@ -82,18 +81,6 @@ fn options(conv: &Conv2d, x: &Tensor<4>) -> Option<ConvOptions<2>> {
     };
     (conv.groups == 1 && x.dims()[1] == conv.weight.dims()[1])
         .then(|| ConvOptions::new_with_padding(conv.stride, padding, conv.dilation, conv.groups))
-}
-
-fn contiguous_values(x: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
-    assert_eq!(
-        x.dtype(),
-        DType::F32,
-        "the dense convolution path takes f32"
-    );
-    match x.as_slice::<f32>() {
-        Some(s) => std::borrow::Cow::Borrowed(s),
-        None => std::borrow::Cow::Owned(x.to_contiguous().as_slice::<f32>().unwrap().to_vec()),
-    }
 }
 
 fn dims4(x: &FlexTensor) -> [usize; 4] {
@@ -159,10 +146,10 @@ fn weight_grad(
         && options.padding == [(0, 0), (0, 0)]
         && [ho, wo] == [height, width];
     let patches = if one_by_one {
-        contiguous_values(x).into_owned()
+        values(x).into_owned()
     } else {
         im2col(
-            &contiguous_values(x),
+            &values(x),
             [batch, c_in, height, width],
             [kh, kw],
             [ho, wo],
@@ -171,7 +158,7 @@ fn weight_grad(
     };
     let patches = FlexTensor::from_data(TensorData::new(patches, [batch, k, ho * wo]));
     let grad = FlexTensor::from_data(TensorData::new(
-        contiguous_values(grad).into_owned(),
+        values(grad).into_owned(),
         [batch, c_out, ho * wo],
     ));
     let per_frame = Flex::float_matmul(grad, Flex::float_swap_dims(patches, 1, 2));
@@ -298,7 +285,7 @@ mod tests {
     use super::*;
     use burn::nn::conv::Conv2dConfig;
 
-    fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         t.try_to_vec_as::<f32>().unwrap()
     }
 
@@ -328,13 +315,13 @@ mod tests {
             conv.forward(x.clone())
         };
         let grads = (out.clone() * w.clone()).sum().backward();
-        let g = |t: Tensor<4>| values(t.grad(&grads).expect("a gradient"));
+        let g = |t: Tensor<4>| to_vec(t.grad(&grads).expect("a gradient"));
         let bias = conv
             .bias
             .as_ref()
-            .map(|b| values(b.val().grad(&grads).unwrap()))
+            .map(|b| to_vec(b.val().grad(&grads).unwrap()))
             .unwrap_or_default();
-        [values(out), g(x), g(conv.weight.val()), bias]
+        [to_vec(out), g(x), g(conv.weight.val()), bias]
     }
 
     #[test]
@@ -401,6 +388,6 @@ mod tests {
             burn::tensor::Distribution::Normal(0.0, 1.0),
             &device,
         );
-        assert_eq!(values(conv2d(&conv, x.clone())), values(conv.forward(x)));
+        assert_eq!(to_vec(conv2d(&conv, x.clone())), to_vec(conv.forward(x)));
     }
 }

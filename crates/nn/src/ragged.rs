@@ -231,8 +231,8 @@ pub fn batch_norm_rows(
 }
 
 /// The f32 values of a flex tensor in row-major order, borrowed when it is contiguous.
-fn values(x: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
-    assert_eq!(x.dtype(), DType::F32, "the ragged operations take f32");
+pub(crate) fn values(x: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
+    assert_eq!(x.dtype(), DType::F32, "the custom operations take f32");
     match x.as_slice::<f32>() {
         Some(s) => std::borrow::Cow::Borrowed(s),
         None => std::borrow::Cow::Owned(x.to_contiguous().as_slice::<f32>().unwrap().to_vec()),
