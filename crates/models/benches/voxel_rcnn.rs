@@ -188,7 +188,8 @@ fn sparse_vs_dense(c: &mut Criterion) {
 
 /// The sparse backbone's training pass (forward, and backward of its output's sum) on the
 /// autodiff device, with the custom flex operations that training takes (batch norm over
-/// the active rows, `fusiondet_nn::ragged`) and with burn's generic ones, side by side.
+/// the active rows, `fusiondet_nn::ragged`) and with burn's generic ones, side by side; the
+/// same for the BEV backbone and anchor head (`fusiondet_nn::conv2d`).
 fn backbone_training(c: &mut Criterion) {
     let device = Device::flex().autodiff();
     let config = VoxelRcnnNetConfig::default();
@@ -210,6 +211,30 @@ fn backbone_training(c: &mut Criterion) {
                 let out = model.backbone.forward(features.clone(), &plan);
                 let grads = out.output.features.sum().backward();
                 let w = model.backbone.output.conv.weight.val();
+                sync(&w.grad(&grads).unwrap())
+            })
+        });
+    }
+    fusiondet_nn::ragged::set_custom_ops(true);
+
+    // BEV backbone + anchor head on the sweep's height-compressed map (a constant input):
+    // the custom path's weight gradients (`fusiondet_nn::conv2d`) against burn's.
+    let bev_input =
+        height_compression(&model.backbone.forward(features.clone(), &plan).output).detach();
+    eprintln!("BEV input {:?}", bev_input.dims());
+    for (name, custom) in [
+        ("bev + anchor head forward + backward", true),
+        ("bev + anchor head forward + backward, generic ops", false),
+    ] {
+        fusiondet_nn::ragged::set_custom_ops(custom);
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let p = model
+                    .anchor_head
+                    .forward(model.bev.forward(bev_input.clone()));
+                let total = p.cls.sum() + p.boxes.sum() + p.direction.sum();
+                let grads = total.backward();
+                let w = model.anchor_head.boxes.weight.val();
                 sync(&w.grad(&grads).unwrap())
             })
         });
