@@ -140,27 +140,23 @@ fn weight_grad(
     let [_, c_out, ho, wo] = dims4(grad);
     let [_, _, kh, kw] = weight_shape;
     let k = c_in * kh * kw;
-    let one_by_one = kh == 1
-        && kw == 1
-        && options.stride == [1, 1]
-        && options.padding == [(0, 0), (0, 0)]
-        && [ho, wo] == [height, width];
+    let one_by_one =
+        kh == 1 && kw == 1 && options.stride == [1, 1] && options.padding == [(0, 0), (0, 0)];
+    // Reshapes are views of contiguous tensors (flex copies only what is not).
     let patches = if one_by_one {
-        values(x).into_owned()
+        x.clone()
     } else {
-        im2col(
+        let cols = im2col(
             &values(x),
             [batch, c_in, height, width],
             [kh, kw],
             [ho, wo],
             options,
-        )
+        );
+        FlexTensor::from_data(TensorData::new(cols, [batch, k, ho * wo]))
     };
-    let patches = FlexTensor::from_data(TensorData::new(patches, [batch, k, ho * wo]));
-    let grad = FlexTensor::from_data(TensorData::new(
-        values(grad).into_owned(),
-        [batch, c_out, ho * wo],
-    ));
+    let patches = Flex::float_reshape(patches, [batch, k, ho * wo].into());
+    let grad = Flex::float_reshape(grad.clone(), [batch, c_out, ho * wo].into());
     let per_frame = Flex::float_matmul(grad, Flex::float_swap_dims(patches, 1, 2));
     let summed = Flex::float_sum_dim(per_frame, 0);
     Flex::float_reshape(summed, weight_shape.into())
