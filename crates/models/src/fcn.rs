@@ -9,7 +9,7 @@ use burn::nn::conv::{Conv1d, Conv1dConfig, ConvTranspose1d, ConvTranspose1dConfi
 use burn::nn::{BatchNorm, PaddingConfig1d};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use fusiondet_nn::batch_norm;
+use fusiondet_nn::{batch_norm, norm_maps};
 
 /// Conv1d + BatchNorm + ReLU.
 #[derive(Module, Debug)]
@@ -39,7 +39,7 @@ impl ConvBnRelu {
     }
 
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        relu(self.norm.forward(self.conv.forward(x)))
+        relu(norm_maps(&self.norm, self.conv.forward(x)))
     }
 }
 
@@ -68,7 +68,7 @@ impl DeconvBnRelu {
     }
 
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        relu(self.norm.forward(self.deconv.forward(x)))
+        relu(norm_maps(&self.norm, self.deconv.forward(x)))
     }
 }
 

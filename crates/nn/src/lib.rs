@@ -10,6 +10,7 @@
 
 pub mod conv2d;
 pub mod host_max;
+pub mod map_norm;
 pub mod mlp;
 pub mod norm;
 pub mod ragged;
@@ -17,5 +18,5 @@ pub mod segment;
 pub mod sparse;
 
 pub use mlp::{MlpLayer, mlp_stack};
-pub use norm::{NormConfig, batch_norm, masked_batch_norm, norm_rows};
+pub use norm::{NormConfig, batch_norm, masked_batch_norm, norm_maps, norm_rows};
 pub use segment::{SegmentPool, segment_mean};

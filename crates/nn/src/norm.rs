@@ -1,7 +1,7 @@
 //! Batch norm as the detectors use it: settings of their own, and statistics over the
 //! real rows of a padded tensor.
 
-use crate::ragged;
+use crate::{map_norm, ragged};
 use burn::nn::{BatchNorm, BatchNormConfig};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -48,6 +48,34 @@ pub fn norm_rows(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
     assert_eq!(x.dims()[1], channels, "one column per channel of the norm");
     let (out, mean, variance) =
         ragged::batch_norm_rows(x, bn.gamma.val(), bn.beta.val(), bn.epsilon);
+    update_running_statistics(bn, mean, variance);
+    out
+}
+
+/// `bn.forward(x)` on channels-first maps ([B, C, …]: BEV maps, the FCN's slice
+/// sequences): in training on the flex CPU device the fused custom operation
+/// ([`map_norm::batch_norm_maps`]: statistics read in place, where burn's generic form
+/// copies the map into [C, B·…] twice each way), with the same running-statistics update
+/// as `BatchNorm`; elsewhere (inference, other devices) `bn.forward` itself.
+pub fn norm_maps<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
+    if !(x.device().is_autodiff() && bn.training.is_enabled() && ragged::custom_path(&x)) {
+        return bn.forward(x);
+    }
+    let [channels] = bn.gamma.shape().dims();
+    assert_eq!(
+        x.dims()[1],
+        channels,
+        "the second axis holds the norm's channels"
+    );
+    let (out, mean, variance) =
+        map_norm::batch_norm_maps(x, bn.gamma.val(), bn.beta.val(), bn.epsilon);
+    update_running_statistics(bn, mean, variance);
+    out
+}
+
+/// `BatchNorm`'s running-statistics update from a batch's mean and biased variance
+/// (detached): r ← (1 − momentum)·r + momentum·batch.
+fn update_running_statistics(bn: &BatchNorm, mean: Tensor<1>, variance: Tensor<1>) {
     let momentum = bn.momentum;
     let update = |state: &burn::module::RunningState<Tensor<1>>, batch: Tensor<1>| {
         let device = batch.device();
@@ -59,7 +87,6 @@ pub fn norm_rows(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
     };
     update(&bn.running_mean, mean);
     update(&bn.running_var, variance);
-    out
 }
 
 /// Batch norm over [rows, C] whose statistics use only the rows where `valid` ([rows, 1])
@@ -166,6 +193,72 @@ mod tests {
             close(&fused.4, &generic.4, "running mean");
             close(&fused.5, &generic.5, "running variance");
         }
+    }
+
+    /// The fused map norm against burn's `BatchNorm::forward` on [B, C, …] maps of rank 3
+    /// and 4 (a frame of one value, odd sizes, a map large enough to be split into many
+    /// tasks): output, gradients of the input, γ and β, and the running statistics.
+    #[test]
+    fn norm_maps_matches_burns_batch_norm_in_training() {
+        let device = Device::flex().autodiff();
+        fn check<const D: usize>(shape: [usize; D], device: &Device) {
+            let c = shape[1];
+            let n: usize = shape.iter().product();
+            let x: Vec<f32> = (0..n)
+                .map(|i| 50.0 + ((i * 37) % 23) as f32 * 0.125 - ((i / 3) % c) as f32 * 2.0)
+                .collect();
+            let g: Vec<f32> = (0..n).map(|i| ((i * 13) % 7) as f32 - 3.0).collect();
+            let run = |fused: bool| {
+                let mut bn = batch_norm(c, &NormConfig::default(), device);
+                let gamma: Vec<f32> = (0..c).map(|i| 0.5 + i as f32 * 0.25).collect();
+                let beta: Vec<f32> = (0..c).map(|i| i as f32 * 0.1 - 0.2).collect();
+                bn.gamma =
+                    Param::from_tensor(Tensor::from_data(TensorData::new(gamma, [c]), device));
+                bn.beta = Param::from_tensor(Tensor::from_data(TensorData::new(beta, [c]), device));
+                let input = Tensor::<D>::from_data(TensorData::new(x.clone(), shape), device)
+                    .require_grad();
+                let out = if fused {
+                    assert!(ragged::custom_path(&input));
+                    norm_maps(&bn, input.clone())
+                } else {
+                    bn.forward(input.clone())
+                };
+                let weights = Tensor::<D>::from_data(TensorData::new(g.clone(), shape), device);
+                let grads = (out.clone() * weights).sum().backward();
+                let vec = |t: Tensor<1>| t.try_into_vec_as::<f32>().unwrap();
+                let flat = |t: Tensor<D>| t.try_into_vec_as::<f32>().unwrap();
+                (
+                    flat(out),
+                    flat(input.grad(&grads).unwrap()),
+                    vec(bn.gamma.val().grad(&grads).unwrap()),
+                    vec(bn.beta.val().grad(&grads).unwrap()),
+                    vec(bn.running_mean.value()),
+                    vec(bn.running_var.value()),
+                )
+            };
+            let (fused, generic) = (run(true), run(false));
+            let what = format!("{shape:?}");
+            close(&fused.0, &generic.0, &format!("{what} output"));
+            close(&fused.1, &generic.1, &format!("{what} input gradient"));
+            close(&fused.2, &generic.2, &format!("{what} γ gradient"));
+            close(&fused.3, &generic.3, &format!("{what} β gradient"));
+            close(&fused.4, &generic.4, &format!("{what} running mean"));
+            close(&fused.5, &generic.5, &format!("{what} running variance"));
+        }
+        check([1, 2, 1], &device);
+        check([3, 4, 7], &device);
+        check([2, 3, 4, 5], &device);
+        check([2, 5, 33, 40], &device);
+    }
+
+    /// Inference keeps burn's own norm on maps too.
+    #[test]
+    fn map_norm_inference_keeps_burns_norm() {
+        let device = Device::flex();
+        let bn = batch_norm(2, &NormConfig::default(), &device);
+        let x = Tensor::<3>::from_floats([[[1.0, 2.0], [3.0, 5.0]]], &device);
+        let flat = |t: Tensor<3>| t.try_into_vec_as::<f32>().unwrap();
+        assert_eq!(flat(norm_maps(&bn, x.clone())), flat(bn.forward(x)));
     }
 
     /// Inference (no autodiff) keeps burn's own norm: the running statistics.

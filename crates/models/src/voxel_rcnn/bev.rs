@@ -11,9 +11,9 @@ use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfi
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use fusiondet_nn::NormConfig;
-use fusiondet_nn::batch_norm;
 use fusiondet_nn::conv2d::conv2d;
 use fusiondet_nn::sparse::to_dense_bev;
+use fusiondet_nn::{batch_norm, norm_maps};
 
 /// The backbone's output map as a dense [B, C·heights, Y, X] image.
 pub fn height_compression(map: &SparseMap) -> Tensor<4> {
@@ -40,7 +40,7 @@ impl ConvBnRelu {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        relu(self.norm.forward(conv2d(&self.conv, x)))
+        relu(norm_maps(&self.norm, conv2d(&self.conv, x)))
     }
 }
 
@@ -104,7 +104,7 @@ impl BevBackbone {
             for layer in block {
                 x = layer.forward(x);
             }
-            ups.push(relu(up.norm.forward(up.deconv.forward(x.clone()))));
+            ups.push(relu(norm_maps(&up.norm, up.deconv.forward(x.clone()))));
         }
         Tensor::cat(ups, 1)
     }

@@ -14,8 +14,8 @@ use super::config::{HEAD_NORM, PoolLevelConfig, RoiHeadConfig};
 use burn::nn::{BatchNorm, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use fusiondet_nn::batch_norm;
 use fusiondet_nn::sparse::SparseSites;
+use fusiondet_nn::{batch_norm, norm_rows};
 use rayon::prelude::*;
 
 /// A RoI in the LiDAR frame: centre (x, y, z), sizes (dx, dy, dz), heading about +z.
@@ -252,7 +252,7 @@ impl LinearBn {
     }
 
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
-        self.norm.forward(self.linear.forward(x))
+        norm_rows(&self.norm, self.linear.forward(x))
     }
 }
 
