@@ -3,7 +3,7 @@
 //! offset at a time (the CPU), or one gather through a kernel map and one matrix multiply
 //! (GPUs, where launches cost more than the zeros it multiplies).
 
-use super::rulebook::{ConvGeometry, RuleGather, Rulebook};
+use super::rulebook::{ConvGeometry, OffsetRule, RuleGather, Rulebook};
 use crate::norm::{NormConfig, batch_norm};
 use burn::module::{Module, Param};
 use burn::nn::BatchNorm;
@@ -83,30 +83,14 @@ impl SparseConv3d {
         let weight = self.weight.val();
         let out_rows = rulebook.output_rows();
         match &rulebook.gather {
+            RuleGather::PerOffset { host, .. } if crate::ragged::custom_path(&features) => {
+                super::fused::sparse_conv(features, weight, host)
+            }
             RuleGather::PerOffset {
                 identity_offset,
                 rules,
-            } => {
-                let offset_weight = |k: usize| {
-                    weight
-                        .clone()
-                        .slice([k..k + 1, 0..c_in, 0..c_out])
-                        .reshape([c_in, c_out])
-                };
-                let mut out = match identity_offset {
-                    Some(k) => features.clone().matmul(offset_weight(*k)),
-                    None => Tensor::zeros([out_rows, c_out], &features.device()),
-                };
-                for rule in rules {
-                    let products = features
-                        .clone()
-                        .select(0, rule.input.clone())
-                        .matmul(offset_weight(rule.offset));
-                    out =
-                        out.select_assign(0, rule.output.clone(), products, IndexingUpdateOp::Add);
-                }
-                out
-            }
+                ..
+            } => per_offset_with_burns_ops(features, weight, *identity_offset, rules, out_rows),
             RuleGather::KernelMap { table } => {
                 let device = features.device();
                 if out_rows == 0 {
@@ -122,6 +106,37 @@ impl SparseConv3d {
             }
         }
     }
+}
+
+/// The per-offset convolution from burn's operations (select, matmul, select_assign with
+/// add), which every backend differentiates: the centre offset's product (or zeros), then
+/// each other offset's gathered product added into its output rows.
+pub(super) fn per_offset_with_burns_ops(
+    features: Tensor<2>,
+    weight: Tensor<3>,
+    identity_offset: Option<usize>,
+    rules: &[OffsetRule],
+    out_rows: usize,
+) -> Tensor<2> {
+    let [_, c_in, c_out] = weight.dims();
+    let offset_weight = |k: usize| {
+        weight
+            .clone()
+            .slice([k..k + 1, 0..c_in, 0..c_out])
+            .reshape([c_in, c_out])
+    };
+    let mut out = match identity_offset {
+        Some(k) => features.clone().matmul(offset_weight(k)),
+        None => Tensor::zeros([out_rows, c_out], &features.device()),
+    };
+    for rule in rules {
+        let products = features
+            .clone()
+            .select(0, rule.input.clone())
+            .matmul(offset_weight(rule.offset));
+        out = out.select_assign(0, rule.output.clone(), products, IndexingUpdateOp::Add);
+    }
+    out
 }
 
 /// Sparse convolution → batch norm over the active rows → ReLU.

@@ -2,7 +2,8 @@
 //! regular sparse convolutions, as spconv runs them): active sites with a hashed lookup,
 //! a rulebook of (input row, output row) pairs per kernel offset, and each convolution as
 //! gather → matrix multiply → scatter-add through burn's autodiff (per offset on the CPU,
-//! through one kernel map on GPUs).
+//! through one kernel map on GPUs); on the flex CPU device the per-offset form runs as one
+//! custom operation with its own backward pass ([`fused`]).
 //!
 //! Written here because no Rust crate does sparse convolution; the operations it is made
 //! of (select, matmul, select_assign with add) are burn's, so gradients and every backend
@@ -10,10 +11,11 @@
 
 pub mod conv;
 pub mod dense;
+pub mod fused;
 pub mod rulebook;
 pub mod sites;
 
 pub use conv::{SparseConv3d, SparseConvBlock};
 pub use dense::to_dense_bev;
-pub use rulebook::{ConvGeometry, OffsetRule, RuleGather, RuleLayout, Rulebook};
+pub use rulebook::{ConvGeometry, HostRules, OffsetRule, RuleGather, RuleLayout, Rulebook};
 pub use sites::{SitesError, SparseSites};

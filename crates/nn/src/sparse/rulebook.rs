@@ -123,6 +123,18 @@ pub struct OffsetRule {
     pub output: Tensor<1, Int>,
 }
 
+/// A per-offset rulebook's pairs as host index lists: what the fused flex operation reads.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct HostRules {
+    pub input_rows: usize,
+    pub output_rows: usize,
+    /// The offset that maps every input row onto the same output row (not in `rules`).
+    pub identity_offset: Option<usize>,
+    /// (offset, input rows, output rows) of the other offsets that have pairs, in offset
+    /// order; within one offset no input row and no output row repeats.
+    pub rules: Vec<(usize, Vec<u32>, Vec<u32>)>,
+}
+
 /// A rulebook's pairs on the device, in one [`RuleLayout`].
 #[derive(Debug, Clone)]
 pub enum RuleGather {
@@ -132,6 +144,9 @@ pub enum RuleGather {
         identity_offset: Option<usize>,
         /// The other offsets that have pairs, in offset order.
         rules: Vec<OffsetRule>,
+        /// The same pairs on the host, for the fused flex operation
+        /// ([`super::fused::sparse_conv`]).
+        host: Arc<HostRules>,
     },
     KernelMap {
         /// [output rows · kernel volume]: row `o · volume + k` holds the input row output
@@ -324,22 +339,38 @@ fn gather(
     device: &Device,
 ) -> RuleGather {
     match layout {
-        RuleLayout::PerOffset => RuleGather::PerOffset {
-            identity_offset: identity,
-            rules: pairs
+        RuleLayout::PerOffset => {
+            let pairs: OffsetPairs = pairs
                 .into_iter()
                 .filter(|(_, input, _)| !input.is_empty())
-                .map(|(offset, input, output)| {
-                    let n = input.len();
-                    OffsetRule {
-                        offset,
-                        pairs: n,
-                        input: Tensor::from_data(TensorData::new(input, [n]), device),
-                        output: Tensor::from_data(TensorData::new(output, [n]), device),
-                    }
-                })
-                .collect(),
-        },
+                .collect();
+            let host_rows = |rows: &[i64]| rows.iter().map(|&r| r as u32).collect::<Vec<u32>>();
+            let host = HostRules {
+                input_rows,
+                output_rows,
+                identity_offset: identity,
+                rules: pairs
+                    .iter()
+                    .map(|(offset, input, output)| (*offset, host_rows(input), host_rows(output)))
+                    .collect(),
+            };
+            RuleGather::PerOffset {
+                identity_offset: identity,
+                rules: pairs
+                    .into_iter()
+                    .map(|(offset, input, output)| {
+                        let n = input.len();
+                        OffsetRule {
+                            offset,
+                            pairs: n,
+                            input: Tensor::from_data(TensorData::new(input, [n]), device),
+                            output: Tensor::from_data(TensorData::new(output, [n]), device),
+                        }
+                    })
+                    .collect(),
+                host: Arc::new(host),
+            }
+        }
         RuleLayout::KernelMap => {
             let mut table = vec![input_rows as i64; output_rows * volume];
             if let Some(k) = identity {
@@ -378,6 +409,7 @@ mod tests {
             RuleGather::PerOffset {
                 identity_offset,
                 rules,
+                ..
             } => (
                 *identity_offset,
                 rules

@@ -1,0 +1,340 @@
+//! The per-offset sparse convolution (gather → matrix multiply → scatter-add over every kernel
+//! offset) as one custom operation on the flex CPU device, with its own backward pass.
+//!
+//! Why: built from burn's operations, each of a layer's up to 26 non-centre offsets is a
+//! `select`, a `matmul` and a `select_assign`, and the backward pass of each `select` zeroes a
+//! gradient the size of the whole input ([rows, C_in]) and scatters into it, after which
+//! autodiff adds the 27 input gradients together: per layer, 27 input-sized buffers zeroed,
+//! written and summed, where one is enough. Here the forward pass runs the same gathers, the
+//! same flex matrix products and the same additions in the same order (so its output is
+//! burn's to the bit), and the backward pass gathers the output gradient per offset, takes
+//! the weight gradient as one product (gathered inputsᵀ · gathered gradient) and the input
+//! gradient as one product scattered into a single [rows, C_in] buffer.
+//!
+//! The same `#[backend_extension]` route as [`crate::ragged`]: flex without autodiff runs the
+//! fused forward pass, `Autodiff<Flex>` adds the backward step; other devices (and the
+//! kernel-map layout) keep burn's operations ([`super::conv::SparseConv3d::forward`]).
+
+use super::rulebook::HostRules;
+use crate::ragged::values;
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::flex::FlexTensor;
+use burn::backend::ops::FloatTensorOps;
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
+use burn::prelude::*;
+use rayon::prelude::*;
+use std::sync::Arc;
+
+/// The custom operation (see the module's documentation).
+#[backend_extension(Flex, Autodiff)]
+pub trait SparseConvOps: Backend {
+    /// `features` [input rows, C_in] convolved with `weight` [volume, C_in, C_out] over the
+    /// pairs of `rules` → [output rows, C_out].
+    fn sparse_conv_per_offset(
+        features: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        rules: Arc<HostRules>,
+    ) -> FloatTensor<Self>;
+}
+
+/// [`SparseConvOps::sparse_conv_per_offset`] on tensors on the flex device.
+pub fn sparse_conv(features: Tensor<2>, weight: Tensor<3>, rules: &Arc<HostRules>) -> Tensor<2> {
+    Tensor::from_dispatch(<Dispatch as SparseConvOps>::sparse_conv_per_offset(
+        features.into_dispatch(),
+        weight.into_dispatch(),
+        Arc::clone(rules),
+    ))
+}
+
+fn matrix(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(values, shape))
+}
+
+/// Rows `rows` of the [_, c] matrix `data`, stacked: [rows.len(), c].
+fn gather_rows(data: &[f32], c: usize, rows: &[u32]) -> FlexTensor {
+    let mut out = vec![0f32; rows.len() * c];
+    if c > 0 {
+        out.par_chunks_mut(c)
+            .zip(rows.par_iter())
+            .for_each(|(dst, &r)| dst.copy_from_slice(&data[r as usize * c..][..c]));
+    }
+    matrix(out, [rows.len(), c])
+}
+
+/// `target[rows[i]] += source[i]` for every row i of the [rows.len(), c] `source`; the rows
+/// are distinct (one offset's pairs), so the order of the additions into a row is the order
+/// of the calls.
+fn scatter_add_rows(target: &mut [f32], c: usize, rows: &[u32], source: &FlexTensor) {
+    let source = values(source);
+    for (i, &r) in rows.iter().enumerate() {
+        let dst = &mut target[r as usize * c..][..c];
+        for (d, &s) in dst.iter_mut().zip(&source[i * c..][..c]) {
+            *d += s;
+        }
+    }
+}
+
+/// Offset k's [C_in, C_out] slice of the weight.
+fn offset_weight(weight: &[f32], k: usize, [c_in, c_out]: [usize; 2]) -> FlexTensor {
+    matrix(
+        weight[k * c_in * c_out..][..c_in * c_out].to_vec(),
+        [c_in, c_out],
+    )
+}
+
+fn weight_dims(weight: &FlexTensor) -> [usize; 3] {
+    let shape = weight.layout().shape();
+    assert_eq!(shape.num_dims(), 3, "a [volume, C_in, C_out] weight");
+    [shape[0], shape[1], shape[2]]
+}
+
+/// The forward pass: the centre offset's product (or zeros), then each other offset's
+/// gathered product added into its output rows, offset by offset.
+fn forward(features: &FlexTensor, weight: &FlexTensor, rules: &HostRules) -> FlexTensor {
+    let [_, c_in, c_out] = weight_dims(weight);
+    let (x, w) = (values(features), values(weight));
+    assert_eq!(
+        x.len(),
+        rules.input_rows * c_in,
+        "features on the input sites"
+    );
+    let mut out = match rules.identity_offset {
+        Some(k) => {
+            let product = Flex::float_matmul(features.clone(), offset_weight(&w, k, [c_in, c_out]));
+            values(&product).into_owned()
+        }
+        None => vec![0f32; rules.output_rows * c_out],
+    };
+    for (k, input, output) in &rules.rules {
+        let gathered = gather_rows(&x, c_in, input);
+        let product = Flex::float_matmul(gathered, offset_weight(&w, *k, [c_in, c_out]));
+        scatter_add_rows(&mut out, c_out, output, &product);
+    }
+    matrix(out, [rules.output_rows, c_out])
+}
+
+/// The backward pass: (input gradient, weight gradient), each where asked for. Per offset,
+/// dW_k = x[inputs]ᵀ · g[outputs] and dx[inputs] += g[outputs] · W_kᵀ.
+fn backward(
+    features: &FlexTensor,
+    weight: &FlexTensor,
+    rules: &HostRules,
+    grad: &FlexTensor,
+    [want_x, want_w]: [bool; 2],
+) -> (Option<FlexTensor>, Option<FlexTensor>) {
+    let dims @ [volume, c_in, c_out] = weight_dims(weight);
+    let (x, w, g) = (values(features), values(weight), values(grad));
+    let mut dx = want_x.then(|| vec![0f32; rules.input_rows * c_in]);
+    let mut dw = want_w.then(|| vec![0f32; volume * c_in * c_out]);
+    let transposed = |t: FlexTensor| Flex::float_swap_dims(t, 0, 1);
+    let mut accumulate = |k: usize, x_rows: FlexTensor, g_rows: FlexTensor, input: &[u32]| {
+        if let Some(dw) = dw.as_mut() {
+            let product = Flex::float_matmul(transposed(x_rows), g_rows.clone());
+            dw[k * c_in * c_out..][..c_in * c_out].copy_from_slice(&values(&product));
+        }
+        if let Some(dx) = dx.as_mut() {
+            let w_k = transposed(offset_weight(&w, k, [c_in, c_out]));
+            scatter_add_rows(dx, c_in, input, &Flex::float_matmul(g_rows, w_k));
+        }
+    };
+    if let Some(k) = rules.identity_offset {
+        let all: Vec<u32> = (0..rules.input_rows as u32).collect();
+        accumulate(k, features.clone(), grad.clone(), &all);
+    }
+    for (k, input, output) in &rules.rules {
+        accumulate(
+            *k,
+            gather_rows(&x, c_in, input),
+            gather_rows(&g, c_out, output),
+            input,
+        );
+    }
+    (
+        dx.map(|dx| matrix(dx, [rules.input_rows, c_in])),
+        dw.map(|dw| FlexTensor::from_data(TensorData::new(dw, dims))),
+    )
+}
+
+impl SparseConvOps for Flex {
+    fn sparse_conv_per_offset(
+        features: FlexTensor,
+        weight: FlexTensor,
+        rules: Arc<HostRules>,
+    ) -> FlexTensor {
+        forward(&features, &weight, &rules)
+    }
+}
+
+/// The backward step of [`SparseConvOps::sparse_conv_per_offset`].
+#[derive(Debug)]
+struct SparseConvBackward;
+
+impl Backward<Flex, 2> for SparseConvBackward {
+    /// The features, the weight and the pairs.
+    type State = (FlexTensor, FlexTensor, Arc<HostRules>);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let (features, weight, rules) = ops.state;
+        let grad = grads.consume::<Flex>(&ops.node);
+        let [node_x, node_w] = ops.parents;
+        let want = [node_x.is_some(), node_w.is_some()];
+        let (dx, dw) = backward(&features, &weight, &rules, &grad, want);
+        for (node, g) in [(node_x, dx), (node_w, dw)] {
+            if let (Some(node), Some(g)) = (node, g) {
+                grads.register::<Flex>(node.id, g);
+            }
+        }
+    }
+}
+
+impl<C: CheckpointStrategy> SparseConvOps for Autodiff<Flex, C> {
+    fn sparse_conv_per_offset(
+        features: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        rules: Arc<HostRules>,
+    ) -> FloatTensor<Self> {
+        let (features, a) = features.into_parts();
+        let (weight, b) = weight.into_parts();
+        let out = forward(&features, &weight, &rules);
+        match SparseConvBackward
+            .prepare::<C>([a, b])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish((features, weight, rules), out),
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::conv::per_offset_with_burns_ops;
+    use super::super::rulebook::{ConvGeometry, RuleGather, RuleLayout, Rulebook};
+    use super::super::sites::SparseSites;
+    use super::*;
+
+    /// Distinct sites in a [2 frames, z, y, x] grid from a fixed sequence.
+    fn sites(shape: [usize; 3], count: usize, seed: u64) -> Arc<SparseSites> {
+        let mut state = seed;
+        let mut next = |n: usize| {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 33) % n as u64) as i32
+        };
+        let mut coords = Vec::new();
+        while coords.len() < count {
+            let c = [next(2), next(shape[0]), next(shape[1]), next(shape[2])];
+            if !coords.contains(&c) {
+                coords.push(c);
+            }
+        }
+        Arc::new(SparseSites::new(coords, shape, 2).unwrap())
+    }
+
+    fn tensor<const D: usize>(shape: [usize; D], salt: usize, device: &Device) -> Tensor<D> {
+        let n: usize = shape.iter().product();
+        let v: Vec<f32> = (0..n)
+            .map(|i| (((i * 7919 + salt * 104729) % 2003) as f32 / 1001.5) - 1.0)
+            .collect();
+        Tensor::from_data(TensorData::new(v, shape), device)
+    }
+
+    fn flat<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.try_into_vec_as::<f32>().unwrap()
+    }
+
+    fn close(a: &[f32], b: &[f32], what: &str) {
+        assert_eq!(a.len(), b.len(), "{what}");
+        for (i, (x, y)) in a.iter().zip(b).enumerate() {
+            assert!(
+                (x - y).abs() <= 1e-5 * (1.0 + y.abs()),
+                "{what}[{i}]: {x} vs {y}"
+            );
+        }
+    }
+
+    /// The fused operation against the same convolution from burn's operations: the
+    /// forward pass identical to the bit, the input and weight gradients within rounding,
+    /// for a submanifold rulebook (with a centre offset), a strided one (none), and sites
+    /// so sparse that most offsets have no pairs.
+    #[test]
+    fn fused_sparse_conv_matches_burns_operations() {
+        let device = Device::flex().autodiff();
+        let cases = [
+            ([6, 7, 8], 60, ConvGeometry::same([3; 3]), true, [3, 5]),
+            (
+                [6, 7, 8],
+                60,
+                ConvGeometry::strided([3; 3], [2; 3], [1; 3]),
+                false,
+                [4, 2],
+            ),
+            ([9, 9, 9], 5, ConvGeometry::same([3; 3]), true, [2, 3]),
+        ];
+        for (case, (shape, count, geometry, submanifold, [c_in, c_out])) in
+            cases.into_iter().enumerate()
+        {
+            let sites = sites(shape, count, case as u64 + 1);
+            let book = if submanifold {
+                Rulebook::submanifold_in(&sites, geometry.kernel, RuleLayout::PerOffset, &device)
+            } else {
+                Rulebook::strided_in(&sites, geometry, RuleLayout::PerOffset, &device)
+            };
+            let RuleGather::PerOffset {
+                identity_offset,
+                rules,
+                host,
+            } = &book.gather
+            else {
+                panic!("a per-offset rulebook")
+            };
+            assert_eq!(identity_offset.is_some(), submanifold);
+            let volume = geometry.volume();
+            let upstream = tensor([book.output_rows(), c_out], 3, &device);
+            let run = |fused: bool| {
+                let x = tensor([sites.len(), c_in], 1, &device).require_grad();
+                let w = tensor([volume, c_in, c_out], 2, &device).require_grad();
+                let out = if fused {
+                    sparse_conv(x.clone(), w.clone(), host)
+                } else {
+                    let rows = book.output_rows();
+                    per_offset_with_burns_ops(x.clone(), w.clone(), *identity_offset, rules, rows)
+                };
+                let grads = (out.clone() * upstream.clone()).sum().backward();
+                (
+                    flat(out),
+                    flat(x.grad(&grads).unwrap()),
+                    flat(w.grad(&grads).unwrap()),
+                )
+            };
+            let (fused, burns) = (run(true), run(false));
+            assert_eq!(fused.0, burns.0, "case {case}: forward");
+            close(&fused.1, &burns.1, &format!("case {case}: input gradient"));
+            close(&fused.2, &burns.2, &format!("case {case}: weight gradient"));
+        }
+    }
+
+    /// Without autodiff (detection) the operation is the forward pass alone, and a rulebook
+    /// over no sites gives an empty output.
+    #[test]
+    fn inference_and_empty_sites() {
+        let device = Device::flex();
+        let empty = Arc::new(SparseSites::new(Vec::new(), [4, 4, 4], 1).unwrap());
+        let book = Rulebook::submanifold_in(&empty, [3; 3], RuleLayout::PerOffset, &device);
+        let RuleGather::PerOffset { host, .. } = &book.gather else {
+            panic!("a per-offset rulebook")
+        };
+        let out = sparse_conv(
+            Tensor::zeros([0, 2], &device),
+            tensor([27, 2, 3], 0, &device),
+            host,
+        );
+        assert_eq!(out.dims(), [0, 3]);
+    }
+}
