@@ -256,6 +256,12 @@ pub fn run_training<T: TrainingTask>(
         None => (task.new_model(&ad)?, 0),
     };
 
+    // As many threads as the global pool (one per core, or RAYON_NUM_THREADS).
+    let step_pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(rayon::current_num_threads())
+        .thread_name(|i| format!("fusiondet-step-{i}"))
+        .build()
+        .map_err(|e| PipelineError::Invalid(format!("cannot start the training threads: {e}")))?;
     let mut final_loss = None;
     for epoch in start_epoch..cfg.train.epochs {
         let started = Instant::now();
@@ -278,48 +284,57 @@ pub fn run_training<T: TrainingTask>(
                     }
                 }
             });
-            loop {
-                let waited = Instant::now();
-                let Ok(prepared) = rx.recv() else { break };
-                time.data_wait += waited.elapsed().as_secs_f64();
-                if stop_requested() {
-                    return Err(PipelineError::Interrupted { epochs_done: epoch });
-                }
-                let batch = prepared?;
-                let net = slot.take().expect("the model is put back after every step");
-                lr = cfg.train.lr_at(epoch, steps, steps_per_epoch);
-                let forward = Instant::now();
-                let loss = task.loss(&net, batch, &ad)?;
-                time.forward_loss += forward.elapsed().as_secs_f64();
-                let update = Instant::now();
-                if let Some((name, value)) = loss.components.iter().find(|(_, v)| !v.is_finite()) {
-                    // Stop before the step spreads it into the weights; the run keeps its
-                    // last committed epoch.
-                    return Err(PipelineError::Invalid(format!(
-                        "training diverged: loss `{name}` is {value} at epoch {}, step {}; \
-                         nothing of this epoch is saved (the run keeps epoch {epoch}); lower \
-                         the learning rate or check the configuration",
-                        epoch + 1,
-                        steps + 1
-                    )));
-                }
-                let mut grads = GradientsParams::from_grads(loss.total.backward(), &net);
-                if let Some(max_norm) = global_clip {
-                    grads = crate::grad_clip::clip_global_norm(&net, grads, max_norm).0;
-                }
-                slot = Some(optim.step(lr, net, grads));
-                time.backward_update += update.elapsed().as_secs_f64();
-                for (k, (name, value)) in loss.components.into_iter().enumerate() {
-                    if sums.len() <= k {
-                        sums.push((name, 0.0));
+            // The step runs on a worker of its own pool, so that flex's parallel loops
+            // start there (the caller takes half the work) instead of parking this thread
+            // on every operation while the global pool's workers run it.
+            let rx = rx;
+            step_pool.install(|| {
+                let rx = rx;
+                loop {
+                    let waited = Instant::now();
+                    let Ok(prepared) = rx.recv() else { break };
+                    time.data_wait += waited.elapsed().as_secs_f64();
+                    if stop_requested() {
+                        return Err(PipelineError::Interrupted { epochs_done: epoch });
                     }
-                    sums[k].1 += value as f64;
+                    let batch = prepared?;
+                    let net = slot.take().expect("the model is put back after every step");
+                    lr = cfg.train.lr_at(epoch, steps, steps_per_epoch);
+                    let forward = Instant::now();
+                    let loss = task.loss(&net, batch, &ad)?;
+                    time.forward_loss += forward.elapsed().as_secs_f64();
+                    let update = Instant::now();
+                    if let Some((name, value)) =
+                        loss.components.iter().find(|(_, v)| !v.is_finite())
+                    {
+                        // Stop before the step spreads it into the weights; the run keeps its
+                        // last committed epoch.
+                        return Err(PipelineError::Invalid(format!(
+                            "training diverged: loss `{name}` is {value} at epoch {}, step {}; \
+                             nothing of this epoch is saved (the run keeps epoch {epoch}); lower \
+                             the learning rate or check the configuration",
+                            epoch + 1,
+                            steps + 1
+                        )));
+                    }
+                    let mut grads = GradientsParams::from_grads(loss.total.backward(), &net);
+                    if let Some(max_norm) = global_clip {
+                        grads = crate::grad_clip::clip_global_norm(&net, grads, max_norm).0;
+                    }
+                    slot = Some(optim.step(lr, net, grads));
+                    time.backward_update += update.elapsed().as_secs_f64();
+                    for (k, (name, value)) in loss.components.into_iter().enumerate() {
+                        if sums.len() <= k {
+                            sums.push((name, 0.0));
+                        }
+                        sums[k].1 += value as f64;
+                    }
+                    steps += 1;
+                    progress.set_message(format!("loss {:.3}", sums[0].1 / steps as f64));
+                    progress.inc(1);
                 }
-                steps += 1;
-                progress.set_message(format!("loss {:.3}", sums[0].1 / steps as f64));
-                progress.inc(1);
-            }
-            Ok(())
+                Ok(())
+            })
         });
         progress.finish_and_clear();
         outcome?;
@@ -422,6 +437,17 @@ mod tests {
     struct ScaledLoss {
         /// Each epoch's batches (the scales of its steps).
         epochs: Vec<Vec<f32>>,
+        /// The name of the thread each step ran on.
+        step_threads: std::sync::Mutex<Vec<String>>,
+    }
+
+    impl ScaledLoss {
+        fn new(epochs: Vec<Vec<f32>>) -> Self {
+            Self {
+                epochs,
+                step_threads: Default::default(),
+            }
+        }
     }
 
     impl TrainingTask for ScaledLoss {
@@ -453,6 +479,8 @@ mod tests {
             Box::new(self.epochs[epoch].clone().into_iter().map(Ok))
         }
         fn loss(&self, model: &Linear, scale: f32, device: &Device) -> Result<StepLoss> {
+            let name = std::thread::current().name().unwrap_or("").to_string();
+            self.step_threads.lock().unwrap().push(name);
             let y = model.forward(Tensor::<2>::ones([1, 1], device));
             Ok(StepLoss::from_terms(vec![(
                 "fit",
@@ -475,9 +503,7 @@ mod tests {
             progress: false,
             device: Default::default(),
         };
-        let task = ScaledLoss {
-            epochs: vec![vec![1.0, 1.0], vec![1.0, f32::NAN], vec![1.0, 1.0]],
-        };
+        let task = ScaledLoss::new(vec![vec![1.0, 1.0], vec![1.0, f32::NAN], vec![1.0, 1.0]]);
         let opened = open_run(&options, &config, |_| true).unwrap();
         let err = run_training(&task, &options, opened)
             .unwrap_err()
@@ -493,5 +519,34 @@ mod tests {
         assert_eq!(state.epochs_done, 1);
         let lines = std::fs::read_to_string(run.metrics()).unwrap();
         assert_eq!(lines.lines().count(), 1, "{lines}");
+    }
+
+    /// Steps run on the training pool's workers (where flex's parallel loops start in the
+    /// pool), not on the calling thread.
+    #[test]
+    fn steps_run_on_the_training_pool() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut config = ExperimentConfig::default();
+        config.train.epochs = 1;
+        config.train.batch_size = 1;
+        let options = TrainOptions {
+            config: config.clone(),
+            data_dir: dir.path().join("data"),
+            run_dir: dir.path().join("run"),
+            resume: false,
+            progress: false,
+            device: Default::default(),
+        };
+        let task = ScaledLoss::new(vec![vec![1.0, 2.0, 3.0]]);
+        let opened = open_run(&options, &config, |_| true).unwrap();
+        run_training(&task, &options, opened).unwrap();
+        let threads = task.step_threads.lock().unwrap().clone();
+        assert_eq!(threads.len(), 3);
+        for name in &threads {
+            assert!(
+                name.starts_with("fusiondet-step-"),
+                "a step ran on {name:?}"
+            );
+        }
     }
 }
