@@ -217,6 +217,16 @@ impl Detector {
         inputs: &SplitInputs,
         timing: &mut StageTimes,
     ) -> Result<FrameResults> {
+        // The networks run on the compute pool (see `compute_pool`).
+        crate::compute_pool::install(|| self.detect_here(device, inputs, timing))
+    }
+
+    fn detect_here(
+        &self,
+        device: &Device,
+        inputs: &SplitInputs,
+        timing: &mut StageTimes,
+    ) -> Result<FrameResults> {
         match (self, inputs) {
             (Detector::Frustum(d), SplitInputs::Frustum { frames, detections }) => {
                 d.detect_frames(device, frames.clone(), detections, timing)

@@ -4,6 +4,7 @@
 //! family plugs in through a module of its own ([`frustum`]).
 
 pub mod bench;
+pub mod compute_pool;
 pub mod config;
 pub mod dasanet;
 pub mod detect;

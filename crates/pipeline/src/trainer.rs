@@ -256,12 +256,6 @@ pub fn run_training<T: TrainingTask>(
         None => (task.new_model(&ad)?, 0),
     };
 
-    // As many threads as the global pool (one per core, or RAYON_NUM_THREADS).
-    let step_pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(rayon::current_num_threads())
-        .thread_name(|i| format!("fusiondet-step-{i}"))
-        .build()
-        .map_err(|e| PipelineError::Invalid(format!("cannot start the training threads: {e}")))?;
     let mut final_loss = None;
     for epoch in start_epoch..cfg.train.epochs {
         let started = Instant::now();
@@ -284,11 +278,9 @@ pub fn run_training<T: TrainingTask>(
                     }
                 }
             });
-            // The step runs on a worker of its own pool, so that flex's parallel loops
-            // start there (the caller takes half the work) instead of parking this thread
-            // on every operation while the global pool's workers run it.
+            // The steps run on the compute pool (see `compute_pool`).
             let rx = rx;
-            step_pool.install(|| {
+            crate::compute_pool::install(|| {
                 let rx = rx;
                 loop {
                     let waited = Instant::now();
@@ -521,10 +513,10 @@ mod tests {
         assert_eq!(lines.lines().count(), 1, "{lines}");
     }
 
-    /// Steps run on the training pool's workers (where flex's parallel loops start in the
+    /// Steps run on the compute pool's workers (where flex's parallel loops start in the
     /// pool), not on the calling thread.
     #[test]
-    fn steps_run_on_the_training_pool() {
+    fn steps_run_on_the_compute_pool() {
         let dir = tempfile::tempdir().unwrap();
         let mut config = ExperimentConfig::default();
         config.train.epochs = 1;
