@@ -535,10 +535,8 @@ mod tests {
         let threads = task.step_threads.lock().unwrap().clone();
         assert_eq!(threads.len(), 3);
         for name in &threads {
-            assert!(
-                name.starts_with("fusiondet-step-"),
-                "a step ran on {name:?}"
-            );
+            let on_pool = name.starts_with(crate::compute_pool::THREAD_PREFIX);
+            assert!(on_pool, "a step ran on {name:?}");
         }
     }
 }
