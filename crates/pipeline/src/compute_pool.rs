@@ -31,3 +31,20 @@ pub fn install<R: Send>(f: impl FnOnce() -> R + Send) -> R {
         _ => f(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn thread_name() -> String {
+        std::thread::current().name().unwrap_or("").to_string()
+    }
+
+    /// `install` moves the work onto a pool worker, and a nested `install` stays there.
+    #[test]
+    fn work_runs_on_a_pool_worker_and_nesting_stays_put() {
+        let (outer, inner) = install(|| (thread_name(), install(thread_name)));
+        assert!(outer.starts_with(THREAD_PREFIX), "ran on {outer:?}");
+        assert_eq!(inner, outer);
+    }
+}
