@@ -210,7 +210,30 @@ fn train_step(c: &mut Criterion) {
         });
     }
     fusiondet_nn::ragged::set_custom_ops(true);
+    // The binary runs its steps on a worker of a rayon pool (`pipeline::compute_pool`),
+    // where flex's parallel loops start in the pool instead of parking the caller.
+    let pool = worker_pool();
+    g.bench_function("train_step on a pool worker (as the binary)", |b| {
+        b.iter(|| {
+            pool.install(|| {
+                let m = model.take().unwrap();
+                let loss =
+                    fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss).unwrap();
+                let grads = GradientsParams::from_grads(loss.total.backward(), &m);
+                model = Some(optim.step(1e-3, m, grads));
+                loss.components.total
+            })
+        })
+    });
     g.finish();
+}
+
+/// A rayon pool of the global pool's size, as `pipeline::compute_pool` builds it.
+fn worker_pool() -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(rayon::current_num_threads())
+        .build()
+        .unwrap()
 }
 
 /// The backend's f32 matrix product on all threads: a square one and the shape of the
@@ -231,6 +254,13 @@ fn matmul_rate(c: &mut Criterion) {
             bench.iter(|| sync(&a.clone().matmul(b.clone())))
         });
     }
+    let pool = worker_pool();
+    let a = Tensor::<2>::random([1024, 1024], burn::tensor::Distribution::Default, &device);
+    let b = Tensor::<2>::random([1024, 1024], burn::tensor::Distribution::Default, &device);
+    g.throughput(Throughput::Elements(2 * 1024 * 1024 * 1024));
+    g.bench_function("1024x1024x1024 on a pool worker", |bench| {
+        bench.iter(|| pool.install(|| sync(&a.clone().matmul(b.clone()))))
+    });
     g.finish();
 }
 
