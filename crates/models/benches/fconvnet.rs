@@ -178,22 +178,27 @@ fn train_step(c: &mut Criterion) {
     // Each step twice: with the custom flex operations (`fusiondet_nn::ragged`, what
     // training runs) and with burn's generic operations (the path before them), side by
     // side in one run.
+    let mut step = || {
+        let m = model.take().unwrap();
+        let loss = fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss).unwrap();
+        let grads = GradientsParams::from_grads(loss.total.backward(), &m);
+        model = Some(optim.step(1e-3, m, grads));
+        loss.components.total
+    };
     for (name, custom) in [
         ("train_step (forward + loss + backward + adam)", true),
         ("train_step, generic ops", false),
     ] {
         fusiondet_nn::ragged::set_custom_ops(custom);
-        g.bench_function(name, |b| {
-            b.iter(|| {
-                let m = model.take().unwrap();
-                let loss =
-                    fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss).unwrap();
-                let grads = GradientsParams::from_grads(loss.total.backward(), &m);
-                model = Some(optim.step(1e-3, m, grads));
-                loss.components.total
-            })
-        });
+        g.bench_function(name, |b| b.iter(&mut step));
     }
+    fusiondet_nn::ragged::set_custom_ops(true);
+    // The binary runs its steps on a worker of a rayon pool (`pipeline::compute_pool`),
+    // where flex's parallel loops start in the pool instead of parking the caller.
+    let pool = worker_pool();
+    g.bench_function("train_step on a pool worker (as the binary)", |b| {
+        b.iter(|| pool.install(&mut step))
+    });
     for (name, custom) in [
         ("forward + loss (autodiff graph)", true),
         ("forward + loss (autodiff graph), generic ops", false),
@@ -210,21 +215,6 @@ fn train_step(c: &mut Criterion) {
         });
     }
     fusiondet_nn::ragged::set_custom_ops(true);
-    // The binary runs its steps on a worker of a rayon pool (`pipeline::compute_pool`),
-    // where flex's parallel loops start in the pool instead of parking the caller.
-    let pool = worker_pool();
-    g.bench_function("train_step on a pool worker (as the binary)", |b| {
-        b.iter(|| {
-            pool.install(|| {
-                let m = model.take().unwrap();
-                let loss =
-                    fconvnet_loss(&m.forward_inputs(&inputs), &targets, &config.loss).unwrap();
-                let grads = GradientsParams::from_grads(loss.total.backward(), &m);
-                model = Some(optim.step(1e-3, m, grads));
-                loss.components.total
-            })
-        })
-    });
     g.finish();
 }
 

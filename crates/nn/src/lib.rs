@@ -8,9 +8,9 @@
 //! inference ([`host_max`]), custom operations with their own backward passes in training
 //! ([`ragged`]).
 
+pub mod batch_norm_ops;
 pub mod conv2d;
 pub mod host_max;
-pub mod map_norm;
 pub mod mlp;
 pub mod norm;
 pub mod ragged;

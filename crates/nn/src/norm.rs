@@ -1,7 +1,8 @@
 //! Batch norm as the detectors use it: settings of their own, and statistics over the
 //! real rows of a padded tensor.
 
-use crate::{map_norm, ragged};
+use crate::batch_norm_ops::{NormLayout, batch_norm_train};
+use crate::ragged;
 use burn::nn::{BatchNorm, BatchNormConfig};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -36,28 +37,30 @@ pub fn batch_norm(channels: usize, config: &NormConfig, device: &Device) -> Batc
 }
 
 /// `bn.forward(x)` on [rows, C]: in training on the flex CPU device the fused custom
-/// operation ([`ragged::batch_norm_rows`]: two passes for the statistics, one for the
+/// operation ([`batch_norm_train`] over rows: two passes for the statistics, one for the
 /// output, two backward, where burn's generic form transposes the rows and makes about
 /// eight passes each way), with the same running-statistics update as `BatchNorm`;
 /// elsewhere (inference, other devices) `bn.forward` itself.
 pub fn norm_rows(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
-    if !(x.device().is_autodiff() && bn.training.is_enabled() && ragged::custom_path(&x)) {
-        return bn.forward(x);
-    }
-    let [channels] = bn.gamma.shape().dims();
-    assert_eq!(x.dims()[1], channels, "one column per channel of the norm");
-    let (out, mean, variance) =
-        ragged::batch_norm_rows(x, bn.gamma.val(), bn.beta.val(), bn.epsilon);
-    update_running_statistics(bn, mean, variance);
-    out
+    fused_in_training(bn, x, NormLayout::Rows)
 }
 
 /// `bn.forward(x)` on channels-first maps ([B, C, …]: BEV maps, the FCN's slice
 /// sequences): in training on the flex CPU device the fused custom operation
-/// ([`map_norm::batch_norm_maps`]: statistics read in place, where burn's generic form
+/// ([`batch_norm_train`] over maps: statistics read in place, where burn's generic form
 /// copies the map into [C, B·…] twice each way), with the same running-statistics update
 /// as `BatchNorm`; elsewhere (inference, other devices) `bn.forward` itself.
 pub fn norm_maps<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
+    fused_in_training(bn, x, NormLayout::Maps)
+}
+
+/// The fused operation in `layout` where training runs on the flex device, with
+/// `BatchNorm`'s running-statistics update; `bn.forward` elsewhere.
+fn fused_in_training<const D: usize>(
+    bn: &BatchNorm,
+    x: Tensor<D>,
+    layout: NormLayout,
+) -> Tensor<D> {
     if !(x.device().is_autodiff() && bn.training.is_enabled() && ragged::custom_path(&x)) {
         return bn.forward(x);
     }
@@ -68,7 +71,7 @@ pub fn norm_maps<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
         "the second axis holds the norm's channels"
     );
     let (out, mean, variance) =
-        map_norm::batch_norm_maps(x, bn.gamma.val(), bn.beta.val(), bn.epsilon);
+        batch_norm_train(x, bn.gamma.val(), bn.beta.val(), bn.epsilon, layout);
     update_running_statistics(bn, mean, variance);
     out
 }
@@ -253,7 +256,7 @@ mod tests {
 
     /// Inference keeps burn's own norm on maps too.
     #[test]
-    fn map_norm_inference_keeps_burns_norm() {
+    fn norm_maps_in_inference_keeps_burns_norm() {
         let device = Device::flex();
         let bn = batch_norm(2, &NormConfig::default(), &device);
         let x = Tensor::<3>::from_floats([[[1.0, 2.0], [3.0, 5.0]]], &device);

@@ -27,7 +27,7 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{Autodiff, AutodiffBackend, Backend, Dispatch, Flex, backend_extension};
+use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::prelude::*;
 use burn::tensor::DType;
 use rayon::prelude::*;
@@ -173,15 +173,6 @@ pub trait RaggedOps: Backend {
         w_d: FloatTensor<Self>,
         neighbours: Arc<Neighbours>,
     ) -> FloatTensor<Self>;
-
-    /// Training batch norm over the rows of `x` ([rows, C]): the output, and the batch's
-    /// per-channel mean and biased variance ([C] each, constants).
-    fn batch_norm_rows(
-        x: FloatTensor<Self>,
-        gamma: FloatTensor<Self>,
-        beta: FloatTensor<Self>,
-        epsilon: f64,
-    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 }
 
 /// [`RaggedOps::runs_max`] on a `Tensor<2>` on the flex device (see [`custom_path`]).
@@ -209,27 +200,6 @@ pub fn neighbour_sum(
     ))
 }
 
-/// [`RaggedOps::batch_norm_rows`] on tensors on the flex device (see [`custom_path`]):
-/// (output, batch mean, batch variance).
-pub fn batch_norm_rows(
-    x: Tensor<2>,
-    gamma: Tensor<1>,
-    beta: Tensor<1>,
-    epsilon: f64,
-) -> (Tensor<2>, Tensor<1>, Tensor<1>) {
-    let (out, mean, variance) = <Dispatch as RaggedOps>::batch_norm_rows(
-        x.into_dispatch(),
-        gamma.into_dispatch(),
-        beta.into_dispatch(),
-        epsilon,
-    );
-    (
-        Tensor::from_dispatch(out),
-        Tensor::from_dispatch(mean),
-        Tensor::from_dispatch(variance),
-    )
-}
-
 /// The f32 values of a flex tensor in row-major order, borrowed when it is contiguous.
 pub(crate) fn values(x: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
     assert_eq!(x.dtype(), DType::F32, "the custom operations take f32");
@@ -239,13 +209,13 @@ pub(crate) fn values(x: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
     }
 }
 
-fn dims2(x: &FlexTensor) -> [usize; 2] {
+pub(crate) fn dims2(x: &FlexTensor) -> [usize; 2] {
     let shape = x.layout().shape();
     assert_eq!(shape.num_dims(), 2, "a [rows, C] tensor");
     [shape[0], shape[1]]
 }
 
-fn flex_tensor(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
+pub(crate) fn flex_tensor(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(values, shape))
 }
 
@@ -445,152 +415,6 @@ fn neighbour_sum_backward(
     [per_point, per_query, w_d]
 }
 
-/// Rows per block of the column reductions: blocks are reduced in parallel and their sums
-/// added in block order, so the result does not depend on the number of threads.
-const ROWS_PER_BLOCK: usize = 256;
-
-/// Per-column sums over the rows of a [rows, C] computation, `add(r, acc)` adding row r's
-/// terms into `acc` (f64, so long columns keep their precision).
-fn column_sums(rows: usize, c: usize, add: impl Fn(usize, &mut [f64]) + Sync) -> Vec<f64> {
-    let blocks = rows.div_ceil(ROWS_PER_BLOCK);
-    let partial: Vec<Vec<f64>> = (0..blocks)
-        .into_par_iter()
-        .map(|b| {
-            let mut acc = vec![0f64; c];
-            for r in b * ROWS_PER_BLOCK..((b + 1) * ROWS_PER_BLOCK).min(rows) {
-                add(r, &mut acc);
-            }
-            acc
-        })
-        .collect();
-    let mut total = vec![0f64; c];
-    for block in &partial {
-        for (t, &v) in total.iter_mut().zip(block) {
-            *t += v;
-        }
-    }
-    total
-}
-
-/// `1 / √(σ² + ε)` per channel.
-fn inverse_std(variance: &[f32], epsilon: f64) -> Vec<f32> {
-    variance
-        .iter()
-        .map(|&v| 1.0 / (v + epsilon as f32).sqrt())
-        .collect()
-}
-
-/// Training batch norm of [rows, C]: (output, mean, biased variance). Two reading passes
-/// for the statistics (mean, then the centred squares) and one writing the output, where
-/// burn's generic form transposes the rows twice and makes about eight passes.
-fn batch_norm_rows_forward(
-    x: &FlexTensor,
-    gamma: &FlexTensor,
-    beta: &FlexTensor,
-    epsilon: f64,
-) -> (FlexTensor, FlexTensor, FlexTensor) {
-    let [rows, c] = dims2(x);
-    let data = values(x);
-    let (gamma, beta) = (values(gamma), values(beta));
-    assert_eq!((gamma.len(), beta.len()), (c, c), "γ and β per channel");
-    let n = rows.max(1) as f64;
-    let mean: Vec<f32> = column_sums(rows, c, |r, acc| {
-        for (a, &v) in acc.iter_mut().zip(&data[r * c..(r + 1) * c]) {
-            *a += v as f64;
-        }
-    })
-    .into_iter()
-    .map(|s| (s / n) as f32)
-    .collect();
-    let variance: Vec<f32> = column_sums(rows, c, |r, acc| {
-        for ((a, &v), &m) in acc.iter_mut().zip(&data[r * c..(r + 1) * c]).zip(&mean) {
-            let d = (v - m) as f64;
-            *a += d * d;
-        }
-    })
-    .into_iter()
-    .map(|s| (s / n) as f32)
-    .collect();
-    let scale: Vec<f32> = inverse_std(&variance, epsilon)
-        .iter()
-        .zip(gamma.iter())
-        .map(|(&s, &g)| s * g)
-        .collect();
-    let mut out = vec![0f32; rows * c];
-    if c > 0 {
-        out.par_chunks_mut(ROWS_PER_BLOCK * c)
-            .zip(data.par_chunks(ROWS_PER_BLOCK * c))
-            .for_each(|(dst, src)| {
-                for (d_row, s_row) in dst.chunks_exact_mut(c).zip(src.chunks_exact(c)) {
-                    for ((((o, &v), &m), &k), &b) in d_row
-                        .iter_mut()
-                        .zip(s_row)
-                        .zip(&mean)
-                        .zip(&scale)
-                        .zip(beta.iter())
-                    {
-                        *o = (v - m) * k + b;
-                    }
-                }
-            });
-    }
-    let vector = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [c]));
-    (flex_tensor(out, [rows, c]), vector(mean), vector(variance))
-}
-
-/// The training batch norm's gradients (x, γ, β) from the output's: with x̂ the
-/// normalised input, β' = Σ g, γ' = Σ g·x̂ and x' = γ/σ · (g − mean(g) − x̂·mean(g·x̂)).
-/// One reading pass for the sums, one writing x'.
-fn batch_norm_rows_backward(
-    x: &FlexTensor,
-    gamma: &[f32],
-    mean: &[f32],
-    variance: &[f32],
-    epsilon: f64,
-    grad: &FlexTensor,
-) -> (FlexTensor, FlexTensor, FlexTensor) {
-    let [rows, c] = dims2(x);
-    assert_eq!(dims2(grad), [rows, c], "a gradient per output");
-    let (data, g) = (values(x), values(grad));
-    let inv_std = inverse_std(variance, epsilon);
-    // Σ g and Σ g·x̂ per channel, side by side in one accumulator of 2C.
-    let sums = column_sums(rows, 2 * c, |r, acc| {
-        let (sum_g, sum_gx) = acc.split_at_mut(c);
-        let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
-        for ch in 0..c {
-            let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
-            sum_g[ch] += g_row[ch] as f64;
-            sum_gx[ch] += (g_row[ch] * x_hat) as f64;
-        }
-    });
-    let n = rows.max(1) as f64;
-    let mean_g: Vec<f32> = sums[..c].iter().map(|&s| (s / n) as f32).collect();
-    let mean_gx: Vec<f32> = sums[c..].iter().map(|&s| (s / n) as f32).collect();
-    let scale: Vec<f32> = gamma.iter().zip(&inv_std).map(|(&g, &s)| g * s).collect();
-    let mut dx = vec![0f32; rows * c];
-    if c > 0 {
-        dx.par_chunks_mut(ROWS_PER_BLOCK * c)
-            .enumerate()
-            .for_each(|(b, dst)| {
-                let first = b * ROWS_PER_BLOCK;
-                for (i, d_row) in dst.chunks_exact_mut(c).enumerate() {
-                    let r = first + i;
-                    let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
-                    for ch in 0..c {
-                        let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
-                        d_row[ch] = scale[ch] * ((g_row[ch] - mean_g[ch]) - x_hat * mean_gx[ch]);
-                    }
-                }
-            });
-    }
-    let vector = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [c]));
-    (
-        flex_tensor(dx, [rows, c]),
-        vector(sums[c..].iter().map(|&s| s as f32).collect()),
-        vector(sums[..c].iter().map(|&s| s as f32).collect()),
-    )
-}
-
 impl RaggedOps for Flex {
     fn runs_max(x: FlexTensor, runs: Arc<Runs>) -> FlexTensor {
         runs_max_forward(&x, &runs, false).0
@@ -604,15 +428,6 @@ impl RaggedOps for Flex {
         neighbours: Arc<Neighbours>,
     ) -> FlexTensor {
         neighbour_sum_forward(&per_point, &per_query, &distance, &w_d, &neighbours)
-    }
-
-    fn batch_norm_rows(
-        x: FlexTensor,
-        gamma: FlexTensor,
-        beta: FlexTensor,
-        epsilon: f64,
-    ) -> (FlexTensor, FlexTensor, FlexTensor) {
-        batch_norm_rows_forward(&x, &gamma, &beta, epsilon)
     }
 }
 
@@ -649,28 +464,6 @@ impl Backward<Flex, 3> for NeighbourSumBackward {
         for (parent, g) in ops.parents.into_iter().zip(out) {
             if let (Some(parent), Some(g)) = (parent, g) {
                 grads.register::<Flex>(parent.id, g);
-            }
-        }
-    }
-}
-
-/// The backward step of [`RaggedOps::batch_norm_rows`].
-#[derive(Debug)]
-struct BatchNormRowsBackward;
-
-impl Backward<Flex, 3> for BatchNormRowsBackward {
-    /// The input, γ, the batch mean and variance, ε.
-    type State = (FlexTensor, Arc<Vec<f32>>, Arc<Vec<f32>>, Arc<Vec<f32>>, f64);
-
-    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let (x, gamma, mean, variance, epsilon) = ops.state;
-        let grad = grads.consume::<Flex>(&ops.node);
-        let (dx, dgamma, dbeta) =
-            batch_norm_rows_backward(&x, &gamma, &mean, &variance, epsilon, &grad);
-        let [node_x, node_gamma, node_beta] = ops.parents;
-        for (node, g) in [(node_x, dx), (node_gamma, dgamma), (node_beta, dbeta)] {
-            if let Some(node) = node {
-                grads.register::<Flex>(node.id, g);
             }
         }
     }
@@ -720,32 +513,6 @@ impl<C: CheckpointStrategy> RaggedOps for Autodiff<Flex, C> {
             }
             OpsKind::UnTracked(prep) => prep.finish(out),
         }
-    }
-
-    fn batch_norm_rows(
-        x: FloatTensor<Self>,
-        gamma: FloatTensor<Self>,
-        beta: FloatTensor<Self>,
-        epsilon: f64,
-    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
-        let (x, a) = x.into_parts();
-        let (gamma, b) = gamma.into_parts();
-        let (beta, c) = beta.into_parts();
-        let (out, mean, variance) = batch_norm_rows_forward(&x, &gamma, &beta, epsilon);
-        let out = match BatchNormRowsBackward
-            .prepare::<C>([a, b, c])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => {
-                let host = |t: &FlexTensor| Arc::new(values(t).into_owned());
-                let state = (x, host(&gamma), host(&mean), host(&variance), epsilon);
-                prep.finish(state, out)
-            }
-            OpsKind::UnTracked(prep) => prep.finish(out),
-        };
-        // The statistics are constants (the running statistics' update detaches them).
-        (out, Self::from_inner(mean), Self::from_inner(variance))
     }
 }
 

@@ -1,6 +1,5 @@
-//! Training the voxel family with the custom flex operations (`fusiondet_nn::ragged`'s
-//! batch norm over rows, `fusiondet_nn::map_norm`'s over maps, `fusiondet_nn::conv2d`'s
-//! matrix-product weight gradient, `fusiondet_nn::sparse::fused`'s sparse convolution) against
+//! Training the voxel family with the custom flex operations (`fusiondet_nn::batch_norm_ops`'
+//! batch norms over rows and maps, `fusiondet_nn::conv2d`'s matrix-product weight gradient, `fusiondet_nn::sparse::fused`'s sparse convolution) against
 //! training with burn's generic operations, for the tiny Voxel R-CNN and DASANet
 //! configurations: the same loss curve within float tolerance, and the custom path
 //! bit-reproducible run to run.
