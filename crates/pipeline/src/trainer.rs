@@ -481,20 +481,26 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_diverged_loss_stops_the_run_at_its_last_committed_epoch() {
-        let dir = tempfile::tempdir().unwrap();
+    /// Options for `epochs` epochs of batch 1, the run directory under `dir`.
+    fn batch_of_one(dir: &Path, epochs: usize) -> (TrainOptions, ExperimentConfig) {
         let mut config = ExperimentConfig::default();
-        config.train.epochs = 3;
+        config.train.epochs = epochs;
         config.train.batch_size = 1;
         let options = TrainOptions {
             config: config.clone(),
-            data_dir: dir.path().join("data"),
-            run_dir: dir.path().join("run"),
+            data_dir: dir.join("data"),
+            run_dir: dir.join("run"),
             resume: false,
             progress: false,
             device: Default::default(),
         };
+        (options, config)
+    }
+
+    #[test]
+    fn a_diverged_loss_stops_the_run_at_its_last_committed_epoch() {
+        let dir = tempfile::tempdir().unwrap();
+        let (options, config) = batch_of_one(dir.path(), 3);
         let task = ScaledLoss::new(vec![vec![1.0, 1.0], vec![1.0, f32::NAN], vec![1.0, 1.0]]);
         let opened = open_run(&options, &config, |_| true).unwrap();
         let err = run_training(&task, &options, opened)
@@ -518,17 +524,7 @@ mod tests {
     #[test]
     fn steps_run_on_the_compute_pool() {
         let dir = tempfile::tempdir().unwrap();
-        let mut config = ExperimentConfig::default();
-        config.train.epochs = 1;
-        config.train.batch_size = 1;
-        let options = TrainOptions {
-            config: config.clone(),
-            data_dir: dir.path().join("data"),
-            run_dir: dir.path().join("run"),
-            resume: false,
-            progress: false,
-            device: Default::default(),
-        };
+        let (options, config) = batch_of_one(dir.path(), 1);
         let task = ScaledLoss::new(vec![vec![1.0, 2.0, 3.0]]);
         let opened = open_run(&options, &config, |_| true).unwrap();
         run_training(&task, &options, opened).unwrap();
