@@ -74,6 +74,7 @@ pub fn batch_norm_train<const D: usize>(
     )
 }
 
+/// (output, batch mean, batch variance) in `layout`.
 fn forward(
     x: &FlexTensor,
     gamma: &FlexTensor,
