@@ -15,7 +15,7 @@
 //! fused forward pass, `Autodiff<Flex>` adds the backward step; other devices (and the
 //! kernel-map layout) keep burn's operations ([`super::conv::SparseConv3d::forward`]).
 
-use super::rulebook::HostRules;
+use super::rulebook::{HostRules, RowPairs};
 use crate::ragged::values;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -26,6 +26,8 @@ use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::prelude::*;
+use rayon::prelude::*;
+use std::borrow::Cow;
 use std::sync::Arc;
 
 /// The custom operation (see the module's documentation).
@@ -64,17 +66,41 @@ fn gather_rows(data: &[f32], c: usize, rows: &[u32]) -> FlexTensor {
     matrix(out, [rows.len(), c])
 }
 
-/// `target[rows[i]] += source[i]` for every row i of the [rows.len(), c] `source`; the rows
-/// are distinct (one offset's pairs), so the order of the additions into a row is the order
-/// of the calls.
-fn scatter_add_rows(target: &mut [f32], c: usize, rows: &[u32], source: &FlexTensor) {
-    let source = values(source);
-    for (i, &r) in rows.iter().enumerate() {
-        let dst = &mut target[r as usize * c..][..c];
-        for (d, &s) in dst.iter_mut().zip(&source[i * c..][..c]) {
-            *d += s;
-        }
+/// Rows handed to one task when a row-wise sum is split over threads.
+const ROWS_PER_TASK: usize = 256;
+
+/// Adds into each [c]-row r of `target` first `first[r]` (where given), then row p of
+/// `products[j]` for every (j, p) that `rows` lists for r, in that order: the order of an
+/// offset-by-offset loop, so the sums are the same to the bit however the rows are split
+/// over threads.
+fn add_rows(
+    target: &mut [f32],
+    c: usize,
+    first: Option<&[f32]>,
+    rows: &RowPairs,
+    products: &[Cow<'_, [f32]>],
+) {
+    if c == 0 {
+        return;
     }
+    target
+        .par_chunks_mut(c * ROWS_PER_TASK)
+        .enumerate()
+        .for_each(|(task, chunk)| {
+            for (i, dst) in chunk.chunks_exact_mut(c).enumerate() {
+                let row = task * ROWS_PER_TASK + i;
+                let sources = first.map(|f| &f[row * c..][..c]).into_iter().chain(
+                    rows.of(row)
+                        .iter()
+                        .map(|&(j, p)| &products[j as usize][p as usize * c..][..c]),
+                );
+                for src in sources {
+                    for (d, &s) in dst.iter_mut().zip(src) {
+                        *d += s;
+                    }
+                }
+            }
+        });
 }
 
 /// Offset k's [C_in, C_out] slice of the weight.
@@ -91,8 +117,9 @@ fn weight_dims(weight: &FlexTensor) -> [usize; 3] {
     [shape[0], shape[1], shape[2]]
 }
 
-/// The forward pass: the centre offset's product (or zeros), then each other offset's
-/// gathered product added into its output rows, offset by offset.
+/// The forward pass: each offset's gathered product (offsets in parallel), then per output
+/// row the centre offset's product (or zero) plus the other offsets' products in offset
+/// order (rows in parallel).
 fn forward(features: &FlexTensor, weight: &FlexTensor, rules: &HostRules) -> FlexTensor {
     let [_, c_in, c_out] = weight_dims(weight);
     let (x, w) = (values(features), values(weight));
@@ -101,23 +128,36 @@ fn forward(features: &FlexTensor, weight: &FlexTensor, rules: &HostRules) -> Fle
         rules.input_rows * c_in,
         "features on the input sites"
     );
-    let mut out = match rules.identity_offset {
-        Some(k) => {
-            let product = Flex::float_matmul(features.clone(), offset_weight(&w, k, [c_in, c_out]));
-            values(&product).into_owned()
-        }
+    let (centre, products) = rayon::join(
+        || {
+            rules
+                .identity_offset
+                .map(|k| Flex::float_matmul(features.clone(), offset_weight(&w, k, [c_in, c_out])))
+        },
+        || {
+            rules
+                .rules
+                .par_iter()
+                .map(|(k, input, _)| {
+                    let gathered = gather_rows(&x, c_in, input);
+                    Flex::float_matmul(gathered, offset_weight(&w, *k, [c_in, c_out]))
+                })
+                .collect::<Vec<_>>()
+        },
+    );
+    let mut out = match centre {
+        Some(product) => values(&product).into_owned(),
         None => vec![0f32; rules.output_rows * c_out],
     };
-    for (k, input, output) in &rules.rules {
-        let gathered = gather_rows(&x, c_in, input);
-        let product = Flex::float_matmul(gathered, offset_weight(&w, *k, [c_in, c_out]));
-        scatter_add_rows(&mut out, c_out, output, &product);
-    }
+    let products: Vec<_> = products.iter().map(values).collect();
+    add_rows(&mut out, c_out, None, &rules.by_output, &products);
     matrix(out, [rules.output_rows, c_out])
 }
 
-/// The backward pass: (input gradient, weight gradient), each where asked for. Per offset,
-/// dW_k = x[inputs]ᵀ · g[outputs] and dx[inputs] += g[outputs] · W_kᵀ.
+/// The backward pass: (input gradient, weight gradient), each where asked for. Per offset
+/// (offsets in parallel), dW_k = x[inputs]ᵀ · g[outputs] and g[outputs] · W_kᵀ; then per
+/// input row (rows in parallel) dx[i] = the centre offset's g · W_kᵀ plus the other
+/// offsets' rows for i, in offset order.
 fn backward(
     features: &FlexTensor,
     weight: &FlexTensor,
@@ -127,35 +167,61 @@ fn backward(
 ) -> (Option<FlexTensor>, Option<FlexTensor>) {
     let dims @ [volume, c_in, c_out] = weight_dims(weight);
     let (x, w, g) = (values(features), values(weight), values(grad));
-    let mut dx = want_x.then(|| vec![0f32; rules.input_rows * c_in]);
-    let mut dw = want_w.then(|| vec![0f32; volume * c_in * c_out]);
     let transposed = |t: FlexTensor| Flex::float_swap_dims(t, 0, 1);
-    let mut accumulate = |k: usize, x_rows: FlexTensor, g_rows: FlexTensor, input: &[u32]| {
-        if let Some(dw) = dw.as_mut() {
-            let product = Flex::float_matmul(transposed(x_rows), g_rows.clone());
-            dw[k * c_in * c_out..][..c_in * c_out].copy_from_slice(&values(&product));
-        }
-        if let Some(dx) = dx.as_mut() {
-            let w_k = transposed(offset_weight(&w, k, [c_in, c_out]));
-            scatter_add_rows(dx, c_in, input, &Flex::float_matmul(g_rows, w_k));
-        }
+    // (dW_k, g[outputs] · W_kᵀ) of one offset.
+    let offset_grads = |k: usize, x_rows: FlexTensor, g_rows: FlexTensor| {
+        let dw_k = want_w.then(|| Flex::float_matmul(transposed(x_rows), g_rows.clone()));
+        let dx_k = want_x
+            .then(|| Flex::float_matmul(g_rows, transposed(offset_weight(&w, k, [c_in, c_out]))));
+        (dw_k, dx_k)
     };
-    if let Some(k) = rules.identity_offset {
-        let all: Vec<u32> = (0..rules.input_rows as u32).collect();
-        accumulate(k, features.clone(), grad.clone(), &all);
-    }
-    for (k, input, output) in &rules.rules {
-        accumulate(
-            *k,
-            gather_rows(&x, c_in, input),
-            gather_rows(&g, c_out, output),
-            input,
+    let (centre, others) = rayon::join(
+        || {
+            rules
+                .identity_offset
+                .map(|k| (k, offset_grads(k, features.clone(), grad.clone())))
+        },
+        || {
+            rules
+                .rules
+                .par_iter()
+                .map(|(k, input, output)| {
+                    let x_rows = gather_rows(&x, c_in, input);
+                    let g_rows = gather_rows(&g, c_out, output);
+                    offset_grads(*k, x_rows, g_rows)
+                })
+                .collect::<Vec<_>>()
+        },
+    );
+    let dw = want_w.then(|| {
+        let mut dw = vec![0f32; volume * c_in * c_out];
+        let offsets = centre.iter().map(|(k, (dw_k, _))| (*k, dw_k));
+        let offsets = offsets.chain(
+            rules
+                .rules
+                .iter()
+                .zip(&others)
+                .map(|((k, ..), (dw_k, _))| (*k, dw_k)),
         );
-    }
-    (
-        dx.map(|dx| matrix(dx, [rules.input_rows, c_in])),
-        dw.map(|dw| FlexTensor::from_data(TensorData::new(dw, dims))),
-    )
+        for (k, dw_k) in offsets {
+            let dw_k = dw_k.as_ref().expect("weight gradients asked for");
+            dw[k * c_in * c_out..][..c_in * c_out].copy_from_slice(&values(dw_k));
+        }
+        FlexTensor::from_data(TensorData::new(dw, dims))
+    });
+    let dx = want_x.then(|| {
+        let mut dx = vec![0f32; rules.input_rows * c_in];
+        let centre = centre
+            .as_ref()
+            .map(|(_, (_, dx_k))| values(dx_k.as_ref().expect("input gradients asked for")));
+        let products: Vec<_> = others
+            .iter()
+            .map(|(_, dx_k)| values(dx_k.as_ref().expect("input gradients asked for")))
+            .collect();
+        add_rows(&mut dx, c_in, centre.as_deref(), &rules.by_input, &products);
+        matrix(dx, [rules.input_rows, c_in])
+    });
+    (dx, dw)
 }
 
 impl SparseConvOps for Flex {
@@ -275,6 +341,15 @@ mod tests {
                 [4, 2],
             ),
             ([9, 9, 9], 5, ConvGeometry::same([3; 3]), true, [2, 3]),
+            // More rows than one task's share: sums split over threads.
+            ([10, 14, 14], 1200, ConvGeometry::same([3; 3]), true, [3, 2]),
+            (
+                [10, 14, 14],
+                1200,
+                ConvGeometry::strided([3; 3], [2; 3], [1; 3]),
+                false,
+                [2, 3],
+            ),
         ];
         for (case, (shape, count, geometry, submanifold, [c_in, c_out])) in
             cases.into_iter().enumerate()

@@ -17,5 +17,7 @@ pub mod sites;
 
 pub use conv::{SparseConv3d, SparseConvBlock};
 pub use dense::to_dense_bev;
-pub use rulebook::{ConvGeometry, HostRules, OffsetRule, RuleGather, RuleLayout, Rulebook};
+pub use rulebook::{
+    ConvGeometry, HostRules, OffsetRule, RowPairs, RuleGather, RuleLayout, Rulebook,
+};
 pub use sites::{SitesError, SparseSites};

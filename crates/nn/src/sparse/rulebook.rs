@@ -133,6 +133,72 @@ pub struct HostRules {
     /// (offset, input rows, output rows) of the other offsets that have pairs, in offset
     /// order; within one offset no input row and no output row repeats.
     pub rules: Vec<(usize, Vec<u32>, Vec<u32>)>,
+    /// The pairs of `rules` by output row (the forward pass's additions).
+    pub by_output: RowPairs,
+    /// The pairs of `rules` by input row (the input gradient's additions).
+    pub by_input: RowPairs,
+}
+
+impl HostRules {
+    pub fn new(
+        input_rows: usize,
+        output_rows: usize,
+        identity_offset: Option<usize>,
+        rules: Vec<(usize, Vec<u32>, Vec<u32>)>,
+    ) -> HostRules {
+        let by_output = RowPairs::new(output_rows, rules.iter().map(|(_, _, o)| o.as_slice()));
+        let by_input = RowPairs::new(input_rows, rules.iter().map(|(_, i, _)| i.as_slice()));
+        HostRules {
+            input_rows,
+            output_rows,
+            identity_offset,
+            rules,
+            by_output,
+            by_input,
+        }
+    }
+}
+
+/// For every row of one side of a rulebook, the pairs that touch it as (rule, pair)
+/// indices, in rule order (compressed rows). With it the additions of all offsets into one
+/// row run in one task in the order a loop over the offsets takes, so rows can be split
+/// over threads and the sums stay the same to the bit.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RowPairs {
+    /// [rows + 1]: row r's entries are `entries[starts[r]..starts[r + 1]]`.
+    starts: Vec<usize>,
+    /// (index into the rules, index of the pair within its rule).
+    entries: Vec<(u32, u32)>,
+}
+
+impl RowPairs {
+    /// From each rule's list of rows (the rows of one side of its pairs), in rule order.
+    pub fn new<'a>(rows: usize, lists: impl Iterator<Item = &'a [u32]> + Clone) -> RowPairs {
+        let mut starts = vec![0usize; rows + 1];
+        for list in lists.clone() {
+            for &r in list {
+                starts[r as usize + 1] += 1;
+            }
+        }
+        for r in 0..rows {
+            starts[r + 1] += starts[r];
+        }
+        let mut next = starts[..rows].to_vec();
+        let mut entries = vec![(0u32, 0u32); starts[rows]];
+        for (j, list) in lists.enumerate() {
+            for (p, &r) in list.iter().enumerate() {
+                let at = &mut next[r as usize];
+                entries[*at] = (j as u32, p as u32);
+                *at += 1;
+            }
+        }
+        RowPairs { starts, entries }
+    }
+
+    /// Row `row`'s (rule, pair) entries, in rule order.
+    pub fn of(&self, row: usize) -> &[(u32, u32)] {
+        &self.entries[self.starts[row]..self.starts[row + 1]]
+    }
 }
 
 /// A rulebook's pairs on the device, in one [`RuleLayout`].
@@ -345,15 +411,15 @@ fn gather(
                 .filter(|(_, input, _)| !input.is_empty())
                 .collect();
             let host_rows = |rows: &[i64]| rows.iter().map(|&r| r as u32).collect::<Vec<u32>>();
-            let host = HostRules {
+            let host = HostRules::new(
                 input_rows,
                 output_rows,
-                identity_offset: identity,
-                rules: pairs
+                identity,
+                pairs
                     .iter()
                     .map(|(offset, input, output)| (*offset, host_rows(input), host_rows(output)))
                     .collect(),
-            };
+            );
             RuleGather::PerOffset {
                 identity_offset: identity,
                 rules: pairs
@@ -394,6 +460,19 @@ fn gather(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each row's entries are the pairs that touch it, in rule order; rows no pair
+    /// touches have none.
+    #[test]
+    fn row_pairs_list_each_rows_pairs_in_rule_order() {
+        let lists: [&[u32]; 3] = [&[2, 0], &[0, 3], &[3]];
+        let by_row = RowPairs::new(5, lists.iter().copied());
+        assert_eq!(by_row.of(0), &[(0, 1), (1, 0)]);
+        assert_eq!(by_row.of(1), &[] as &[(u32, u32)]);
+        assert_eq!(by_row.of(2), &[(0, 0)]);
+        assert_eq!(by_row.of(3), &[(1, 1), (2, 0)]);
+        assert_eq!(by_row.of(4), &[] as &[(u32, u32)]);
+    }
 
     fn rows(t: &Tensor<1, Int>) -> Vec<i64> {
         t.clone()
