@@ -1,7 +1,7 @@
 //! Training's ragged operations as custom backend operations on the flex CPU device, each
 //! with its own backward pass: the max over runs of rows that keeps its winning row
-//! (backward scatters the gradient to it), and LFA's neighbour sum (gather + add, backward
-//! the transposed gather).
+//! (backward scatters the gradient to it), LFA's neighbour sum (gather + add, backward
+//! the transposed gather), and the gather + add of Voxel R-CNN's RoI grid pooling.
 //!
 //! Why: burn's generic form of these costs several passes over memory each way. The ragged
 //! max-pool gathered every segment into a power-of-two window ([segments · width, C], up to
@@ -173,6 +173,14 @@ pub trait RaggedOps: Backend {
         w_d: FloatTensor<Self>,
         neighbours: Arc<Neighbours>,
     ) -> FloatTensor<Self>;
+
+    /// `y[r] = table[nb(r)] + per_row[r]`, [M·K, C], from table [N, C] and per_row
+    /// [M·K, C]: the gather and addition of Voxel R-CNN's RoI grid pooling.
+    fn gather_add(
+        table: FloatTensor<Self>,
+        per_row: FloatTensor<Self>,
+        neighbours: Arc<Neighbours>,
+    ) -> FloatTensor<Self>;
 }
 
 /// [`RaggedOps::runs_max`] on a `Tensor<2>` on the flex device (see [`custom_path`]).
@@ -196,6 +204,15 @@ pub fn neighbour_sum(
         per_query.into_dispatch(),
         distance.into_dispatch(),
         w_d.into_dispatch(),
+        Arc::clone(neighbours),
+    ))
+}
+
+/// [`RaggedOps::gather_add`] on tensors on the flex device (see [`custom_path`]).
+pub fn gather_add(table: Tensor<2>, per_row: Tensor<2>, neighbours: &Arc<Neighbours>) -> Tensor<2> {
+    Tensor::from_dispatch(<Dispatch as RaggedOps>::gather_add(
+        table.into_dispatch(),
+        per_row.into_dispatch(),
         Arc::clone(neighbours),
     ))
 }
@@ -349,6 +366,51 @@ fn neighbour_sum_forward(
     flex_tensor(y, [m * k, c])
 }
 
+/// Per point, the sum of the [·, c] rows of `g` that read it (in row order, from zero):
+/// the gradient of a gather, [points, c].
+fn reader_sums(g: &[f32], c: usize, nb: &Neighbours) -> FlexTensor {
+    let mut out = vec![0f32; nb.points * c];
+    if c > 0 {
+        out.par_chunks_mut(c).enumerate().for_each(|(p, dst)| {
+            let readers = &nb.readers[nb.reader_start[p] as usize..nb.reader_start[p + 1] as usize];
+            for &r in readers {
+                let r = r as usize;
+                for (o, &v) in dst.iter_mut().zip(&g[r * c..(r + 1) * c]) {
+                    *o += v;
+                }
+            }
+        });
+    }
+    flex_tensor(out, [nb.points, c])
+}
+
+fn gather_add_forward(table: &FlexTensor, per_row: &FlexTensor, nb: &Neighbours) -> FlexTensor {
+    let [n, c] = dims2(table);
+    let [rows, c_rows] = dims2(per_row);
+    assert_eq!(n, nb.points, "table rows");
+    assert_eq!(rows, nb.neighbours.len(), "a per-row term per gathered row");
+    assert_eq!(c, c_rows, "channels");
+    let (t, pr) = (values(table), values(per_row));
+    let mut y = vec![0f32; rows * c];
+    if c > 0 {
+        y.par_chunks_mut(c * ROWS_PER_TASK)
+            .enumerate()
+            .for_each(|(task, chunk)| {
+                for (i, dst) in chunk.chunks_exact_mut(c).enumerate() {
+                    let r = task * ROWS_PER_TASK + i;
+                    let src = &t[nb.neighbours[r] as usize * c..][..c];
+                    for ((o, &a), &b) in dst.iter_mut().zip(src).zip(&pr[r * c..][..c]) {
+                        *o = a + b;
+                    }
+                }
+            });
+    }
+    flex_tensor(y, [rows, c])
+}
+
+/// Rows handed to one task by the row-parallel loops.
+const ROWS_PER_TASK: usize = 256;
+
 /// The neighbour sum's input gradients from `grad` ([M·K, C]): per point the sum of its
 /// readers' rows (in row order), per query the sum over its K rows, and w_d's the
 /// distance-weighted sum over all rows.
@@ -362,22 +424,7 @@ fn neighbour_sum_backward(
     let (m, k) = (nb.queries(), nb.k);
     assert_eq!(rows, m * k, "a gradient row per neighbour");
     let g = values(grad);
-    let per_point = need[0].then(|| {
-        let mut out = vec![0f32; nb.points * c];
-        if c > 0 {
-            out.par_chunks_mut(c).enumerate().for_each(|(p, dst)| {
-                let readers =
-                    &nb.readers[nb.reader_start[p] as usize..nb.reader_start[p + 1] as usize];
-                for &r in readers {
-                    let r = r as usize;
-                    for (o, &v) in dst.iter_mut().zip(&g[r * c..(r + 1) * c]) {
-                        *o += v;
-                    }
-                }
-            });
-        }
-        flex_tensor(out, [nb.points, c])
-    });
+    let per_point = need[0].then(|| reader_sums(&g, c, nb));
     let per_query = need[1].then(|| {
         let mut out = vec![0f32; m * c];
         if c > 0 {
@@ -428,6 +475,36 @@ impl RaggedOps for Flex {
         neighbours: Arc<Neighbours>,
     ) -> FlexTensor {
         neighbour_sum_forward(&per_point, &per_query, &distance, &w_d, &neighbours)
+    }
+
+    fn gather_add(
+        table: FlexTensor,
+        per_row: FlexTensor,
+        neighbours: Arc<Neighbours>,
+    ) -> FlexTensor {
+        gather_add_forward(&table, &per_row, &neighbours)
+    }
+}
+
+/// The backward step of [`RaggedOps::gather_add`]: the table's gradient sums each row's
+/// readers; the per-row term's is the output gradient.
+#[derive(Debug)]
+struct GatherAddBackward;
+
+impl Backward<Flex, 2> for GatherAddBackward {
+    type State = Arc<Neighbours>;
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let neighbours = ops.state;
+        let grad = grads.consume::<Flex>(&ops.node);
+        let [table, per_row] = ops.parents;
+        if let Some(table) = table {
+            let [_, c] = dims2(&grad);
+            grads.register::<Flex>(table.id, reader_sums(&values(&grad), c, &neighbours));
+        }
+        if let Some(per_row) = per_row {
+            grads.register::<Flex>(per_row.id, grad);
+        }
     }
 }
 
@@ -511,6 +588,24 @@ impl<C: CheckpointStrategy> RaggedOps for Autodiff<Flex, C> {
                 let distance = Arc::new(values(&distance).into_owned());
                 prep.finish((distance, neighbours), out)
             }
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        }
+    }
+
+    fn gather_add(
+        table: FloatTensor<Self>,
+        per_row: FloatTensor<Self>,
+        neighbours: Arc<Neighbours>,
+    ) -> FloatTensor<Self> {
+        let (table, a) = table.into_parts();
+        let (per_row, b) = per_row.into_parts();
+        let out = gather_add_forward(&table, &per_row, &neighbours);
+        match GatherAddBackward
+            .prepare::<C>([a, b])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish(neighbours, out),
             OpsKind::UnTracked(prep) => prep.finish(out),
         }
     }
@@ -758,6 +853,52 @@ mod tests {
             bits_of(&plain.try_into_vec_as::<f32>().unwrap()),
             bits_of(&custom.0)
         );
+    }
+
+    /// The gather + add against burn's `select` and `+`: values and both gradients the
+    /// same to the bit, over more rows than one task's share, with table rows nobody reads.
+    #[test]
+    fn gather_add_matches_select_and_add_to_the_bit() {
+        let (n, m, k, c) = (40, 130, 4, 5);
+        let nb: Vec<u32> = (0..m * k).map(|r| ((r * 7) % (n - 3)) as u32).collect();
+        let neighbours = Arc::new(Neighbours::new(nb.clone(), k, n));
+        let table = tied(n * c, 2);
+        let per_row: Vec<f32> = (0..m * k * c)
+            .map(|i| (i % 11) as f32 * 0.3 - 1.4)
+            .collect();
+        let run = |custom: bool| {
+            let device = Device::flex().autodiff();
+            let t = tensor(&table, [n, c], &device).require_grad();
+            let r = tensor(&per_row, [m * k, c], &device).require_grad();
+            let y = if custom {
+                gather_add(t.clone(), r.clone(), &neighbours)
+            } else {
+                let rows: Vec<i64> = nb.iter().map(|&r| r as i64).collect();
+                let index = Tensor::<1, Int>::from_data(TensorData::new(rows, [m * k]), &device);
+                t.clone().select(0, index) + r.clone()
+            };
+            let grads = (y.clone() * weights(m * k, c, &device)).sum().backward();
+            let grad = |x: &Tensor<2>| x.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap();
+            [y.try_into_vec_as::<f32>().unwrap(), grad(&t), grad(&r)].map(|v| bits_of(&v))
+        };
+        let (custom, generic) = (run(true), run(false));
+        for (name, a, b) in ["values", "table gradient", "per-row gradient"]
+            .into_iter()
+            .zip(&custom)
+            .zip(&generic)
+            .map(|((name, a), b)| (name, a, b))
+        {
+            assert_eq!(a, b, "{name}");
+        }
+        // The last three table rows are read by nobody: zero gradient.
+        assert!(custom[1][(n - 3) * c..].iter().all(|&g| g == 0));
+        let device = Device::flex();
+        let plain = gather_add(
+            tensor(&table, [n, c], &device),
+            tensor(&per_row, [m * k, c], &device),
+            &neighbours,
+        );
+        assert_eq!(bits_of(&plain.try_into_vec_as::<f32>().unwrap()), custom[0]);
     }
 
     fn bits_of(v: &[f32]) -> Vec<u32> {

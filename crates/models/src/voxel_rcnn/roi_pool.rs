@@ -14,9 +14,11 @@ use super::config::{HEAD_NORM, PoolLevelConfig, RoiHeadConfig};
 use burn::nn::{BatchNorm, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+use fusiondet_nn::ragged::{self, Neighbours, Runs};
 use fusiondet_nn::sparse::SparseSites;
 use fusiondet_nn::{batch_norm, norm_rows};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// A RoI in the LiDAR frame: centre (x, y, z), sizes (dx, dy, dz), heading about +z.
 pub type RoiBox = [f64; 7];
@@ -299,20 +301,31 @@ impl RoiGridPool {
             let [_, mid] = features.dims();
             // The appended zero row is what an empty neighbourhood gathers.
             let features = Tensor::cat(vec![features, Tensor::zeros([1, mid], &device)], 0);
-            let rows = Tensor::<1, Int>::from_data(
-                TensorData::new(level.rows.clone(), [points * s]),
-                &device,
-            );
-            let gathered = features.select(0, rows);
             let offsets = Tensor::<2>::from_data(
                 TensorData::new(level.offsets.clone(), [points * s, 3]),
                 &device,
             );
             let positions = layer.positions.forward(offsets);
-            let summed = relu(gathered + positions)
-                .reshape([points, s, mid])
-                .max_dim(1)
-                .reshape([points, mid]);
+            let summed = if ragged::custom_path(&features) {
+                // One pass each way for the gather + add and for the max (the same values
+                // and gradients as burn's operations below, to the bit).
+                let rows = level.rows.iter().map(|&r| r as u32).collect();
+                let neighbours = Arc::new(Neighbours::new(rows, s, level.sentinel as usize + 1));
+                let runs = Arc::new(Runs::blocks(points, s));
+                ragged::runs_max(
+                    relu(ragged::gather_add(features, positions, &neighbours)),
+                    &runs,
+                )
+            } else {
+                let rows = Tensor::<1, Int>::from_data(
+                    TensorData::new(level.rows.clone(), [points * s]),
+                    &device,
+                );
+                relu(features.select(0, rows) + positions)
+                    .reshape([points, s, mid])
+                    .max_dim(1)
+                    .reshape([points, mid])
+            };
             pooled.push(relu(layer.out.forward(summed)));
         }
         let grid = Tensor::cat(pooled, 1);
