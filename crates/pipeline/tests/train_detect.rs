@@ -17,13 +17,7 @@ fn dataset() -> &'static Path {
     static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
     DIR.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
-        let opts = fusiondet_sim::DatasetOptions {
-            out: dir.path().join("sim"),
-            frames: 12,
-            seed: 5,
-            force: false,
-            config: fusiondet_sim::SimConfig::default(),
-        };
+        let opts = fusiondet_sim::DatasetOptions::new(dir.path().join("sim"), 12, 5);
         fusiondet_sim::write_dataset(&opts, &|_, _| {}).unwrap();
         dir
     })

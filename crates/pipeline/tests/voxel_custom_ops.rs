@@ -43,17 +43,8 @@ fn train_losses(
 fn custom_operations_keep_the_voxel_loss_curves_and_reproduce_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("sim");
-    fusiondet_sim::write_dataset(
-        &fusiondet_sim::DatasetOptions {
-            out: data.clone(),
-            frames: 8,
-            seed: 5,
-            force: false,
-            config: fusiondet_sim::SimConfig::default(),
-        },
-        &|_, _| {},
-    )
-    .unwrap();
+    fusiondet_sim::write_dataset(&fusiondet_sim::DatasetOptions::new(&data, 8, 5), &|_, _| {})
+        .unwrap();
     let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
     for name in ["tiny-voxel-rcnn", "tiny-dasanet"] {
         let mut config =

@@ -13,17 +13,8 @@ use std::path::Path;
 fn the_tiny_configuration_overfits_four_frames() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("sim");
-    fusiondet_sim::write_dataset(
-        &fusiondet_sim::DatasetOptions {
-            out: data.clone(),
-            frames: 8,
-            seed: 3,
-            force: false,
-            config: fusiondet_sim::SimConfig::default(),
-        },
-        &|_, _| {},
-    )
-    .unwrap();
+    fusiondet_sim::write_dataset(&fusiondet_sim::DatasetOptions::new(&data, 8, 3), &|_, _| {})
+        .unwrap();
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/tiny-voxel-rcnn.toml");
     let mut config = ExperimentConfig::from_file(&path).unwrap();
     config.train.epochs = 100;

@@ -58,6 +58,20 @@ pub struct DatasetOptions {
     pub config: SimConfig,
 }
 
+impl DatasetOptions {
+    /// `frames` frames of the default scenes from `seed` into `out`, which must be new or
+    /// empty.
+    pub fn new(out: impl Into<PathBuf>, frames: usize, seed: u64) -> DatasetOptions {
+        DatasetOptions {
+            out: out.into(),
+            frames,
+            seed,
+            force: false,
+            config: SimConfig::default(),
+        }
+    }
+}
+
 pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SimError + '_ {
     move |cause| SimError::Io {
         path: path.to_path_buf(),
@@ -337,13 +351,7 @@ mod tests {
     use super::*;
 
     fn opts(out: &Path, frames: usize) -> DatasetOptions {
-        DatasetOptions {
-            out: out.to_path_buf(),
-            frames,
-            seed: 1,
-            force: false,
-            config: SimConfig::default(),
-        }
+        DatasetOptions::new(out, frames, 1)
     }
 
     #[test]

@@ -325,13 +325,7 @@ pub fn run(args: &DemoOptions) -> anyhow::Result<()> {
     let t = Instant::now();
     let sim = out.join("sim");
     let stats = fusiondet_sim::write_dataset(
-        &fusiondet_sim::DatasetOptions {
-            out: sim.clone(),
-            frames: args.frames,
-            seed: args.seed,
-            force: false,
-            config: fusiondet_sim::SimConfig::default(),
-        },
+        &fusiondet_sim::DatasetOptions::new(&sim, args.frames, args.seed),
         &|_, _| {},
     )?;
     outln!(
