@@ -629,6 +629,22 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("0 epoch(s) run"), "{}", text(&o));
     assert!(saf.join("model.bpk").is_file());
+    // Each row's detections are kept where its checkpoint is byte for byte the one they
+    // came from (SAF's retraining from the same seed wrote the same bytes), with the
+    // same scores.
+    assert_eq!(
+        text(&o)
+            .matches("detections of this checkpoint kept")
+            .count(),
+        4,
+        "{}",
+        text(&o)
+    );
+    let rerun: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("ablation.json")).unwrap()).unwrap();
+    for (a, b) in rows.iter().zip(rerun["configurations"].as_array().unwrap()) {
+        assert_eq!(a["results"], b["results"], "{}: the same AP", a["name"]);
+    }
 
     // The same trained models as rows without training (`--models`): each finds its
     // configuration in its run (the refinement its own first stage) and scores what the

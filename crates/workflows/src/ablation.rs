@@ -5,7 +5,8 @@
 //!
 //! Each training runs in its own `fusiondet train` process: a training is bit-reproducible
 //! in a process of its own (two in one process share rayon's pool), and a finished run is
-//! resumed rather than repeated, so an interrupted ablation continues where it stopped.
+//! resumed rather than repeated, and a row whose checkpoint was already detected keeps its
+//! result files, so an interrupted ablation continues where it stopped.
 
 use crate::{out, outln};
 use anyhow::{Context, bail};
@@ -359,23 +360,51 @@ fn evaluate_row(
         checkpoint,
         results,
     } = *row;
-    if results.exists() {
-        std::fs::remove_dir_all(results)
-            .with_context(|| format!("{}: cannot clear", results.display()))?;
-    }
-    let summary = detect(&DetectOptions {
-        device: args.device,
-        config: trained.clone(),
-        checkpoint: checkpoint.to_path_buf(),
-        data_dir: args.data.clone(),
-        split: "val".into(),
-        out_dir: results.to_path_buf(),
-        detections: None,
-        depth_dir: None,
-        replace: true,
-        shard: None,
-    })?;
-    let frames_per_second = frames_per_second(summary.frames, &summary.timing);
+    let fingerprint = Fingerprint::of(checkpoint)?;
+    let marker = Detected::marker(results);
+    let kept = Detected::read(&marker)
+        .filter(|d| d.checkpoint == fingerprint && d.frames == ids.len() && results.is_dir());
+    let detected = match kept {
+        Some(detected) => {
+            eprintln!(
+                "== {name}: detections of this checkpoint kept from an earlier run ({})",
+                results.display()
+            );
+            detected
+        }
+        None => {
+            // The marker goes first: results being replaced are never taken as finished.
+            for stale in [&marker, results] {
+                let removed = match std::fs::metadata(stale) {
+                    Ok(m) if m.is_dir() => std::fs::remove_dir_all(stale),
+                    Ok(_) => std::fs::remove_file(stale),
+                    Err(_) => Ok(()),
+                };
+                removed.with_context(|| format!("{}: cannot clear", stale.display()))?;
+            }
+            let summary = detect(&DetectOptions {
+                device: args.device,
+                config: trained.clone(),
+                checkpoint: checkpoint.to_path_buf(),
+                data_dir: args.data.clone(),
+                split: "val".into(),
+                out_dir: results.to_path_buf(),
+                detections: None,
+                depth_dir: None,
+                replace: true,
+                shard: None,
+            })?;
+            let detected = Detected {
+                checkpoint: fingerprint,
+                frames: summary.frames,
+                boxes: summary.boxes_written,
+                frames_per_second: frames_per_second(summary.frames, &summary.timing),
+            };
+            detected.write(&marker)?;
+            detected
+        }
+    };
+    let frames_per_second = detected.frames_per_second;
     let eval_config = EvalConfig {
         classes: trained.frustum.kitti_classes(),
         ..Default::default()
@@ -395,7 +424,7 @@ fn evaluate_row(
     let multiply_adds = inference_multiply_adds(trained)?;
     eprintln!(
         "== {name}: {} frames, {} boxes, {frames_per_second:.1} frames/s, {params} parameters",
-        summary.frames, summary.boxes_written
+        detected.frames, detected.boxes
     );
     Ok(Entry {
         name: name.to_string(),
@@ -405,4 +434,104 @@ fn evaluate_row(
         multiply_adds,
         frames_per_second,
     })
+}
+
+/// A checkpoint's identity: its length and the CRC-32 of its bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Fingerprint {
+    bytes: u64,
+    crc32: u32,
+}
+
+impl Fingerprint {
+    fn of(checkpoint: &Path) -> anyhow::Result<Fingerprint> {
+        let data = std::fs::read(checkpoint)
+            .with_context(|| format!("{}: cannot read the checkpoint", checkpoint.display()))?;
+        Ok(Fingerprint {
+            bytes: data.len() as u64,
+            crc32: crc32fast::hash(&data),
+        })
+    }
+}
+
+/// A row's finished detection on the val split, recorded beside its result files
+/// (`<results>.detected`) so that a resumed ablation keeps the detections of a checkpoint
+/// it has already run (and the speed measured then) instead of detecting again. One line:
+/// `<checkpoint bytes> <checkpoint CRC-32> <frames> <boxes> <frames/s>`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Detected {
+    checkpoint: Fingerprint,
+    frames: usize,
+    boxes: usize,
+    frames_per_second: f64,
+}
+
+impl Detected {
+    fn marker(results: &Path) -> PathBuf {
+        let mut name = results.as_os_str().to_owned();
+        name.push(".detected");
+        PathBuf::from(name)
+    }
+
+    /// The record at `marker`; `None` where there is none or it does not parse (then the
+    /// row is detected again).
+    fn read(marker: &Path) -> Option<Detected> {
+        let text = std::fs::read_to_string(marker).ok()?;
+        let fields: Vec<&str> = text.split_whitespace().collect();
+        let [bytes, crc32, frames, boxes, fps] = fields[..] else {
+            return None;
+        };
+        Some(Detected {
+            checkpoint: Fingerprint {
+                bytes: bytes.parse().ok()?,
+                crc32: crc32.parse().ok()?,
+            },
+            frames: frames.parse().ok()?,
+            boxes: boxes.parse().ok()?,
+            frames_per_second: fps.parse().ok()?,
+        })
+    }
+
+    fn write(&self, marker: &Path) -> anyhow::Result<()> {
+        let line = format!(
+            "{} {} {} {} {}\n",
+            self.checkpoint.bytes,
+            self.checkpoint.crc32,
+            self.frames,
+            self.boxes,
+            self.frames_per_second
+        );
+        fusiondet_kitti::write_atomic(marker, line.as_bytes())
+            .with_context(|| format!("{}: cannot record the detection", marker.display()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A record reads back as written; a torn or foreign one reads as none.
+    #[test]
+    fn detection_records_round_trip_and_refuse_garbage() {
+        let dir = tempfile::tempdir().unwrap();
+        let marker = Detected::marker(&dir.path().join("results/row/seed-1"));
+        assert!(marker.ends_with("row/seed-1.detected"));
+        std::fs::create_dir_all(marker.parent().unwrap()).unwrap();
+        let record = Detected {
+            checkpoint: Fingerprint {
+                bytes: 123,
+                crc32: 4_000_000_000,
+            },
+            frames: 300,
+            boxes: 2279,
+            frames_per_second: 3.4125,
+        };
+        record.write(&marker).unwrap();
+        assert_eq!(Detected::read(&marker), Some(record));
+        for garbage in ["", "123 4000000000 300 2279", "a b c d e", "1 2 3 4 5 6"] {
+            std::fs::write(&marker, garbage).unwrap();
+            assert_eq!(Detected::read(&marker), None, "{garbage:?}");
+        }
+        assert_eq!(Detected::read(&dir.path().join("absent")), None);
+    }
 }
