@@ -29,15 +29,7 @@ const STEPS: usize = 6;
 /// One epoch of `config` over the first `2 · STEPS` frames; its time per step.
 fn epoch_step_time(config: &ExperimentConfig, data: &Path, run: &Path) -> Duration {
     let _ = std::fs::remove_dir_all(run);
-    train(&TrainOptions {
-        config: config.clone(),
-        data_dir: data.to_path_buf(),
-        run_dir: run.to_path_buf(),
-        resume: false,
-        progress: false,
-        device: Default::default(),
-    })
-    .expect("a training epoch");
+    train(&TrainOptions::new(config.clone(), data, run)).expect("a training epoch");
     let metrics = std::fs::read_to_string(run.join("metrics.jsonl")).unwrap();
     let last: serde_json::Value = serde_json::from_str(metrics.lines().last().unwrap()).unwrap();
     let (seconds, steps) = (

@@ -34,6 +34,25 @@ pub struct TrainOptions {
     pub device: ComputeDevice,
 }
 
+impl TrainOptions {
+    /// A fresh run of `config` on `data_dir` into `run_dir`, on the CPU, without a progress
+    /// bar.
+    pub fn new(
+        config: ExperimentConfig,
+        data_dir: impl Into<PathBuf>,
+        run_dir: impl Into<PathBuf>,
+    ) -> TrainOptions {
+        TrainOptions {
+            config,
+            data_dir: data_dir.into(),
+            run_dir: run_dir.into(),
+            resume: false,
+            progress: false,
+            device: ComputeDevice::default(),
+        }
+    }
+}
+
 /// What a finished `train` call did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrainSummary {

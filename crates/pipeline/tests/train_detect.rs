@@ -54,12 +54,8 @@ fn tiny(epochs: usize) -> ExperimentConfig {
 
 fn train_run(dir: &Path, epochs: usize, resume: bool) -> fusiondet_pipeline::TrainSummary {
     train(&TrainOptions {
-        device: Default::default(),
-        config: tiny(epochs),
-        data_dir: dataset().to_path_buf(),
-        run_dir: dir.to_path_buf(),
         resume,
-        progress: false,
+        ..TrainOptions::new(tiny(epochs), dataset(), dir)
     })
     .unwrap()
 }
@@ -144,26 +140,15 @@ fn a_run_directory_in_use_needs_resume_and_the_same_config() {
     let _turn = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     train_run(dir.path(), 1, false);
-    let err = train(&TrainOptions {
-        device: Default::default(),
-        config: tiny(1),
-        data_dir: dataset().to_path_buf(),
-        run_dir: dir.path().to_path_buf(),
-        resume: false,
-        progress: false,
-    })
-    .unwrap_err()
-    .to_string();
+    let err = train(&TrainOptions::new(tiny(1), dataset(), dir.path()))
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("--resume"), "{err}");
     let mut other = tiny(1);
     other.train.seed = 99;
     let err = train(&TrainOptions {
-        device: Default::default(),
-        config: other,
-        data_dir: dataset().to_path_buf(),
-        run_dir: dir.path().to_path_buf(),
         resume: true,
-        progress: false,
+        ..TrainOptions::new(other, dataset(), dir.path())
     })
     .unwrap_err()
     .to_string();
@@ -287,25 +272,14 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
     let first = tempfile::tempdir().unwrap();
     let mut first_cfg = tiny(2);
     first_cfg.train.split = "train".into();
-    train(&TrainOptions {
-        device: Default::default(),
-        config: first_cfg,
-        data_dir: dataset().to_path_buf(),
-        run_dir: first.path().to_path_buf(),
-        resume: false,
-        progress: false,
-    })
-    .unwrap();
+    train(&TrainOptions::new(first_cfg, dataset(), first.path())).unwrap();
     let second = tempfile::tempdir().unwrap();
     let run = second.path().join("refine");
-    let summary = train(&TrainOptions {
-        device: Default::default(),
-        config: tiny_refinement(first.path()),
-        data_dir: dataset().to_path_buf(),
-        run_dir: run.clone(),
-        resume: false,
-        progress: false,
-    })
+    let summary = train(&TrainOptions::new(
+        tiny_refinement(first.path()),
+        dataset(),
+        run.clone(),
+    ))
     .unwrap();
     assert!(summary.samples >= 4, "{summary:?}");
     // The run holds its own copy of the first stage and its config names the copy.
@@ -394,14 +368,11 @@ fn another_heading_bin_count_trains_and_detects() {
     config.model.num_heading_bins = 8;
     config.frustum.coder = BoxCoder::new(8, ClassSet::kitti()).unwrap();
     let run = tempfile::tempdir().unwrap();
-    let summary = train(&TrainOptions {
-        device: Default::default(),
-        config: config.clone(),
-        data_dir: dataset().to_path_buf(),
-        run_dir: run.path().join("r"),
-        resume: false,
-        progress: false,
-    })
+    let summary = train(&TrainOptions::new(
+        config.clone(),
+        dataset(),
+        run.path().join("r"),
+    ))
     .unwrap();
     assert!(
         summary.final_loss.is_some_and(f64::is_finite),
@@ -429,14 +400,11 @@ fn a_refinement_config_without_its_first_stage_is_a_clear_error() {
     let _turn = one_at_a_time();
     let missing = tempfile::tempdir().unwrap();
     let run = tempfile::tempdir().unwrap();
-    let err = train(&TrainOptions {
-        device: Default::default(),
-        config: tiny_refinement(&missing.path().join("nowhere")),
-        data_dir: dataset().to_path_buf(),
-        run_dir: run.path().join("r"),
-        resume: false,
-        progress: false,
-    })
+    let err = train(&TrainOptions::new(
+        tiny_refinement(&missing.path().join("nowhere")),
+        dataset(),
+        run.path().join("r"),
+    ))
     .unwrap_err()
     .to_string();
     assert!(

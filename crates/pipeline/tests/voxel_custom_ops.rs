@@ -18,14 +18,7 @@ fn train_losses(
     custom: bool,
 ) -> (Vec<f64>, Vec<u8>) {
     set_custom_ops(custom);
-    let summary = train(&TrainOptions {
-        config: config.clone(),
-        data_dir: data.to_path_buf(),
-        run_dir: run.to_path_buf(),
-        resume: false,
-        progress: false,
-        device: Default::default(),
-    });
+    let summary = train(&TrainOptions::new(config.clone(), data, run));
     set_custom_ops(true);
     summary.unwrap();
     let losses = std::fs::read_to_string(run.join("metrics.jsonl"))

@@ -23,15 +23,7 @@ fn the_tiny_configuration_overfits_four_frames() {
     section.augment = fusiondet_voxel::AugmentConfig::none();
     let range = section.voxels.point_range;
     let run = dir.path().join("run");
-    let summary = train(&TrainOptions {
-        config: config.clone(),
-        data_dir: data.clone(),
-        run_dir: run.clone(),
-        resume: false,
-        progress: false,
-        device: Default::default(),
-    })
-    .unwrap();
+    let summary = train(&TrainOptions::new(config.clone(), &data, &run)).unwrap();
     assert_eq!(summary.frames, 4);
     let results = dir.path().join("results");
     let options = |out: &Path| DetectOptions {

@@ -478,12 +478,8 @@ impl TinyTraining {
         config.train.epochs = epochs;
         config.train.seed = seed;
         let summary = train(&TrainOptions {
-            device: Default::default(),
-            config: config.clone(),
-            data_dir: data.to_path_buf(),
-            run_dir: run_dir.to_path_buf(),
-            resume: false,
             progress: std::io::stderr().is_terminal(),
+            ..TrainOptions::new(config.clone(), data, run_dir)
         })?;
         outln!(
             "== trained the tiny F-ConvNet{} ({} epochs, {} frustums from {} {}, final loss {:.3}) in {:.1} s -> {}",
