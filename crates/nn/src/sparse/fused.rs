@@ -9,7 +9,10 @@
 //! same flex matrix products and the same additions in the same order (so its output is
 //! burn's to the bit), and the backward pass gathers the output gradient per offset, takes
 //! the weight gradient as one product (gathered inputsᵀ · gathered gradient) and the input
-//! gradient as one product scattered into a single [rows, C_in] buffer.
+//! gradient as one product scattered into a single [rows, C_in] buffer. Both use both cores:
+//! the offsets' gathers and products run in parallel, and the additions run split by rows,
+//! each row adding its offsets' rows in offset order (the rulebook's `RowPairs`), so the
+//! result does not depend on how the work was split.
 //!
 //! The same `#[backend_extension]` route as [`crate::ragged`]: flex without autodiff runs the
 //! fused forward pass, `Autodiff<Flex>` adds the backward step; other devices (and the
