@@ -14,6 +14,7 @@ pub mod host_max;
 pub mod mlp;
 pub mod norm;
 pub mod ragged;
+pub mod row_pairs;
 pub mod segment;
 pub mod sparse;
 

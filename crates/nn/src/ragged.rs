@@ -21,6 +21,7 @@
 //! maximum is not NaN, so among equal values the first row of the run wins (the gradient
 //! goes to it) and the first NaN wins over everything after it.
 
+use crate::row_pairs::{ROWS_PER_TASK, RowPairs};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
@@ -117,9 +118,8 @@ pub struct Neighbours {
     pub k: usize,
     pub points: usize,
     pub neighbours: Vec<u32>,
-    /// CSR over points: rows `readers[reader_start[p]..reader_start[p + 1]]` read point p.
-    reader_start: Vec<u32>,
-    readers: Vec<u32>,
+    /// Per point, the rows that read it as (0, row) entries, in row order.
+    readers: RowPairs,
 }
 
 impl Neighbours {
@@ -129,25 +129,14 @@ impl Neighbours {
             k > 0 && neighbours.len().is_multiple_of(k),
             "K rows per query"
         );
-        let mut reader_start = vec![0u32; points + 1];
         for &p in &neighbours {
             assert!((p as usize) < points, "neighbour {p} past {points} points");
-            reader_start[p as usize + 1] += 1;
         }
-        for p in 0..points {
-            reader_start[p + 1] += reader_start[p];
-        }
-        let mut fill = reader_start.clone();
-        let mut readers = vec![0u32; neighbours.len()];
-        for (row, &p) in neighbours.iter().enumerate() {
-            readers[fill[p as usize] as usize] = row as u32;
-            fill[p as usize] += 1;
-        }
+        let readers = RowPairs::new(points, std::iter::once(neighbours.as_slice()));
         Self {
             k,
             points,
             neighbours,
-            reader_start,
             readers,
         }
     }
@@ -370,17 +359,7 @@ fn neighbour_sum_forward(
 /// the gradient of a gather, [points, c].
 fn reader_sums(g: &[f32], c: usize, nb: &Neighbours) -> FlexTensor {
     let mut out = vec![0f32; nb.points * c];
-    if c > 0 {
-        out.par_chunks_mut(c).enumerate().for_each(|(p, dst)| {
-            let readers = &nb.readers[nb.reader_start[p] as usize..nb.reader_start[p + 1] as usize];
-            for &r in readers {
-                let r = r as usize;
-                for (o, &v) in dst.iter_mut().zip(&g[r * c..(r + 1) * c]) {
-                    *o += v;
-                }
-            }
-        });
-    }
+    nb.readers.add_into(&mut out, c, None, &[g]);
     flex_tensor(out, [nb.points, c])
 }
 
@@ -407,9 +386,6 @@ fn gather_add_forward(table: &FlexTensor, per_row: &FlexTensor, nb: &Neighbours)
     }
     flex_tensor(y, [rows, c])
 }
-
-/// Rows handed to one task by the row-parallel loops.
-const ROWS_PER_TASK: usize = 256;
 
 /// The neighbour sum's input gradients from `grad` ([M·K, C]): per point the sum of its
 /// readers' rows (in row order), per query the sum over its K rows, and w_d's the
@@ -909,8 +885,11 @@ mod tests {
     fn the_transposed_neighbourhood_lists_each_points_readers_in_row_order() {
         let nb = Neighbours::new(vec![2, 0, 2, 1, 2, 2], 2, 4);
         assert_eq!(nb.queries(), 3);
-        assert_eq!(nb.reader_start, vec![0, 1, 2, 6, 6]);
-        assert_eq!(nb.readers, vec![1, 3, 0, 2, 4, 5]);
+        let readers = |p: usize| -> Vec<u32> { nb.readers.of(p).iter().map(|&(_, r)| r).collect() };
+        assert_eq!(
+            [0, 1, 2, 3].map(readers),
+            [vec![1], vec![3], vec![0, 2, 4, 5], vec![]]
+        );
     }
 
     #[test]

@@ -18,7 +18,7 @@
 //! fused forward pass, `Autodiff<Flex>` adds the backward step; other devices (and the
 //! kernel-map layout) keep burn's operations ([`super::conv::SparseConv3d::forward`]).
 
-use super::rulebook::{HostRules, RowPairs};
+use super::rulebook::HostRules;
 use crate::ragged::values;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -30,7 +30,6 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::prelude::*;
 use rayon::prelude::*;
-use std::borrow::Cow;
 use std::sync::Arc;
 
 /// The custom operation (see the module's documentation).
@@ -67,43 +66,6 @@ fn gather_rows(data: &[f32], c: usize, rows: &[u32]) -> FlexTensor {
         out.extend_from_slice(&data[r as usize * c..][..c]);
     }
     matrix(out, [rows.len(), c])
-}
-
-/// Rows handed to one task when a row-wise sum is split over threads.
-const ROWS_PER_TASK: usize = 256;
-
-/// Adds into each [c]-row r of `target` first `first[r]` (where given), then row p of
-/// `products[j]` for every (j, p) that `rows` lists for r, in that order: the order of an
-/// offset-by-offset loop, so the sums are the same to the bit however the rows are split
-/// over threads.
-fn add_rows(
-    target: &mut [f32],
-    c: usize,
-    first: Option<&[f32]>,
-    rows: &RowPairs,
-    products: &[Cow<'_, [f32]>],
-) {
-    if c == 0 {
-        return;
-    }
-    target
-        .par_chunks_mut(c * ROWS_PER_TASK)
-        .enumerate()
-        .for_each(|(task, chunk)| {
-            for (i, dst) in chunk.chunks_exact_mut(c).enumerate() {
-                let row = task * ROWS_PER_TASK + i;
-                let sources = first.map(|f| &f[row * c..][..c]).into_iter().chain(
-                    rows.of(row)
-                        .iter()
-                        .map(|&(j, p)| &products[j as usize][p as usize * c..][..c]),
-                );
-                for src in sources {
-                    for (d, &s) in dst.iter_mut().zip(src) {
-                        *d += s;
-                    }
-                }
-            }
-        });
 }
 
 /// Offset k's [C_in, C_out] slice of the weight.
@@ -153,7 +115,7 @@ fn forward(features: &FlexTensor, weight: &FlexTensor, rules: &HostRules) -> Fle
         None => vec![0f32; rules.output_rows * c_out],
     };
     let products: Vec<_> = products.iter().map(values).collect();
-    add_rows(&mut out, c_out, None, &rules.by_output, &products);
+    rules.by_output.add_into(&mut out, c_out, None, &products);
     matrix(out, [rules.output_rows, c_out])
 }
 
@@ -221,7 +183,9 @@ fn backward(
             .iter()
             .map(|(_, dx_k)| values(dx_k.as_ref().expect("input gradients asked for")))
             .collect();
-        add_rows(&mut dx, c_in, centre.as_deref(), &rules.by_input, &products);
+        rules
+            .by_input
+            .add_into(&mut dx, c_in, centre.as_deref(), &products);
         matrix(dx, [rules.input_rows, c_in])
     });
     (dx, dw)

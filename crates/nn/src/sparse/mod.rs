@@ -15,9 +15,8 @@ pub mod fused;
 pub mod rulebook;
 pub mod sites;
 
+pub use crate::row_pairs::RowPairs;
 pub use conv::{SparseConv3d, SparseConvBlock};
 pub use dense::to_dense_bev;
-pub use rulebook::{
-    ConvGeometry, HostRules, OffsetRule, RowPairs, RuleGather, RuleLayout, Rulebook,
-};
+pub use rulebook::{ConvGeometry, HostRules, OffsetRule, RuleGather, RuleLayout, Rulebook};
 pub use sites::{SitesError, SparseSites};

@@ -5,6 +5,7 @@
 //! a list per offset for the CPU, one kernel map for GPUs.
 
 use super::sites::SparseSites;
+use crate::row_pairs::RowPairs;
 use burn::prelude::*;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -156,48 +157,6 @@ impl HostRules {
             by_output,
             by_input,
         }
-    }
-}
-
-/// For every row of one side of a rulebook, the pairs that touch it as (rule, pair)
-/// indices, in rule order (compressed rows). With it the additions of all offsets into one
-/// row run in one task in the order a loop over the offsets takes, so rows can be split
-/// over threads and the sums stay the same to the bit.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct RowPairs {
-    /// [rows + 1]: row r's entries are `entries[starts[r]..starts[r + 1]]`.
-    starts: Vec<usize>,
-    /// (index into the rules, index of the pair within its rule).
-    entries: Vec<(u32, u32)>,
-}
-
-impl RowPairs {
-    /// From each rule's list of rows (the rows of one side of its pairs), in rule order.
-    pub fn new<'a>(rows: usize, lists: impl Iterator<Item = &'a [u32]> + Clone) -> RowPairs {
-        let mut starts = vec![0usize; rows + 1];
-        for list in lists.clone() {
-            for &r in list {
-                starts[r as usize + 1] += 1;
-            }
-        }
-        for r in 0..rows {
-            starts[r + 1] += starts[r];
-        }
-        let mut next = starts[..rows].to_vec();
-        let mut entries = vec![(0u32, 0u32); starts[rows]];
-        for (j, list) in lists.enumerate() {
-            for (p, &r) in list.iter().enumerate() {
-                let at = &mut next[r as usize];
-                entries[*at] = (j as u32, p as u32);
-                *at += 1;
-            }
-        }
-        RowPairs { starts, entries }
-    }
-
-    /// Row `row`'s (rule, pair) entries, in rule order.
-    pub fn of(&self, row: usize) -> &[(u32, u32)] {
-        &self.entries[self.starts[row]..self.starts[row + 1]]
     }
 }
 
@@ -460,19 +419,6 @@ fn gather(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Each row's entries are the pairs that touch it, in rule order; rows no pair
-    /// touches have none.
-    #[test]
-    fn row_pairs_list_each_rows_pairs_in_rule_order() {
-        let lists: [&[u32]; 3] = [&[2, 0], &[0, 3], &[3]];
-        let by_row = RowPairs::new(5, lists.iter().copied());
-        assert_eq!(by_row.of(0), &[(0, 1), (1, 0)]);
-        assert_eq!(by_row.of(1), &[] as &[(u32, u32)]);
-        assert_eq!(by_row.of(2), &[(0, 0)]);
-        assert_eq!(by_row.of(3), &[(1, 1), (2, 0)]);
-        assert_eq!(by_row.of(4), &[] as &[(u32, u32)]);
-    }
 
     fn rows(t: &Tensor<1, Int>) -> Vec<i64> {
         t.clone()
