@@ -32,8 +32,8 @@ use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::prelude::*;
 use burn::tensor::DType;
 use rayon::prelude::*;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
 
 /// Whether the custom operations are used where they apply (the default).
 static ENABLED: AtomicBool = AtomicBool::new(true);
@@ -112,15 +112,25 @@ impl Runs {
 
 /// LFA's neighbourhoods: query i's K neighbour rows `neighbours[i·K..(i+1)·K]` among the
 /// stage's points, and that transposed (for each point, the (query, slot) rows that read
-/// it, in row order) for the backward pass.
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// it, in row order) for the backward pass, built on the first backward step that needs it
+/// (detection never does).
+#[derive(Debug, Clone)]
 pub struct Neighbours {
     pub k: usize,
     pub points: usize,
     pub neighbours: Vec<u32>,
     /// Per point, the rows that read it as (0, row) entries, in row order.
-    readers: RowPairs,
+    readers: OnceLock<RowPairs>,
 }
+
+/// Equal neighbourhoods are equal lists; the reader lists follow from them.
+impl PartialEq for Neighbours {
+    fn eq(&self, other: &Self) -> bool {
+        (self.k, self.points, &self.neighbours) == (other.k, other.points, &other.neighbours)
+    }
+}
+
+impl Eq for Neighbours {}
 
 impl Neighbours {
     /// `neighbours`: [M · K] rows into `points` points.
@@ -132,13 +142,18 @@ impl Neighbours {
         for &p in &neighbours {
             assert!((p as usize) < points, "neighbour {p} past {points} points");
         }
-        let readers = RowPairs::new(points, std::iter::once(neighbours.as_slice()));
         Self {
             k,
             points,
             neighbours,
-            readers,
+            readers: OnceLock::new(),
         }
+    }
+
+    /// Per point, the rows that read it (see the field), built on first use.
+    fn readers(&self) -> &RowPairs {
+        self.readers
+            .get_or_init(|| RowPairs::new(self.points, std::iter::once(self.neighbours.as_slice())))
     }
 
     pub fn queries(&self) -> usize {
@@ -359,7 +374,7 @@ fn neighbour_sum_forward(
 /// the gradient of a gather, [points, c].
 fn reader_sums(g: &[f32], c: usize, nb: &Neighbours) -> FlexTensor {
     let mut out = vec![0f32; nb.points * c];
-    nb.readers.add_into(&mut out, c, None, &[g]);
+    nb.readers().add_into(&mut out, c, None, &[g]);
     flex_tensor(out, [nb.points, c])
 }
 
@@ -885,11 +900,39 @@ mod tests {
     fn the_transposed_neighbourhood_lists_each_points_readers_in_row_order() {
         let nb = Neighbours::new(vec![2, 0, 2, 1, 2, 2], 2, 4);
         assert_eq!(nb.queries(), 3);
-        let readers = |p: usize| -> Vec<u32> { nb.readers.of(p).iter().map(|&(_, r)| r).collect() };
+        let readers =
+            |p: usize| -> Vec<u32> { nb.readers().of(p).iter().map(|&(_, r)| r).collect() };
         assert_eq!(
             [0, 1, 2, 3].map(readers),
             [vec![1], vec![3], vec![0, 2, 4, 5], vec![]]
         );
+    }
+
+    /// Detection runs the forward pass only: it must not pay for the reader lists.
+    #[test]
+    fn the_reader_lists_are_built_by_the_first_backward_step_only() {
+        let neighbours = Arc::new(Neighbours::new(vec![2, 0, 2, 1, 2, 2], 2, 4));
+        let table =
+            || Tensor::<2>::from_data(TensorData::new(vec![1f32; 8], [4, 2]), &Device::flex());
+        let per_row = |d: &Device| Tensor::<2>::zeros([6, 2], d);
+        let _ = gather_add(table(), per_row(&Device::flex()), &neighbours);
+        assert!(
+            neighbours.readers.get().is_none(),
+            "built by a forward pass"
+        );
+        assert_eq!(*neighbours, Neighbours::new(vec![2, 0, 2, 1, 2, 2], 2, 4));
+        let device = Device::flex().autodiff();
+        let t =
+            Tensor::<2>::from_data(TensorData::new(vec![1f32; 8], [4, 2]), &device).require_grad();
+        let out = gather_add(t.clone(), per_row(&device), &neighbours);
+        assert!(
+            neighbours.readers.get().is_none(),
+            "built by a training forward pass"
+        );
+        let grads = out.sum().backward();
+        let g = t.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap();
+        assert!(neighbours.readers.get().is_some());
+        assert_eq!(g, [1.0, 1.0, 1.0, 1.0, 4.0, 4.0, 0.0, 0.0]);
     }
 
     #[test]
