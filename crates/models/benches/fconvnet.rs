@@ -18,23 +18,11 @@ use fusiondet_models::*;
 use std::hint::black_box;
 use std::time::Duration;
 
-/// The binary's allocator (`crates/cli/src/main.rs`), so the figures are the binary's: with
-/// glibc's, the step spends a fifth of its time in the kernel mapping and zeroing pages.
+/// The binary's allocator and its option (`fusiondet_alloc`), so the figures are the
+/// binary's: with glibc's, the step spends a fifth of its time in the kernel mapping and
+/// zeroing pages.
 #[global_allocator]
-static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
-
-/// mimalloc's `mi_option_purge_delay`, as `MI_OPTION_PURGE_DELAY` in `crates/cli/src/main.rs`
-/// (whose test pins the index).
-const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
-
-/// The binary's allocator option (`keep_freed_memory` there): freed memory stays committed
-/// (the purge delay at -1) unless `MIMALLOC_PURGE_DELAY` says otherwise.
-fn binary_allocator_options() {
-    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
-        // SAFETY: sets one of mimalloc's options; any value is valid for this one.
-        unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1) };
-    }
-}
+static ALLOCATOR: fusiondet_alloc::MiMalloc = fusiondet_alloc::MiMalloc;
 
 /// Reads a tensor back so lazily executed work is finished inside the timing.
 fn sync<const D: usize>(t: &Tensor<D>) -> f32 {
@@ -42,7 +30,7 @@ fn sync<const D: usize>(t: &Tensor<D>) -> f32 {
 }
 
 fn inference(c: &mut Criterion) {
-    binary_allocator_options();
+    fusiondet_alloc::keep_freed_memory();
     let config = FConvNetConfig::car();
     let device = Device::flex();
     let model = FConvNet::new(&config.model, &device).unwrap().valid();
@@ -83,7 +71,7 @@ fn inference(c: &mut Criterion) {
 /// FCAM's forward (the improved CBAM after each slice PointNet's first layer) beside
 /// F-ConvNet's on the same frame, both with batch norm folded as the binary runs them.
 fn fcam_inference(c: &mut Criterion) {
-    binary_allocator_options();
+    fusiondet_alloc::keep_freed_memory();
     let device = Device::flex();
     let batch = synthetic_batch(&SyntheticSpec::car(8), 42);
     let mut g = c.benchmark_group("fcam_vs_fconvnet_b8");
@@ -108,7 +96,7 @@ fn fcam_inference(c: &mut Criterion) {
 /// SAF's LFA for one frame of 8 Car frustums of 4,096 points (its shipped stages): the
 /// host-side index building (two k-nearest-neighbour searches per frustum) and the network.
 fn saf_lfa(c: &mut Criterion) {
-    binary_allocator_options();
+    fusiondet_alloc::keep_freed_memory();
     let device = Device::flex();
     let mut config = FConvNetConfig::car();
     let lfa_config = fusiondet_models::config::LfaConfig::default();
@@ -152,7 +140,7 @@ fn saf_lfa(c: &mut Criterion) {
 }
 
 fn train_step(c: &mut Criterion) {
-    binary_allocator_options();
+    fusiondet_alloc::keep_freed_memory();
     let config = FConvNetConfig::car();
     let device = Device::flex().autodiff();
     let batch = synthetic_batch(&SyntheticSpec::car(32), 7);
@@ -229,7 +217,7 @@ fn worker_pool() -> rayon::ThreadPool {
 /// The backend's f32 matrix product on all threads: a square one and the shape of the
 /// scale-4 PointNet's widest layer over a frame (about 8,000 (point, sub-frustum) pairs × 256 → 512).
 fn matmul_rate(c: &mut Criterion) {
-    binary_allocator_options();
+    fusiondet_alloc::keep_freed_memory();
     let device = Device::flex();
     let mut g = c.benchmark_group("flex_matmul");
     g.sample_size(10).measurement_time(Duration::from_secs(10));
@@ -258,7 +246,7 @@ fn matmul_rate(c: &mut Criterion) {
 /// burn-flex's reduction, the same after moving the axis last, and the host path that
 /// inference takes (`fusiondet_nn::host_max`).
 fn middle_max(c: &mut Criterion) {
-    binary_allocator_options();
+    fusiondet_alloc::keep_freed_memory();
     let device = Device::flex();
     let mut g = c.benchmark_group("middle_max");
     g.sample_size(20).measurement_time(Duration::from_secs(5));

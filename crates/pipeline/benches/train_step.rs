@@ -16,12 +16,9 @@ use fusiondet_pipeline::{ExperimentConfig, TrainOptions, train};
 use std::path::Path;
 use std::time::Duration;
 
-/// As the binary: mimalloc, keeping freed memory (see `crates/cli/src/main.rs`).
+/// As the binary: mimalloc, keeping freed memory (`fusiondet_alloc`).
 #[global_allocator]
-static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
-
-/// mimalloc's `mi_option_purge_delay`, as `MI_OPTION_PURGE_DELAY` in `crates/cli/src/main.rs`.
-const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+static ALLOCATOR: fusiondet_alloc::MiMalloc = fusiondet_alloc::MiMalloc;
 
 /// Steps per sample (batch 2).
 const STEPS: usize = 6;
@@ -40,8 +37,7 @@ fn epoch_step_time(config: &ExperimentConfig, data: &Path, run: &Path) -> Durati
 }
 
 fn voxel_rows(c: &mut Criterion) {
-    // SAFETY: sets one of mimalloc's options; any value is valid for this one.
-    unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1) };
+    fusiondet_alloc::keep_freed_memory();
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("sim");
     fusiondet_sim::write_dataset(
