@@ -34,6 +34,31 @@ pub struct DetectOptions {
     pub shard: Option<Shard>,
 }
 
+impl DetectOptions {
+    /// The whole `split` of `data_dir` into a new or empty `out_dir`, on the CPU, with the
+    /// data set's own 2D detections (and, for DASANet, each scan completed).
+    pub fn new(
+        config: ExperimentConfig,
+        checkpoint: impl Into<PathBuf>,
+        data_dir: impl Into<PathBuf>,
+        split: impl Into<String>,
+        out_dir: impl Into<PathBuf>,
+    ) -> DetectOptions {
+        DetectOptions {
+            config,
+            checkpoint: checkpoint.into(),
+            data_dir: data_dir.into(),
+            split: split.into(),
+            out_dir: out_dir.into(),
+            detections: None,
+            depth_dir: None,
+            device: ComputeDevice::default(),
+            replace: false,
+            shard: None,
+        }
+    }
+}
+
 /// What a detection run did, with its time per stage.
 #[derive(Debug, Clone, Default)]
 pub struct DetectSummary {

@@ -161,17 +161,8 @@ fn detect_writes_a_result_file_per_frame_that_the_evaluation_reads() {
     let run = tempfile::tempdir().unwrap();
     train_run(run.path(), 1, false);
     let out = run.path().join("results");
-    let options = |out: &Path| DetectOptions {
-        device: Default::default(),
-        config: tiny(1),
-        checkpoint: run.path().join("model.bpk"),
-        data_dir: dataset().to_path_buf(),
-        split: "val".into(),
-        out_dir: out.to_path_buf(),
-        detections: None,
-        depth_dir: None,
-        replace: false,
-        shard: None,
+    let options = |out: &Path| {
+        DetectOptions::new(tiny(1), run.path().join("model.bpk"), dataset(), "val", out)
     };
     let summary = detect(&options(&out)).unwrap();
     // A frame's boxes do not depend on the frames detected beside it: one frame at a time
@@ -230,18 +221,13 @@ fn a_checkpoint_from_another_config_is_refused() {
     train_run(run.path(), 1, false);
     let mut other = tiny(1);
     other.model = ModelConfig::car();
-    let err = detect(&DetectOptions {
-        device: Default::default(),
-        config: other,
-        checkpoint: run.path().join("model.bpk"),
-        data_dir: dataset().to_path_buf(),
-        split: "val".into(),
-        out_dir: run.path().join("r"),
-        detections: None,
-        depth_dir: None,
-        replace: false,
-        shard: None,
-    })
+    let err = detect(&DetectOptions::new(
+        other,
+        run.path().join("model.bpk"),
+        dataset(),
+        "val",
+        run.path().join("r"),
+    ))
     .unwrap_err()
     .to_string();
     assert!(err.contains("another model configuration"), "{err}");
@@ -293,51 +279,36 @@ fn a_refinement_stage_trains_on_first_stage_boxes_and_detects_through_both_stage
     // Detection runs both stages: one refined box per first-stage box at most.
     drop(first);
     let out = second.path().join("results");
-    let refined = detect(&DetectOptions {
-        device: Default::default(),
-        config: stored,
-        checkpoint: run.join("model.bpk"),
-        data_dir: dataset().to_path_buf(),
-        split: "val".into(),
-        out_dir: out.clone(),
-        detections: None,
-        depth_dir: None,
-        replace: false,
-        shard: None,
-    })
+    let refined = detect(&DetectOptions::new(
+        stored,
+        run.join("model.bpk"),
+        dataset(),
+        "val",
+        out.clone(),
+    ))
     .unwrap();
     assert!(refined.samples > 0, "{refined:?}");
     let in_pairs = second.path().join("in-pairs");
     detect_in_chunks(
-        &DetectOptions {
-            device: Default::default(),
-            config: ExperimentConfig::for_checkpoint(&run.join("model.bpk"), None).unwrap(),
-            checkpoint: run.join("model.bpk"),
-            data_dir: dataset().to_path_buf(),
-            split: "val".into(),
-            out_dir: in_pairs.clone(),
-            detections: None,
-            depth_dir: None,
-            replace: false,
-            shard: None,
-        },
+        &DetectOptions::new(
+            ExperimentConfig::for_checkpoint(&run.join("model.bpk"), None).unwrap(),
+            run.join("model.bpk"),
+            dataset(),
+            "val",
+            in_pairs.clone(),
+        ),
         2,
     )
     .unwrap();
     assert_same_files(&out, &in_pairs);
     assert!(refined.boxes_written > 0 && refined.boxes_written <= refined.samples);
-    let first_only = detect(&DetectOptions {
-        device: Default::default(),
-        config: ExperimentConfig::for_checkpoint(&run.join("first-stage.bpk"), None).unwrap(),
-        checkpoint: run.join("first-stage.bpk"),
-        data_dir: dataset().to_path_buf(),
-        split: "val".into(),
-        out_dir: second.path().join("first"),
-        detections: None,
-        depth_dir: None,
-        replace: false,
-        shard: None,
-    })
+    let first_only = detect(&DetectOptions::new(
+        ExperimentConfig::for_checkpoint(&run.join("first-stage.bpk"), None).unwrap(),
+        run.join("first-stage.bpk"),
+        dataset(),
+        "val",
+        second.path().join("first"),
+    ))
     .unwrap();
     // Every first-stage box became a refinement frustum or was skipped (the summary's
     // skips are both stages').

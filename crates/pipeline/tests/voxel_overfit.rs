@@ -26,17 +26,14 @@ fn the_tiny_configuration_overfits_four_frames() {
     let summary = train(&TrainOptions::new(config.clone(), &data, &run)).unwrap();
     assert_eq!(summary.frames, 4);
     let results = dir.path().join("results");
-    let options = |out: &Path| DetectOptions {
-        config: config.clone(),
-        checkpoint: run.join("model.bpk"),
-        data_dir: data.clone(),
-        split: "train".into(),
-        out_dir: out.to_path_buf(),
-        detections: None,
-        depth_dir: None,
-        replace: false,
-        shard: None,
-        device: Default::default(),
+    let options = |out: &Path| {
+        DetectOptions::new(
+            config.clone(),
+            run.join("model.bpk"),
+            data.clone(),
+            "train",
+            out,
+        )
     };
     detect(&options(&results)).unwrap();
     // A frame's boxes do not depend on the frames detected beside it: one frame at a time

@@ -384,15 +384,8 @@ fn evaluate_row(
             }
             let summary = detect(&DetectOptions {
                 device: args.device,
-                config: trained.clone(),
-                checkpoint: checkpoint.to_path_buf(),
-                data_dir: args.data.clone(),
-                split: "val".into(),
-                out_dir: results.to_path_buf(),
-                detections: None,
-                depth_dir: None,
                 replace: true,
-                shard: None,
+                ..DetectOptions::new(trained.clone(), checkpoint, &args.data, "val", results)
             })?;
             let detected = Detected {
                 checkpoint: fingerprint,

@@ -219,17 +219,9 @@ pub(crate) fn detect_val(
 ) -> anyhow::Result<()> {
     let started = Instant::now();
     let s = detect(&DetectOptions {
-        device: Default::default(),
-        config: config.clone(),
-        checkpoint: model.to_path_buf(),
-        data_dir: data.to_path_buf(),
-        split: "val".into(),
-        out_dir: results.to_path_buf(),
-        detections: None,
-        depth_dir: None,
         // The demo's own directory (it refuses directories it did not write).
         replace: true,
-        shard: None,
+        ..DetectOptions::new(config.clone(), model, data, "val", results)
     })?;
     let seconds = started.elapsed().as_secs_f64();
     match config.kind() {
