@@ -16,6 +16,7 @@
 //! [`crate::norm::norm_maps`] pick this path (training on the flex device) or
 //! `BatchNorm::forward`.
 
+use crate::buffers::par_chunks_filled;
 use crate::ragged::{dims2, flex_tensor, values};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -166,24 +167,21 @@ fn rows_forward(
         .zip(gamma.iter())
         .map(|(&s, &g)| s * g)
         .collect();
-    let mut out = vec![0f32; rows * c];
-    if c > 0 {
-        out.par_chunks_mut(ROWS_PER_BLOCK * c)
-            .zip(data.par_chunks(ROWS_PER_BLOCK * c))
-            .for_each(|(dst, src)| {
-                for (d_row, s_row) in dst.chunks_exact_mut(c).zip(src.chunks_exact(c)) {
-                    for ((((o, &v), &m), &k), &b) in d_row
-                        .iter_mut()
-                        .zip(s_row)
-                        .zip(&mean)
-                        .zip(&scale)
-                        .zip(beta.iter())
-                    {
-                        *o = (v - m) * k + b;
-                    }
-                }
-            });
-    }
+    let block = ROWS_PER_BLOCK * c;
+    let out = par_chunks_filled(rows * c, block, |b, dst| {
+        let src = &data[b * block..][..dst.len()];
+        for (d_row, s_row) in dst.chunks_exact_mut(c).zip(src.chunks_exact(c)) {
+            for ((((o, &v), &m), &k), &b) in d_row
+                .iter_mut()
+                .zip(s_row)
+                .zip(&mean)
+                .zip(&scale)
+                .zip(beta.iter())
+            {
+                *o = (v - m) * k + b;
+            }
+        }
+    });
     let vector = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [c]));
     (flex_tensor(out, [rows, c]), vector(mean), vector(variance))
 }
@@ -215,22 +213,17 @@ fn rows_backward(
     let mean_g: Vec<f32> = sums[..c].iter().map(|&s| (s / n) as f32).collect();
     let mean_gx: Vec<f32> = sums[c..].iter().map(|&s| (s / n) as f32).collect();
     let scale: Vec<f32> = gamma.iter().zip(&inv_std).map(|(&g, &s)| g * s).collect();
-    let mut dx = vec![0f32; rows * c];
-    if c > 0 {
-        dx.par_chunks_mut(ROWS_PER_BLOCK * c)
-            .enumerate()
-            .for_each(|(b, dst)| {
-                let first = b * ROWS_PER_BLOCK;
-                for (i, d_row) in dst.chunks_exact_mut(c).enumerate() {
-                    let r = first + i;
-                    let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
-                    for ch in 0..c {
-                        let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
-                        d_row[ch] = scale[ch] * ((g_row[ch] - mean_g[ch]) - x_hat * mean_gx[ch]);
-                    }
-                }
-            });
-    }
+    let dx = par_chunks_filled(rows * c, ROWS_PER_BLOCK * c, |b, dst| {
+        let first = b * ROWS_PER_BLOCK;
+        for (i, d_row) in dst.chunks_exact_mut(c).enumerate() {
+            let r = first + i;
+            let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
+            for ch in 0..c {
+                let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
+                d_row[ch] = scale[ch] * ((g_row[ch] - mean_g[ch]) - x_hat * mean_gx[ch]);
+            }
+        }
+    });
     let vector = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [c]));
     (
         flex_tensor(dx, [rows, c]),
@@ -265,26 +258,21 @@ fn per_channel<T: Send>(
         .collect()
 }
 
-/// Writes `write(ch, run_offset, out_run)` for every (frame, channel) run of the output, in
-/// parallel over blocks of whole runs.
-fn per_run_mut(
-    out: &mut [f32],
-    [_, channels, spatial]: [usize; 3],
+/// A [B, C, S] output written by `write(ch, run_offset, out_run)` for every (frame, channel)
+/// run, in parallel over blocks of whole runs.
+fn per_run_filled(
+    [batch, channels, spatial]: [usize; 3],
     write: impl Fn(usize, usize, &mut [f32]) + Sync,
-) {
-    if spatial == 0 || channels == 0 {
-        return;
-    }
+) -> Vec<f32> {
     // Enough runs a task that small maps (the FCN's 35-long slices) are not one task each.
-    let runs_per_task = (4096 / spatial).max(1);
-    out.par_chunks_mut(runs_per_task * spatial)
-        .enumerate()
-        .for_each(|(task, block)| {
-            for (i, run) in block.chunks_exact_mut(spatial).enumerate() {
-                let index = task * runs_per_task + i;
-                write(index % channels, index * spatial, run);
-            }
-        });
+    let runs_per_task = (4096 / spatial.max(1)).max(1);
+    let len = batch * channels * spatial;
+    par_chunks_filled(len, runs_per_task * spatial, |task, block| {
+        for (i, run) in block.chunks_exact_mut(spatial.max(1)).enumerate() {
+            let index = task * runs_per_task + i;
+            write(index % channels, index * spatial, run);
+        }
+    })
 }
 
 /// `1 / √(σ² + ε)` per channel.
@@ -336,8 +324,7 @@ fn maps_forward(
         .zip(gamma.iter())
         .map(|(&s, &g)| s * g)
         .collect();
-    let mut out = vec![0f32; data.len()];
-    per_run_mut(&mut out, dims, |ch, offset, run| {
+    let out = per_run_filled(dims, |ch, offset, run| {
         let (m, k, b) = (mean[ch], scale[ch], beta[ch]);
         for (o, &v) in run.iter_mut().zip(&data[offset..offset + spatial]) {
             *o = (v - m) * k + b;
@@ -384,8 +371,7 @@ fn maps_backward(
     let n = (batch * spatial).max(1) as f64;
     let mean_g: Vec<f32> = sums.iter().map(|&(s, _)| (s / n) as f32).collect();
     let mean_gx: Vec<f32> = sums.iter().map(|&(_, s)| (s / n) as f32).collect();
-    let mut dx = vec![0f32; data.len()];
-    per_run_mut(&mut dx, dims, |ch, offset, run| {
+    let dx = per_run_filled(dims, |ch, offset, run| {
         let (m, s, k) = (mean[ch], inv_std[ch], gamma[ch] * inv_std[ch]);
         let (mg, mgx) = (mean_g[ch], mean_gx[ch]);
         let src = data[offset..offset + spatial].iter().zip(&g[offset..]);

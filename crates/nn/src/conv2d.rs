@@ -19,6 +19,7 @@
 //! grouped convolutions) keep `Conv2d::forward`. [`crate::ragged::set_custom_ops`] turns
 //! this off with the other custom operations.
 
+use crate::buffers::par_chunks_filled;
 use crate::ragged::{custom_path, values};
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -32,7 +33,6 @@ use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
-use rayon::prelude::*;
 
 /// The custom operations (see the module's documentation): burn's `conv2d` (x [B, C_in, H,
 /// W], weight [C_out, C_in, k_h, k_w], bias [C_out]), without and with a bias.
@@ -102,30 +102,26 @@ fn im2col(
     let [sh, sw] = options.stride;
     let [dh, dw] = options.dilation;
     let (ph, pw) = (options.padding[0].0 as isize, options.padding[1].0 as isize);
-    let mut cols = vec![0f32; batch * channels * kh * kw * ho * wo];
-    cols.par_chunks_mut(ho * wo)
-        .enumerate()
-        .for_each(|(row, out)| {
-            let (j, rest) = (row % kw, row / kw);
-            let (i, rest) = (rest % kh, rest / kh);
-            let (c, b) = (rest % channels, rest / channels);
-            let plane = &x[(b * channels + c) * height * width..][..height * width];
-            for oh in 0..ho {
-                let y = (oh * sh) as isize - ph + (i * dh) as isize;
-                if y < 0 || y >= height as isize {
-                    continue; // stays zero
-                }
-                let src = &plane[y as usize * width..][..width];
-                let dst = &mut out[oh * wo..][..wo];
-                for (ow, d) in dst.iter_mut().enumerate() {
-                    let xx = (ow * sw) as isize - pw + (j * dw) as isize;
-                    if xx >= 0 && xx < width as isize {
-                        *d = src[xx as usize];
-                    }
+    par_chunks_filled(batch * channels * kh * kw * ho * wo, ho * wo, |row, out| {
+        let (j, rest) = (row % kw, row / kw);
+        let (i, rest) = (rest % kh, rest / kh);
+        let (c, b) = (rest % channels, rest / channels);
+        let plane = &x[(b * channels + c) * height * width..][..height * width];
+        for oh in 0..ho {
+            let y = (oh * sh) as isize - ph + (i * dh) as isize;
+            if y < 0 || y >= height as isize {
+                continue; // stays zero
+            }
+            let src = &plane[y as usize * width..][..width];
+            let dst = &mut out[oh * wo..][..wo];
+            for (ow, d) in dst.iter_mut().enumerate() {
+                let xx = (ow * sw) as isize - pw + (j * dw) as isize;
+                if xx >= 0 && xx < width as isize {
+                    *d = src[xx as usize];
                 }
             }
-        });
-    cols
+        }
+    })
 }
 
 /// dL/dweight = Σ_b grad_b [C_out, H_out·W_out] · patches_bᵀ, as one batched product and a

@@ -9,6 +9,7 @@
 //! ([`ragged`]).
 
 pub mod batch_norm_ops;
+pub mod buffers;
 pub mod conv2d;
 pub mod host_max;
 pub mod mlp;

@@ -21,6 +21,7 @@
 //! maximum is not NaN, so among equal values the first row of the run wins (the gradient
 //! goes to it) and the first NaN wins over everything after it.
 
+use crate::buffers::par_chunks_filled;
 use crate::row_pairs::{ROWS_PER_TASK, RowPairs};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -312,20 +313,55 @@ fn runs_max_forward(x: &FlexTensor, runs: &Runs, with_argmax: bool) -> (FlexTens
 
 /// The gradient of the per-run max: each (run, channel)'s gradient added to its winning
 /// row's, in run order (runs that share rows add up deterministically); rows that won
-/// nothing get zero.
-fn runs_max_backward(grad: &FlexTensor, argmax: &[u32], rows: usize) -> FlexTensor {
+/// nothing get zero. Runs in order and disjoint (RoI grid pooling's, LFA's) own their rows,
+/// so they are written in parallel; others in one pass in run order.
+fn runs_max_backward(grad: &FlexTensor, argmax: &[u32], runs: &Runs, rows: usize) -> FlexTensor {
     let [n, c] = dims2(grad);
+    assert_eq!(n, runs.len(), "a gradient row per run");
     let g = values(grad);
-    let mut out = vec![0f32; rows * c];
-    for s in 0..n {
+    let mut out = par_chunks_filled(rows * c, ROWS_PER_TASK * c, |_, _| {});
+    // Run s's gradient into `dst`, the rows from `first` on.
+    let add = |s: usize, dst: &mut [f32], first: usize| {
         for ch in 0..c {
             let at = argmax[s * c + ch];
             if at != u32::MAX {
-                out[at as usize * c + ch] += g[s * c + ch];
+                dst[(at as usize - first) * c + ch] += g[s * c + ch];
             }
         }
+    };
+    match rows_of_disjoint_runs(&mut out, runs, c) {
+        Some(parts) => parts
+            .into_par_iter()
+            .with_min_len(64)
+            .for_each(|(s, dst, first)| add(s, dst, first)),
+        None => (0..n).for_each(|s| add(s, &mut out, 0)),
     }
     flex_tensor(out, [rows, c])
+}
+
+/// Each run's rows of `out` ([rows, c]) as (run, rows, first row), when the runs are in
+/// order and disjoint; `None` otherwise.
+fn rows_of_disjoint_runs<'a>(
+    out: &'a mut [f32],
+    runs: &Runs,
+    c: usize,
+) -> Option<Vec<(usize, &'a mut [f32], usize)>> {
+    let ordered = (1..runs.len())
+        .all(|s| runs.starts[s - 1] as u64 + runs.counts[s - 1] as u64 <= runs.starts[s] as u64);
+    if !ordered || c == 0 {
+        return None;
+    }
+    let mut parts = Vec::with_capacity(runs.len());
+    let (mut rest, mut at) = (out, 0usize);
+    for (s, (&start, &count)) in runs.starts.iter().zip(&runs.counts).enumerate() {
+        let (start, count) = (start as usize, count as usize);
+        let tail = std::mem::take(&mut rest);
+        let (_, tail) = tail.split_at_mut((start - at) * c);
+        let (mine, tail) = tail.split_at_mut(count * c);
+        parts.push((s, mine, start));
+        (rest, at) = (tail, start + count);
+    }
+    Some(parts)
 }
 
 /// The neighbour sum's forward (see [`RaggedOps::neighbour_sum`]); the same operations in
@@ -351,31 +387,24 @@ fn neighbour_sum_forward(
         values(w_d),
     );
     let k = nb.k;
-    let mut y = vec![0f32; m * k * c];
-    if c > 0 {
-        y.par_chunks_mut(k * c)
-            .zip(nb.neighbours.par_chunks(k))
-            .enumerate()
-            .for_each(|(i, (rows, neighbours))| {
-                let query = &pq[i * c..(i + 1) * c];
-                for (j, (row, &p)) in rows.chunks_exact_mut(c).zip(neighbours).enumerate() {
-                    let d = dist[i * k + j];
-                    let point = &pp[p as usize * c..(p as usize + 1) * c];
-                    for (((out, &pk), &pi), &w) in row.iter_mut().zip(point).zip(query).zip(&*wd) {
-                        *out = (pk + pi) + d * w;
-                    }
-                }
-            });
-    }
+    let y = par_chunks_filled(m * k * c, k * c, |i, rows| {
+        let neighbours = &nb.neighbours[i * k..(i + 1) * k];
+        let query = &pq[i * c..(i + 1) * c];
+        for (j, (row, &p)) in rows.chunks_exact_mut(c).zip(neighbours).enumerate() {
+            let d = dist[i * k + j];
+            let point = &pp[p as usize * c..(p as usize + 1) * c];
+            for (((out, &pk), &pi), &w) in row.iter_mut().zip(point).zip(query).zip(&*wd) {
+                *out = (pk + pi) + d * w;
+            }
+        }
+    });
     flex_tensor(y, [m * k, c])
 }
 
 /// Per point, the sum of the [·, c] rows of `g` that read it (in row order, from zero):
 /// the gradient of a gather, [points, c].
 fn reader_sums(g: &[f32], c: usize, nb: &Neighbours) -> FlexTensor {
-    let mut out = vec![0f32; nb.points * c];
-    nb.readers().add_into(&mut out, c, None, &[g]);
-    flex_tensor(out, [nb.points, c])
+    flex_tensor(nb.readers().sums(c, None, &[g]), [nb.points, c])
 }
 
 fn gather_add_forward(table: &FlexTensor, per_row: &FlexTensor, nb: &Neighbours) -> FlexTensor {
@@ -385,20 +414,15 @@ fn gather_add_forward(table: &FlexTensor, per_row: &FlexTensor, nb: &Neighbours)
     assert_eq!(rows, nb.neighbours.len(), "a per-row term per gathered row");
     assert_eq!(c, c_rows, "channels");
     let (t, pr) = (values(table), values(per_row));
-    let mut y = vec![0f32; rows * c];
-    if c > 0 {
-        y.par_chunks_mut(c * ROWS_PER_TASK)
-            .enumerate()
-            .for_each(|(task, chunk)| {
-                for (i, dst) in chunk.chunks_exact_mut(c).enumerate() {
-                    let r = task * ROWS_PER_TASK + i;
-                    let src = &t[nb.neighbours[r] as usize * c..][..c];
-                    for ((o, &a), &b) in dst.iter_mut().zip(src).zip(&pr[r * c..][..c]) {
-                        *o = a + b;
-                    }
-                }
-            });
-    }
+    let y = par_chunks_filled(rows * c, c * ROWS_PER_TASK, |task, chunk| {
+        for (i, dst) in chunk.chunks_exact_mut(c).enumerate() {
+            let r = task * ROWS_PER_TASK + i;
+            let src = &t[nb.neighbours[r] as usize * c..][..c];
+            for ((o, &a), &b) in dst.iter_mut().zip(src).zip(&pr[r * c..][..c]) {
+                *o = a + b;
+            }
+        }
+    });
     flex_tensor(y, [rows, c])
 }
 
@@ -417,31 +441,25 @@ fn neighbour_sum_backward(
     let g = values(grad);
     let per_point = need[0].then(|| reader_sums(&g, c, nb));
     let per_query = need[1].then(|| {
-        let mut out = vec![0f32; m * c];
-        if c > 0 {
-            out.par_chunks_mut(c).enumerate().for_each(|(i, dst)| {
-                for row in g[i * k * c..(i + 1) * k * c].chunks_exact(c) {
-                    for (o, &v) in dst.iter_mut().zip(row) {
-                        *o += v;
-                    }
+        let out = par_chunks_filled(m * c, c, |i, dst| {
+            for row in g[i * k * c..(i + 1) * k * c].chunks_exact(c) {
+                for (o, &v) in dst.iter_mut().zip(row) {
+                    *o += v;
                 }
-            });
-        }
+            }
+        });
         flex_tensor(out, [m, c])
     });
     let w_d = need[2].then(|| {
         // Per query first (in parallel), then the queries in order: deterministic.
-        let mut partial = vec![0f32; m * c];
-        if c > 0 {
-            partial.par_chunks_mut(c).enumerate().for_each(|(i, dst)| {
-                for (j, row) in g[i * k * c..(i + 1) * k * c].chunks_exact(c).enumerate() {
-                    let d = distance[i * k + j];
-                    for (o, &v) in dst.iter_mut().zip(row) {
-                        *o += d * v;
-                    }
+        let partial = par_chunks_filled(m * c, c, |i, dst| {
+            for (j, row) in g[i * k * c..(i + 1) * k * c].chunks_exact(c).enumerate() {
+                let d = distance[i * k + j];
+                for (o, &v) in dst.iter_mut().zip(row) {
+                    *o += d * v;
                 }
-            });
-        }
+            }
+        });
         let mut out = vec![0f32; c];
         for row in partial.chunks_exact(c.max(1)).take(m) {
             for (o, &v) in out.iter_mut().zip(row) {
@@ -504,14 +522,16 @@ impl Backward<Flex, 2> for GatherAddBackward {
 struct RunsMaxBackward;
 
 impl Backward<Flex, 1> for RunsMaxBackward {
-    /// Each (run, channel)'s winning row (`u32::MAX` for an empty run) and the input rows.
-    type State = (Arc<Vec<u32>>, usize);
+    /// Each (run, channel)'s winning row (`u32::MAX` for an empty run), the runs and the
+    /// input rows.
+    type State = (Arc<Vec<u32>>, Arc<Runs>, usize);
 
     fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let (argmax, rows) = ops.state;
+        let (argmax, runs, rows) = ops.state;
         let grad = grads.consume::<Flex>(&ops.node);
         if let [Some(parent)] = ops.parents {
-            grads.register::<Flex>(parent.id, runs_max_backward(&grad, &argmax, rows));
+            let dx = runs_max_backward(&grad, &argmax, &runs, rows);
+            grads.register::<Flex>(parent.id, dx);
         }
     }
 }
@@ -548,7 +568,7 @@ impl<C: CheckpointStrategy> RaggedOps for Autodiff<Flex, C> {
             OpsKind::Tracked(prep) => {
                 let rows = dims2(&x)[0];
                 let (out, argmax) = runs_max_forward(&x, &runs, true);
-                prep.finish((Arc::new(argmax), rows), out)
+                prep.finish((Arc::new(argmax), runs, rows), out)
             }
             OpsKind::UnTracked(prep) => prep.finish(runs_max_forward(&x, &runs, false).0),
         }
@@ -681,6 +701,39 @@ mod tests {
             let through_pool = pooled_and_grad(&x, [rows, c], |t| pool.max_pool(t));
             assert_eq!(through_pool, custom);
         }
+    }
+
+    /// Many disjoint runs in order, with unread rows between them (the parallel backward):
+    /// the same gradient as the one-pass definition, and unread rows zero.
+    #[test]
+    fn disjoint_runs_backward_as_the_one_pass_definition() {
+        let c = 3;
+        let (mut starts, mut counts, mut at) = (Vec::new(), Vec::new(), 0usize);
+        for s in 0..400usize {
+            at += s % 3; // a gap of 0–2 unread rows
+            starts.push(at);
+            counts.push(s % 4);
+            at += s % 4;
+        }
+        let rows = at + 2;
+        let runs = Runs::new(&starts, &counts);
+        let x = FlexTensor::from_data(TensorData::new(tied(rows * c, 3), [rows, c]));
+        let (_, argmax) = runs_max_forward(&x, &runs, true);
+        let g: Vec<f32> = (0..400 * c).map(|i| 0.5 + (i % 7) as f32).collect();
+        let grad = FlexTensor::from_data(TensorData::new(g.clone(), [400, c]));
+        assert!(rows_of_disjoint_runs(&mut vec![0.0; rows * c], &runs, c).is_some());
+        let parallel = runs_max_backward(&grad, &argmax, &runs, rows);
+        let mut expected = vec![0f32; rows * c];
+        for (i, &at) in argmax.iter().enumerate() {
+            if at != u32::MAX {
+                expected[at as usize * c + i % c] += g[i];
+            }
+        }
+        assert_eq!(values(&parallel).into_owned(), expected);
+        assert!(expected.iter().filter(|&&v| v == 0.0).count() > rows); // unread rows stay zero
+        // Out of order: the one-pass path.
+        let shuffled = Runs::new(&[4, 0], &[2, 3]);
+        assert!(rows_of_disjoint_runs(&mut vec![0.0; rows * c], &shuffled, c).is_none());
     }
 
     /// Among equal values the first row of the run gets the gradient; the first NaN wins

@@ -9,6 +9,7 @@
 //! convolution's rulebooks (one list per kernel offset) and LFA's and the RoI pool's
 //! neighbourhoods (one list) share it.
 
+use crate::buffers::par_chunks_filled;
 use rayon::prelude::*;
 
 /// Rows handed to one task by the row-parallel loops.
@@ -67,21 +68,45 @@ impl RowPairs {
         target
             .par_chunks_mut(c * ROWS_PER_TASK)
             .enumerate()
-            .for_each(|(task, chunk)| {
-                for (i, dst) in chunk.chunks_exact_mut(c).enumerate() {
-                    let row = task * ROWS_PER_TASK + i;
-                    let rows = first.map(|f| &f[row * c..][..c]).into_iter().chain(
-                        self.of(row)
-                            .iter()
-                            .map(|&(j, p)| &sources[j as usize].as_ref()[p as usize * c..][..c]),
-                    );
-                    for src in rows {
-                        for (d, &s) in dst.iter_mut().zip(src) {
-                            *d += s;
-                        }
-                    }
+            .for_each(|(task, chunk)| self.add_chunk(task, chunk, c, first, sources));
+    }
+
+    /// [`RowPairs::add_into`] a zero [rows, c] target, zeroed chunk by chunk by the tasks
+    /// that fill it (no serial pass first).
+    pub(crate) fn sums<S: AsRef<[f32]> + Sync>(
+        &self,
+        c: usize,
+        first: Option<&[f32]>,
+        sources: &[S],
+    ) -> Vec<f32> {
+        let rows = self.starts.len() - 1;
+        par_chunks_filled(rows * c, c * ROWS_PER_TASK, |task, chunk| {
+            self.add_chunk(task, chunk, c, first, sources)
+        })
+    }
+
+    /// The additions of [`RowPairs::add_into`] for the rows of task `task`'s chunk.
+    fn add_chunk<S: AsRef<[f32]>>(
+        &self,
+        task: usize,
+        chunk: &mut [f32],
+        c: usize,
+        first: Option<&[f32]>,
+        sources: &[S],
+    ) {
+        for (i, dst) in chunk.chunks_exact_mut(c).enumerate() {
+            let row = task * ROWS_PER_TASK + i;
+            let rows = first.map(|f| &f[row * c..][..c]).into_iter().chain(
+                self.of(row)
+                    .iter()
+                    .map(|&(j, p)| &sources[j as usize].as_ref()[p as usize * c..][..c]),
+            );
+            for src in rows {
+                for (d, &s) in dst.iter_mut().zip(src) {
+                    *d += s;
                 }
-            });
+            }
+        }
     }
 }
 

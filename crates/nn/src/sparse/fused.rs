@@ -110,12 +110,19 @@ fn forward(features: &FlexTensor, weight: &FlexTensor, rules: &HostRules) -> Fle
                 .collect::<Vec<_>>()
         },
     );
-    let mut out = match centre {
-        Some(product) => values(&product).into_owned(),
-        None => vec![0f32; rules.output_rows * c_out],
-    };
     let products: Vec<_> = products.iter().map(values).collect();
-    rules.by_output.add_into(&mut out, c_out, None, &products);
+    let out = match centre {
+        // The centre product's own buffer (no copy), the other offsets added in.
+        Some(product) => {
+            let mut out = product
+                .into_data()
+                .try_into_vec::<f32>()
+                .expect("f32 products");
+            rules.by_output.add_into(&mut out, c_out, None, &products);
+            out
+        }
+        None => rules.by_output.sums(c_out, None, &products),
+    };
     matrix(out, [rules.output_rows, c_out])
 }
 
@@ -175,7 +182,6 @@ fn backward(
         FlexTensor::from_data(TensorData::new(dw, dims))
     });
     let dx = want_x.then(|| {
-        let mut dx = vec![0f32; rules.input_rows * c_in];
         let centre = centre
             .as_ref()
             .map(|(_, (_, dx_k))| values(dx_k.as_ref().expect("input gradients asked for")));
@@ -183,9 +189,7 @@ fn backward(
             .iter()
             .map(|(_, dx_k)| values(dx_k.as_ref().expect("input gradients asked for")))
             .collect();
-        rules
-            .by_input
-            .add_into(&mut dx, c_in, centre.as_deref(), &products);
+        let dx = rules.by_input.sums(c_in, centre.as_deref(), &products);
         matrix(dx, [rules.input_rows, c_in])
     });
     (dx, dw)
