@@ -8,8 +8,7 @@ use crate::config::ModelConfig;
 use burn::nn::conv::{Conv1d, Conv1dConfig, ConvTranspose1d, ConvTranspose1dConfig};
 use burn::nn::{BatchNorm, PaddingConfig1d};
 use burn::prelude::*;
-use burn::tensor::activation::relu;
-use fusiondet_nn::{batch_norm, norm_maps};
+use fusiondet_nn::{batch_norm, norm_maps_relu};
 
 /// Conv1d + BatchNorm + ReLU.
 #[derive(Module, Debug)]
@@ -39,7 +38,7 @@ impl ConvBnRelu {
     }
 
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        relu(norm_maps(&self.norm, self.conv.forward(x)))
+        norm_maps_relu(&self.norm, self.conv.forward(x))
     }
 }
 
@@ -68,7 +67,7 @@ impl DeconvBnRelu {
     }
 
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        relu(norm_maps(&self.norm, self.deconv.forward(x)))
+        norm_maps_relu(&self.norm, self.deconv.forward(x))
     }
 }
 

@@ -41,14 +41,15 @@ pub enum NormLayout {
 /// The custom operation (see the module's documentation).
 #[backend_extension(Flex, Autodiff)]
 pub trait BatchNormOps: Backend {
-    /// Training batch norm of `x` in `layout`: the output, and the batch's per-channel mean
-    /// and biased variance ([C] each, constants).
+    /// Training batch norm of `x` in `layout`, followed by a ReLU when `relu`: the output,
+    /// and the batch's per-channel mean and biased variance ([C] each, constants).
     fn batch_norm_train_fused(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
         epsilon: f64,
         layout: NormLayout,
+        relu: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 }
 
@@ -60,6 +61,7 @@ pub fn batch_norm_train<const D: usize>(
     beta: Tensor<1>,
     epsilon: f64,
     layout: NormLayout,
+    relu: bool,
 ) -> (Tensor<D>, Tensor<1>, Tensor<1>) {
     let (out, mean, variance) = <Dispatch as BatchNormOps>::batch_norm_train_fused(
         x.into_dispatch(),
@@ -67,6 +69,7 @@ pub fn batch_norm_train<const D: usize>(
         beta.into_dispatch(),
         epsilon,
         layout,
+        relu,
     );
     (
         Tensor::from_dispatch(out),
@@ -75,32 +78,79 @@ pub fn batch_norm_train<const D: usize>(
     )
 }
 
-/// (output, batch mean, batch variance) in `layout`.
+/// (output, batch mean, batch variance) in `layout`, the output through a ReLU when `relu`.
 fn forward(
     x: &FlexTensor,
     gamma: &FlexTensor,
     beta: &FlexTensor,
     epsilon: f64,
     layout: NormLayout,
+    relu: bool,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
+    let activation = if relu { flex_relu } else { identity };
     match layout {
-        NormLayout::Rows => rows_forward(x, gamma, beta, epsilon),
-        NormLayout::Maps => maps_forward(x, gamma, beta, epsilon),
+        NormLayout::Rows => rows_forward(x, gamma, beta, epsilon, activation),
+        NormLayout::Maps => maps_forward(x, gamma, beta, epsilon, activation),
+    }
+}
+
+fn identity(v: f32) -> f32 {
+    v
+}
+
+/// flex's ReLU to the bit: NaN passes, zero and below give +0.
+fn flex_relu(v: f32) -> f32 {
+    if v.is_nan() || v > 0.0 { v } else { 0.0 }
+}
+
+/// The output gradient through the ReLU of a fused norm + ReLU (flex's `relu_backward`:
+/// kept where the ReLU's output is positive or NaN), from that output recomputed as the
+/// forward pass computed it, `(x − mean)·scale + β`; without a ReLU the gradient itself.
+#[derive(Clone, Copy)]
+struct ReluGate<'a> {
+    /// (scale = γ/σ, β) per channel, when the norm is followed by a ReLU.
+    affine: Option<(&'a [f32], &'a [f32])>,
+    mean: &'a [f32],
+}
+
+impl ReluGate<'_> {
+    #[inline]
+    fn gate(&self, ch: usize, x: f32, g: f32) -> f32 {
+        match self.affine {
+            None => g,
+            Some((scale, beta)) => {
+                let out = (x - self.mean[ch]) * scale[ch] + beta[ch];
+                if out.is_nan() || out > 0.0 { g } else { 0.0 }
+            }
+        }
     }
 }
 
 /// The gradients (x, γ, β) from the output's: with x̂ the normalised input, β' = Σ g,
 /// γ' = Σ g·x̂ and x' = γ/σ · (g − mean(g) − x̂·mean(g·x̂)).
+/// With a ReLU after the norm (`relu_beta` = β), the output gradient first goes through the
+/// ReLU's gate.
 fn backward(
     x: &FlexTensor,
     (gamma, mean, variance): (&[f32], &[f32], &[f32]),
     epsilon: f64,
     layout: NormLayout,
     grad: &FlexTensor,
+    relu_beta: Option<&[f32]>,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
+    // The forward pass's scale, computed the same way (so the same bits).
+    let scale: Vec<f32> = inverse_std(variance, epsilon)
+        .iter()
+        .zip(gamma)
+        .map(|(&s, &g)| s * g)
+        .collect();
+    let gate = ReluGate {
+        affine: relu_beta.map(|beta| (scale.as_slice(), beta)),
+        mean,
+    };
     match layout {
-        NormLayout::Rows => rows_backward(x, gamma, mean, variance, epsilon, grad),
-        NormLayout::Maps => maps_backward(x, gamma, mean, variance, epsilon, grad),
+        NormLayout::Rows => rows_backward(x, gamma, mean, variance, epsilon, grad, gate),
+        NormLayout::Maps => maps_backward(x, gamma, mean, variance, epsilon, grad, gate),
     }
 }
 
@@ -139,6 +189,7 @@ fn rows_forward(
     gamma: &FlexTensor,
     beta: &FlexTensor,
     epsilon: f64,
+    activation: fn(f32) -> f32,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
     let [rows, c] = dims2(x);
     let data = values(x);
@@ -178,7 +229,7 @@ fn rows_forward(
                 .zip(&scale)
                 .zip(beta.iter())
             {
-                *o = (v - m) * k + b;
+                *o = activation((v - m) * k + b);
             }
         }
     });
@@ -194,6 +245,7 @@ fn rows_backward(
     variance: &[f32],
     epsilon: f64,
     grad: &FlexTensor,
+    gate: ReluGate,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
     let [rows, c] = dims2(x);
     assert_eq!(dims2(grad), [rows, c], "a gradient per output");
@@ -205,8 +257,9 @@ fn rows_backward(
         let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
         for ch in 0..c {
             let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
-            sum_g[ch] += g_row[ch] as f64;
-            sum_gx[ch] += (g_row[ch] * x_hat) as f64;
+            let g = gate.gate(ch, x_row[ch], g_row[ch]);
+            sum_g[ch] += g as f64;
+            sum_gx[ch] += (g * x_hat) as f64;
         }
     });
     let n = rows.max(1) as f64;
@@ -220,7 +273,8 @@ fn rows_backward(
             let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
             for ch in 0..c {
                 let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
-                d_row[ch] = scale[ch] * ((g_row[ch] - mean_g[ch]) - x_hat * mean_gx[ch]);
+                let g = gate.gate(ch, x_row[ch], g_row[ch]);
+                d_row[ch] = scale[ch] * ((g - mean_g[ch]) - x_hat * mean_gx[ch]);
             }
         }
     });
@@ -291,6 +345,7 @@ fn maps_forward(
     gamma: &FlexTensor,
     beta: &FlexTensor,
     epsilon: f64,
+    activation: fn(f32) -> f32,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
     let dims @ [batch, c, spatial] = extents(x);
     let data = values(x);
@@ -327,7 +382,7 @@ fn maps_forward(
     let out = per_run_filled(dims, |ch, offset, run| {
         let (m, k, b) = (mean[ch], scale[ch], beta[ch]);
         for (o, &v) in run.iter_mut().zip(&data[offset..offset + spatial]) {
-            *o = (v - m) * k + b;
+            *o = activation((v - m) * k + b);
         }
     });
     let shape = x.layout().shape().clone();
@@ -348,6 +403,7 @@ fn maps_backward(
     variance: &[f32],
     epsilon: f64,
     grad: &FlexTensor,
+    gate: ReluGate,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
     let dims @ [batch, c, spatial] = extents(x);
     assert_eq!(
@@ -362,6 +418,7 @@ fn maps_backward(
         let (mut sum_g, mut sum_gx) = (0f64, 0f64);
         for r in runs {
             for (&v, &gv) in data[r.clone()].iter().zip(&g[r]) {
+                let gv = gate.gate(ch, v, gv);
                 sum_g += gv as f64;
                 sum_gx += (gv * ((v - m) * s)) as f64;
             }
@@ -376,6 +433,7 @@ fn maps_backward(
         let (mg, mgx) = (mean_g[ch], mean_gx[ch]);
         let src = data[offset..offset + spatial].iter().zip(&g[offset..]);
         for (d, (&v, &gv)) in run.iter_mut().zip(src) {
+            let gv = gate.gate(ch, v, gv);
             *d = k * ((gv - mg) - (v - m) * s * mgx);
         }
     });
@@ -395,8 +453,9 @@ impl BatchNormOps for Flex {
         beta: FlexTensor,
         epsilon: f64,
         layout: NormLayout,
+        relu: bool,
     ) -> (FlexTensor, FlexTensor, FlexTensor) {
-        forward(&x, &gamma, &beta, epsilon, layout)
+        forward(&x, &gamma, &beta, epsilon, layout, relu)
     }
 }
 
@@ -404,7 +463,7 @@ impl BatchNormOps for Flex {
 #[derive(Debug)]
 struct BatchNormBackward;
 
-/// The input, γ, the batch mean and variance, ε and the layout.
+/// The input, γ, the batch mean and variance, ε, the layout, and β when a ReLU follows.
 type BatchNormState = (
     FlexTensor,
     Arc<Vec<f32>>,
@@ -412,16 +471,18 @@ type BatchNormState = (
     Arc<Vec<f32>>,
     f64,
     NormLayout,
+    Option<Arc<Vec<f32>>>,
 );
 
 impl Backward<Flex, 3> for BatchNormBackward {
     type State = BatchNormState;
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let (x, gamma, mean, variance, epsilon, layout) = ops.state;
+        let (x, gamma, mean, variance, epsilon, layout, relu_beta) = ops.state;
         let grad = grads.consume::<Flex>(&ops.node);
         let statistics = (gamma.as_slice(), mean.as_slice(), variance.as_slice());
-        let (dx, dgamma, dbeta) = backward(&x, statistics, epsilon, layout, &grad);
+        let relu_beta = relu_beta.as_deref().map(Vec::as_slice);
+        let (dx, dgamma, dbeta) = backward(&x, statistics, epsilon, layout, &grad, relu_beta);
         let [node_x, node_gamma, node_beta] = ops.parents;
         for (node, g) in [(node_x, dx), (node_gamma, dgamma), (node_beta, dbeta)] {
             if let Some(node) = node {
@@ -438,11 +499,12 @@ impl<C: CheckpointStrategy> BatchNormOps for Autodiff<Flex, C> {
         beta: FloatTensor<Self>,
         epsilon: f64,
         layout: NormLayout,
+        relu: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
         let (x, a) = x.into_parts();
         let (gamma, b) = gamma.into_parts();
         let (beta, c) = beta.into_parts();
-        let (out, mean, variance) = forward(&x, &gamma, &beta, epsilon, layout);
+        let (out, mean, variance) = forward(&x, &gamma, &beta, epsilon, layout, relu);
         let out = match BatchNormBackward
             .prepare::<C>([a, b, c])
             .compute_bound()
@@ -457,6 +519,7 @@ impl<C: CheckpointStrategy> BatchNormOps for Autodiff<Flex, C> {
                     host(&variance),
                     epsilon,
                     layout,
+                    relu.then(|| host(&beta)),
                 );
                 prep.finish(state, out)
             }

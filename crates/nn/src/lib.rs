@@ -20,5 +20,7 @@ pub mod segment;
 pub mod sparse;
 
 pub use mlp::{MlpLayer, mlp_stack};
-pub use norm::{NormConfig, batch_norm, masked_batch_norm, norm_maps, norm_rows};
+pub use norm::{
+    NormConfig, batch_norm, masked_batch_norm, norm_maps, norm_maps_relu, norm_rows, norm_rows_relu,
+};
 pub use segment::{SegmentPool, segment_mean};

@@ -1,7 +1,7 @@
 //! One point-wise MLP layer: Linear + BatchNorm + ReLU on [rows, channels] (point-wise
 //! MLPs as `Linear`, which is several times faster than a 1×1 convolution here).
 
-use crate::norm::{NormConfig, batch_norm, masked_batch_norm, norm_rows};
+use crate::norm::{NormConfig, batch_norm, masked_batch_norm, norm_rows, norm_rows_relu};
 use burn::nn::{BatchNorm, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
@@ -48,7 +48,10 @@ impl MlpLayer {
     }
 
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
-        relu(self.forward_pre_activation(x))
+        match &self.folded {
+            Some(_) => relu(self.forward_pre_activation(x)),
+            None => norm_rows_relu(&self.norm, self.linear.forward(x)),
+        }
     }
 
     /// Linear + BatchNorm, without the ReLU.

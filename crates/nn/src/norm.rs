@@ -5,6 +5,7 @@ use crate::batch_norm_ops::{NormLayout, batch_norm_train};
 use crate::ragged;
 use burn::nn::{BatchNorm, BatchNormConfig};
 use burn::prelude::*;
+use burn::tensor::activation;
 use serde::{Deserialize, Serialize};
 
 /// How a layer followed by batch norm is built.
@@ -42,7 +43,14 @@ pub fn batch_norm(channels: usize, config: &NormConfig, device: &Device) -> Batc
 /// eight passes each way), with the same running-statistics update as `BatchNorm`;
 /// elsewhere (inference, other devices) `bn.forward` itself.
 pub fn norm_rows(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
-    fused_in_training(bn, x, NormLayout::Rows)
+    fused_in_training(bn, x, NormLayout::Rows, false)
+}
+
+/// `relu(bn.forward(x))` on [rows, C]: in training on the flex CPU device the ReLU is part of
+/// the fused operation ([`norm_rows`]), which saves the separate ReLU's pass over the
+/// output each way (and flex runs that pass on one core); the same values and gradients.
+pub fn norm_rows_relu(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
+    fused_in_training(bn, x, NormLayout::Rows, true)
 }
 
 /// `bn.forward(x)` on channels-first maps ([B, C, …]: BEV maps, the FCN's slice
@@ -51,18 +59,25 @@ pub fn norm_rows(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
 /// copies the map into [C, B·…] twice each way), with the same running-statistics update
 /// as `BatchNorm`; elsewhere (inference, other devices) `bn.forward` itself.
 pub fn norm_maps<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
-    fused_in_training(bn, x, NormLayout::Maps)
+    fused_in_training(bn, x, NormLayout::Maps, false)
 }
 
-/// The fused operation in `layout` where training runs on the flex device, with
-/// `BatchNorm`'s running-statistics update; `bn.forward` elsewhere.
+/// `relu(bn.forward(x))` on channels-first maps, the ReLU fused as in [`norm_rows_relu`].
+pub fn norm_maps_relu<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
+    fused_in_training(bn, x, NormLayout::Maps, true)
+}
+
+/// The fused operation in `layout` (with a ReLU when `relu`) where training runs on the flex
+/// device, with `BatchNorm`'s running-statistics update; `bn.forward` (and `relu`) elsewhere.
 fn fused_in_training<const D: usize>(
     bn: &BatchNorm,
     x: Tensor<D>,
     layout: NormLayout,
+    relu: bool,
 ) -> Tensor<D> {
     if !(x.device().is_autodiff() && bn.training.is_enabled() && ragged::custom_path(&x)) {
-        return bn.forward(x);
+        let out = bn.forward(x);
+        return if relu { activation::relu(out) } else { out };
     }
     let [channels] = bn.gamma.shape().dims();
     assert_eq!(
@@ -71,7 +86,7 @@ fn fused_in_training<const D: usize>(
         "the second axis holds the norm's channels"
     );
     let (out, mean, variance) =
-        batch_norm_train(x, bn.gamma.val(), bn.beta.val(), bn.epsilon, layout);
+        batch_norm_train(x, bn.gamma.val(), bn.beta.val(), bn.epsilon, layout, relu);
     update_running_statistics(bn, mean, variance);
     out
 }
@@ -195,6 +210,65 @@ mod tests {
             close(&fused.3, &generic.3, "β gradient");
             close(&fused.4, &generic.4, "running mean");
             close(&fused.5, &generic.5, "running variance");
+        }
+    }
+
+    /// Norm + ReLU as one operation against the norm followed by burn's ReLU, both layouts:
+    /// output and the three gradients to the bit (about half the outputs are cut).
+    #[test]
+    fn the_fused_relu_gives_the_separate_relus_bits() {
+        let device = Device::flex().autodiff();
+        let (rows, c) = (600, 5);
+        let x: Vec<f32> = (0..rows * c)
+            .map(|i| ((i * 37) % 23) as f32 * 0.125 - (i % c) as f32 * 0.5)
+            .collect();
+        let g: Vec<f32> = (0..rows * c).map(|i| ((i * 13) % 7) as f32 - 3.0).collect();
+        let run = |layout: NormLayout, fused: bool| {
+            let mut bn = batch_norm(c, &NormConfig::default(), &device);
+            let beta: Vec<f32> = (0..c).map(|i| i as f32 * 0.1 - 0.2).collect();
+            bn.beta = Param::from_tensor(Tensor::from_data(TensorData::new(beta, [c]), &device));
+            let shape = match layout {
+                NormLayout::Rows => vec![rows, c],
+                NormLayout::Maps => vec![4, c, rows / 4],
+            };
+            let input = Tensor::<2>::from_data(TensorData::new(x.clone(), [rows, c]), &device)
+                .require_grad();
+            let (out, weights_shape) = match layout {
+                NormLayout::Rows => {
+                    let out = if fused {
+                        norm_rows_relu(&bn, input.clone())
+                    } else {
+                        activation::relu(norm_rows(&bn, input.clone()))
+                    };
+                    (out, [rows, c])
+                }
+                NormLayout::Maps => {
+                    let maps = input.clone().reshape([shape[0], shape[1], shape[2]]);
+                    let out = if fused {
+                        norm_maps_relu(&bn, maps)
+                    } else {
+                        activation::relu(norm_maps(&bn, maps))
+                    };
+                    (out.reshape([rows, c]), [rows, c])
+                }
+            };
+            let weights =
+                Tensor::<2>::from_data(TensorData::new(g.clone(), weights_shape), &device);
+            let grads = (out.clone() * weights).sum().backward();
+            let bits = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<_>>();
+            let grad1 = |t: Tensor<1>| bits(t.try_into_vec_as::<f32>().unwrap());
+            let out = values(out);
+            let cut = out.iter().filter(|&&v| v == 0.0).count();
+            assert!(cut > rows * c / 4 && cut < rows * c * 3 / 4, "{cut} cut");
+            (
+                bits(out),
+                bits(values(input.grad(&grads).unwrap())),
+                grad1(bn.gamma.val().grad(&grads).unwrap()),
+                grad1(bn.beta.val().grad(&grads).unwrap()),
+            )
+        };
+        for layout in [NormLayout::Rows, NormLayout::Maps] {
+            assert_eq!(run(layout, true), run(layout, false), "{layout:?}");
         }
     }
 

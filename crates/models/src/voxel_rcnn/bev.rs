@@ -9,11 +9,10 @@ use burn::nn::BatchNorm;
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::prelude::*;
-use burn::tensor::activation::relu;
 use fusiondet_nn::NormConfig;
 use fusiondet_nn::conv2d::conv2d;
 use fusiondet_nn::sparse::to_dense_bev;
-use fusiondet_nn::{batch_norm, norm_maps};
+use fusiondet_nn::{batch_norm, norm_maps_relu};
 
 /// The backbone's output map as a dense [B, C·heights, Y, X] image.
 pub fn height_compression(map: &SparseMap) -> Tensor<4> {
@@ -40,7 +39,7 @@ impl ConvBnRelu {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        relu(norm_maps(&self.norm, conv2d(&self.conv, x)))
+        norm_maps_relu(&self.norm, conv2d(&self.conv, x))
     }
 }
 
@@ -104,7 +103,7 @@ impl BevBackbone {
             for layer in block {
                 x = layer.forward(x);
             }
-            ups.push(relu(norm_maps(&up.norm, up.deconv.forward(x.clone()))));
+            ups.push(norm_maps_relu(&up.norm, up.deconv.forward(x.clone())));
         }
         Tensor::cat(ups, 1)
     }

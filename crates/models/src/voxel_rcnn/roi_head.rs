@@ -9,7 +9,6 @@ use burn::module::Param;
 use burn::nn::{Dropout, DropoutConfig, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::Distribution;
-use burn::tensor::activation::relu;
 
 /// FC + BN + ReLU layers with dropout between them (not after the last).
 #[derive(Module, Debug)]
@@ -38,7 +37,7 @@ impl FcStack {
     pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
         let n = self.layers.len();
         for (i, layer) in self.layers.iter().enumerate() {
-            x = relu(layer.forward(x));
+            x = layer.forward_relu(x);
             if i + 1 < n {
                 x = self.dropout.forward(x);
             }
@@ -122,6 +121,7 @@ impl RoiHead {
 mod tests {
     use super::*;
     use burn::optim::{AdamConfig, GradientsParams};
+    use burn::tensor::activation::relu;
 
     /// Trained to tell two kinds of rows apart, the head still tells them apart in
     /// inference mode (batch norm on running statistics, no dropout).

@@ -16,7 +16,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 use fusiondet_nn::ragged::{self, Neighbours, Runs};
 use fusiondet_nn::sparse::SparseSites;
-use fusiondet_nn::{batch_norm, norm_rows};
+use fusiondet_nn::{batch_norm, norm_rows, norm_rows_relu};
 use rayon::prelude::*;
 use std::sync::Arc;
 
@@ -256,6 +256,11 @@ impl LinearBn {
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
         norm_rows(&self.norm, self.linear.forward(x))
     }
+
+    /// `relu(self.forward(x))`, the ReLU fused into the norm in training (`norm_rows_relu`).
+    pub fn forward_relu(&self, x: Tensor<2>) -> Tensor<2> {
+        norm_rows_relu(&self.norm, self.linear.forward(x))
+    }
 }
 
 /// One pooling level's layers.
@@ -326,7 +331,7 @@ impl RoiGridPool {
                     .max_dim(1)
                     .reshape([points, mid])
             };
-            pooled.push(relu(layer.out.forward(summed)));
+            pooled.push(layer.out.forward_relu(summed));
         }
         let grid = Tensor::cat(pooled, 1);
         let [_, c] = grid.dims();

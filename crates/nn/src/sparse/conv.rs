@@ -156,10 +156,7 @@ impl SparseConvBlock {
     }
 
     pub fn forward(&self, features: Tensor<2>, rulebook: &Rulebook) -> Tensor<2> {
-        burn::tensor::activation::relu(crate::norm::norm_rows(
-            &self.norm,
-            self.conv.forward(features, rulebook),
-        ))
+        crate::norm::norm_rows_relu(&self.norm, self.conv.forward(features, rulebook))
     }
 }
 
