@@ -233,6 +233,7 @@ mod tests {
             };
             let input = Tensor::<2>::from_data(TensorData::new(x.clone(), [rows, c]), &device)
                 .require_grad();
+            assert!(ragged::custom_path(&input) && bn.training.is_enabled());
             let (out, weights_shape) = match layout {
                 NormLayout::Rows => {
                     let out = if fused {
