@@ -8,6 +8,7 @@ use crate::config::ModelConfig;
 use burn::nn::conv::{Conv1d, Conv1dConfig, ConvTranspose1d, ConvTranspose1dConfig};
 use burn::nn::{BatchNorm, PaddingConfig1d};
 use burn::prelude::*;
+use fusiondet_nn::conv2d::conv1d;
 use fusiondet_nn::{batch_norm, norm_maps_relu};
 
 /// Conv1d + BatchNorm + ReLU.
@@ -38,7 +39,7 @@ impl ConvBnRelu {
     }
 
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        norm_maps_relu(&self.norm, self.conv.forward(x))
+        norm_maps_relu(&self.norm, conv1d(&self.conv, x))
     }
 }
 

@@ -30,8 +30,8 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::ops::{ConvOptions, FloatTensorOps, ModuleOps};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
-use burn::nn::PaddingConfig2d;
-use burn::nn::conv::Conv2d;
+use burn::nn::conv::{Conv1d, Conv2d};
+use burn::nn::{PaddingConfig1d, PaddingConfig2d};
 use burn::prelude::*;
 
 /// The custom operations (see the module's documentation): burn's `conv2d` (x [B, C_in, H,
@@ -69,6 +69,44 @@ pub fn conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
         ),
         None => <Dispatch as DenseConvOps>::conv2d_gemm_grad(x, weight, options),
     })
+}
+
+/// `conv.forward(x)` for a [`Conv1d`] on [B, C, L]: in training on the flex CPU device
+/// through [`conv2d`]'s operation as a [B, C, L, 1] map with a [k, 1] kernel, so its weight
+/// gradient is the same one matrix product (burn differentiates a 1D convolution's weight as
+/// a convolution too; the frustum FCN's ran on one core).
+pub fn conv1d(conv: &Conv1d, x: Tensor<3>) -> Tensor<3> {
+    let explicit = match conv.padding {
+        PaddingConfig1d::Valid => Some((0, 0)),
+        PaddingConfig1d::Explicit(left, right) => Some((left, right)),
+        PaddingConfig1d::Same => None,
+    };
+    let usable = conv.groups == 1 && x.dims()[1] == conv.weight.dims()[1];
+    let padding = match explicit {
+        Some(padding) if usable && custom_path(&x) && x.device().is_autodiff() => padding,
+        _ => return conv.forward(x),
+    };
+    let options =
+        ConvOptions::new_with_padding([conv.stride, 1], [padding, (0, 0)], [conv.dilation, 1], 1);
+    let [batch, channels, length] = x.dims();
+    let [c_out, c_in, kernel] = conv.weight.dims();
+    let x = x.reshape([batch, channels, length, 1]).into_dispatch();
+    let weight = conv
+        .weight
+        .val()
+        .reshape([c_out, c_in, kernel, 1])
+        .into_dispatch();
+    let out: Tensor<4> = Tensor::from_dispatch(match &conv.bias {
+        Some(bias) => <Dispatch as DenseConvOps>::conv2d_gemm_grad_bias(
+            x,
+            weight,
+            bias.val().into_dispatch(),
+            options,
+        ),
+        None => <Dispatch as DenseConvOps>::conv2d_gemm_grad(x, weight, options),
+    });
+    let [b, c, l, _] = out.dims();
+    out.reshape([b, c, l])
 }
 
 /// The convolution options `Conv2d::forward` builds, for the layers this path takes
@@ -362,6 +400,64 @@ mod tests {
                 custom[3], generic[3],
                 "case {k}: bias gradient is flex's own"
             );
+            assert_eq!(custom[3].is_empty(), !bias);
+        }
+    }
+
+    /// A `Conv1d` through the operation as a [B, C, L, 1] map against burn's `Conv1d`:
+    /// forward values, input, weight and bias gradients, as the FCN uses it (kernel 3 at
+    /// strides 1 and 2, the 1×1 merge, with and without a bias).
+    #[test]
+    fn conv1d_values_and_gradients_match_burns() {
+        use burn::nn::PaddingConfig1d;
+        use burn::nn::conv::Conv1dConfig;
+        let device = Device::flex().autodiff();
+        // (batch, c_in, c_out, length, kernel, stride, padding, bias)
+        let cases = [
+            (3, 8, 12, 35, 3, 1, 1, true),
+            (2, 6, 10, 28, 3, 2, 1, false),
+            (2, 20, 7, 9, 1, 1, 0, true),
+        ];
+        for (k, &(b, c_in, c_out, len, kernel, s, p, bias)) in cases.iter().enumerate() {
+            let conv = Conv1dConfig::new(c_in, c_out, kernel)
+                .with_stride(s)
+                .with_padding(PaddingConfig1d::Explicit(p, p))
+                .with_bias(bias)
+                .init(&device);
+            let normal = burn::tensor::Distribution::Normal(0.0, 1.0);
+            let x = Tensor::<3>::random([b, c_in, len], normal, &device);
+            let out_dims = conv.forward(x.clone()).dims();
+            let w = Tensor::<3>::random(out_dims, normal, &device);
+            let run = |custom: bool| {
+                let x = x.clone().require_grad();
+                let out = if custom {
+                    assert!(custom_path(&x));
+                    conv1d(&conv, x.clone())
+                } else {
+                    conv.forward(x.clone())
+                };
+                assert_eq!(out.dims(), out_dims);
+                let grads = (out.clone() * w.clone()).sum().backward();
+                let bias = conv
+                    .bias
+                    .as_ref()
+                    .map(|b| to_vec(b.val().grad(&grads).unwrap()))
+                    .unwrap_or_default();
+                let g = |t: Tensor<3>| to_vec(t.grad(&grads).expect("a gradient"));
+                [to_vec(out), g(x), g(conv.weight.val()), bias]
+            };
+            let (custom, generic) = (run(true), run(false));
+            for (i, what) in [
+                "forward",
+                "input gradient",
+                "weight gradient",
+                "bias gradient",
+            ]
+            .iter()
+            .enumerate()
+            {
+                assert_close(&custom[i], &generic[i], &format!("case {k}: {what}"));
+            }
             assert_eq!(custom[3].is_empty(), !bias);
         }
     }
