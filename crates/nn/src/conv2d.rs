@@ -59,12 +59,27 @@ pub fn conv2d(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
         Some(options) if custom_path(&x) && x.device().is_autodiff() => options,
         _ => return conv.forward(x),
     };
-    let (x, weight) = (x.into_dispatch(), conv.weight.val().into_dispatch());
-    Tensor::from_dispatch(match &conv.bias {
+    custom_conv(
+        x,
+        conv.weight.val(),
+        conv.bias.as_ref().map(|b| b.val()),
+        options,
+    )
+}
+
+/// The custom operation on [B, C, H, W] `x` with `weight` [C_out, C_in, k_h, k_w].
+fn custom_conv(
+    x: Tensor<4>,
+    weight: Tensor<4>,
+    bias: Option<Tensor<1>>,
+    options: ConvOptions<2>,
+) -> Tensor<4> {
+    let (x, weight) = (x.into_dispatch(), weight.into_dispatch());
+    Tensor::from_dispatch(match bias {
         Some(bias) => <Dispatch as DenseConvOps>::conv2d_gemm_grad_bias(
             x,
             weight,
-            bias.val().into_dispatch(),
+            bias.into_dispatch(),
             options,
         ),
         None => <Dispatch as DenseConvOps>::conv2d_gemm_grad(x, weight, options),
@@ -90,21 +105,12 @@ pub fn conv1d(conv: &Conv1d, x: Tensor<3>) -> Tensor<3> {
         ConvOptions::new_with_padding([conv.stride, 1], [padding, (0, 0)], [conv.dilation, 1], 1);
     let [batch, channels, length] = x.dims();
     let [c_out, c_in, kernel] = conv.weight.dims();
-    let x = x.reshape([batch, channels, length, 1]).into_dispatch();
-    let weight = conv
-        .weight
-        .val()
-        .reshape([c_out, c_in, kernel, 1])
-        .into_dispatch();
-    let out: Tensor<4> = Tensor::from_dispatch(match &conv.bias {
-        Some(bias) => <Dispatch as DenseConvOps>::conv2d_gemm_grad_bias(
-            x,
-            weight,
-            bias.val().into_dispatch(),
-            options,
-        ),
-        None => <Dispatch as DenseConvOps>::conv2d_gemm_grad(x, weight, options),
-    });
+    let out = custom_conv(
+        x.reshape([batch, channels, length, 1]),
+        conv.weight.val().reshape([c_out, c_in, kernel, 1]),
+        conv.bias.as_ref().map(|b| b.val()),
+        options,
+    );
     let [b, c, l, _] = out.dims();
     out.reshape([b, c, l])
 }
