@@ -138,14 +138,10 @@ fn backward(
     grad: &FlexTensor,
     relu_beta: Option<&[f32]>,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
-    // The forward pass's scale, computed the same way (so the same bits).
-    let scale: Vec<f32> = inverse_std(variance, epsilon)
-        .iter()
-        .zip(gamma)
-        .map(|(&s, &g)| s * g)
-        .collect();
+    // The forward pass's scale, by the same function (so the same bits); only the gate uses it.
+    let scale = relu_beta.map(|_| output_scale(variance, gamma, epsilon));
     let gate = ReluGate {
-        affine: relu_beta.map(|beta| (scale.as_slice(), beta)),
+        affine: scale.as_deref().zip(relu_beta),
         mean,
     };
     match layout {
@@ -213,11 +209,7 @@ fn rows_forward(
     .into_iter()
     .map(|s| (s / n) as f32)
     .collect();
-    let scale: Vec<f32> = inverse_std(&variance, epsilon)
-        .iter()
-        .zip(gamma.iter())
-        .map(|(&s, &g)| s * g)
-        .collect();
+    let scale = output_scale(&variance, &gamma, epsilon);
     let block = ROWS_PER_BLOCK * c;
     let out = par_chunks_filled(rows * c, block, |b, dst| {
         let src = &data[b * block..][..dst.len()];
@@ -337,6 +329,16 @@ fn inverse_std(variance: &[f32], epsilon: f64) -> Vec<f32> {
         .collect()
 }
 
+/// γ / √(σ² + ε) per channel: what the forward pass multiplies the centred input by (and
+/// the fused ReLU's backward recomputes the output with, to the bit).
+fn output_scale(variance: &[f32], gamma: &[f32], epsilon: f64) -> Vec<f32> {
+    inverse_std(variance, epsilon)
+        .iter()
+        .zip(gamma)
+        .map(|(&s, &g)| s * g)
+        .collect()
+}
+
 /// Training batch norm of [B, C, …]: (output, mean, biased variance). Per channel, one
 /// reading pass for the mean and one for the centred squares (f64 sums); one pass writes
 /// the output.
@@ -374,11 +376,7 @@ fn maps_forward(
         (mean, (squares / n) as f32)
     });
     let (mean, variance): (Vec<f32>, Vec<f32>) = stats.into_iter().unzip();
-    let scale: Vec<f32> = inverse_std(&variance, epsilon)
-        .iter()
-        .zip(gamma.iter())
-        .map(|(&s, &g)| s * g)
-        .collect();
+    let scale = output_scale(&variance, &gamma, epsilon);
     let out = per_run_filled(dims, |ch, offset, run| {
         let (m, k, b) = (mean[ch], scale[ch], beta[ch]);
         for (o, &v) in run.iter_mut().zip(&data[offset..offset + spatial]) {

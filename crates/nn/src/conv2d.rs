@@ -1,5 +1,5 @@
-//! Training's dense 2D convolutions on the flex CPU device, with the weight gradient as one
-//! matrix product.
+//! Training's dense 2D convolutions (and 1D ones, as [B, C, L, 1] maps: [`conv1d`]) on the
+//! flex CPU device, with the weight gradient as one matrix product.
 //!
 //! Why: burn 0.22 differentiates a convolution's weight as another convolution — of the
 //! input with batch and channels swapped, by the output gradient used as a kernel the size
