@@ -87,42 +87,76 @@ fn forward(
     layout: NormLayout,
     relu: bool,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
-    let activation = if relu { flex_relu } else { identity };
-    match layout {
-        NormLayout::Rows => rows_forward(x, gamma, beta, epsilon, activation),
-        NormLayout::Maps => maps_forward(x, gamma, beta, epsilon, activation),
+    // Each kernel is monomorphised for its activation (and, backward, its gate), so the
+    // per-element loops carry no call or branch on the variant and vectorise.
+    match (layout, relu) {
+        (NormLayout::Rows, true) => rows_forward(x, gamma, beta, epsilon, flex_relu),
+        (NormLayout::Rows, false) => rows_forward(x, gamma, beta, epsilon, identity),
+        (NormLayout::Maps, true) => maps_forward(x, gamma, beta, epsilon, flex_relu),
+        (NormLayout::Maps, false) => maps_forward(x, gamma, beta, epsilon, identity),
     }
 }
 
+#[inline(always)]
 fn identity(v: f32) -> f32 {
     v
 }
 
 /// flex's ReLU to the bit: NaN passes, zero and below give +0.
+#[inline(always)]
 fn flex_relu(v: f32) -> f32 {
     if v.is_nan() || v > 0.0 { v } else { 0.0 }
 }
 
+/// What the output gradient passes through before the norm's own backward: nothing
+/// ([`Ungated`]) or the fused ReLU's gate ([`ReluGate`]).
+trait Gate: Copy + Sync {
+    /// This gate with its per-channel slices cut to `c` channels, so that loops over
+    /// `0..c` index them without bounds checks.
+    fn channels(self, c: usize) -> Self;
+    /// Channel `ch`'s output gradient `g` at input `x`, through the gate.
+    fn gate(&self, ch: usize, x: f32, g: f32) -> f32;
+}
+
+/// A norm without a ReLU: the gradient itself.
+#[derive(Clone, Copy)]
+struct Ungated;
+
+impl Gate for Ungated {
+    fn channels(self, _: usize) -> Self {
+        self
+    }
+
+    #[inline(always)]
+    fn gate(&self, _: usize, _: f32, g: f32) -> f32 {
+        g
+    }
+}
+
 /// The output gradient through the ReLU of a fused norm + ReLU (flex's `relu_backward`:
 /// kept where the ReLU's output is positive or NaN), from that output recomputed as the
-/// forward pass computed it, `(x − mean)·scale + β`; without a ReLU the gradient itself.
+/// forward pass computed it, `(x − mean)·scale + β`.
 #[derive(Clone, Copy)]
 struct ReluGate<'a> {
-    /// (scale = γ/σ, β) per channel, when the norm is followed by a ReLU.
-    affine: Option<(&'a [f32], &'a [f32])>,
+    /// γ/σ per channel.
+    scale: &'a [f32],
+    beta: &'a [f32],
     mean: &'a [f32],
 }
 
-impl ReluGate<'_> {
-    #[inline]
-    fn gate(&self, ch: usize, x: f32, g: f32) -> f32 {
-        match self.affine {
-            None => g,
-            Some((scale, beta)) => {
-                let out = (x - self.mean[ch]) * scale[ch] + beta[ch];
-                if out.is_nan() || out > 0.0 { g } else { 0.0 }
-            }
+impl Gate for ReluGate<'_> {
+    fn channels(self, c: usize) -> Self {
+        ReluGate {
+            scale: &self.scale[..c],
+            beta: &self.beta[..c],
+            mean: &self.mean[..c],
         }
+    }
+
+    #[inline(always)]
+    fn gate(&self, ch: usize, x: f32, g: f32) -> f32 {
+        let out = (x - self.mean[ch]) * self.scale[ch] + self.beta[ch];
+        if out.is_nan() || out > 0.0 { g } else { 0.0 }
     }
 }
 
@@ -138,33 +172,51 @@ fn backward(
     grad: &FlexTensor,
     relu_beta: Option<&[f32]>,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
-    // The forward pass's scale, by the same function (so the same bits); only the gate uses it.
-    let scale = relu_beta.map(|_| output_scale(variance, gamma, epsilon));
+    let statistics = (gamma, mean, variance, epsilon);
+    let Some(beta) = relu_beta else {
+        return match layout {
+            NormLayout::Rows => rows_backward(x, statistics, grad, Ungated),
+            NormLayout::Maps => maps_backward(x, statistics, grad, Ungated),
+        };
+    };
+    // The forward pass's scale, by the same function (so the same bits).
+    let scale = output_scale(variance, gamma, epsilon);
     let gate = ReluGate {
-        affine: scale.as_deref().zip(relu_beta),
+        scale: &scale,
+        beta,
         mean,
     };
     match layout {
-        NormLayout::Rows => rows_backward(x, gamma, mean, variance, epsilon, grad, gate),
-        NormLayout::Maps => maps_backward(x, gamma, mean, variance, epsilon, grad, gate),
+        NormLayout::Rows => rows_backward(x, statistics, grad, gate),
+        NormLayout::Maps => maps_backward(x, statistics, grad, gate),
     }
 }
+
+/// A norm's γ, batch mean and variance, and ε: what its backward pass reads besides the
+/// input and the output gradient.
+type Statistics<'a> = (&'a [f32], &'a [f32], &'a [f32], f64);
 
 /// Rows per block of the column reductions: blocks are reduced in parallel and their sums
 /// added in block order, so the result does not depend on the number of threads.
 const ROWS_PER_BLOCK: usize = 256;
 
-/// Per-column sums over the rows of a [rows, C] computation, `add(r, acc)` adding row r's
-/// terms into `acc` (f64, so long columns keep their precision).
-fn column_sums(rows: usize, c: usize, add: impl Fn(usize, &mut [f64]) + Sync) -> Vec<f64> {
+/// Per-column sums over the rows of a [rows, C] computation, `add(block, acc)` adding the
+/// terms of the rows in `block` into `acc` in row order (f64, so long columns keep their
+/// precision).
+fn column_sums(
+    rows: usize,
+    c: usize,
+    add: impl Fn(std::ops::Range<usize>, &mut [f64]) + Sync,
+) -> Vec<f64> {
     let blocks = rows.div_ceil(ROWS_PER_BLOCK);
     let partial: Vec<Vec<f64>> = (0..blocks)
         .into_par_iter()
         .map(|b| {
             let mut acc = vec![0f64; c];
-            for r in b * ROWS_PER_BLOCK..((b + 1) * ROWS_PER_BLOCK).min(rows) {
-                add(r, &mut acc);
-            }
+            add(
+                b * ROWS_PER_BLOCK..((b + 1) * ROWS_PER_BLOCK).min(rows),
+                &mut acc,
+            );
             acc
         })
         .collect();
@@ -177,6 +229,102 @@ fn column_sums(rows: usize, c: usize, add: impl Fn(usize, &mut [f64]) + Sync) ->
     total
 }
 
+// The row layout's per-block kernels. Each takes its rows and per-channel values as slice
+// arguments (which the compiler knows do not overlap the output) and cuts every
+// per-channel slice to exactly C, so the loops over a row's C channels run without bounds
+// checks or reloads and vectorise across channels; every value is still the same
+// operations in the same order as one scalar loop.
+
+/// Rows `rows` of the [_, c] matrix `t`.
+fn row_block(t: &[f32], c: usize, rows: std::ops::Range<usize>) -> &[f32] {
+    &t[rows.start * c..rows.end * c]
+}
+
+/// acc[ch] += x[r, ch] for the rows of `x` in order.
+fn add_columns(acc: &mut [f64], x: &[f32]) {
+    let c = acc.len();
+    for row in x.chunks_exact(c) {
+        for (a, &v) in acc.iter_mut().zip(row) {
+            *a += v as f64;
+        }
+    }
+}
+
+/// acc[ch] += (x[r, ch] − mean[ch])² for the rows of `x` in order.
+fn add_centred_squares(acc: &mut [f64], x: &[f32], mean: &[f32]) {
+    let c = acc.len();
+    let mean = &mean[..c];
+    for row in x.chunks_exact(c) {
+        for ((a, &v), &m) in acc.iter_mut().zip(row).zip(mean) {
+            let d = (v - m) as f64;
+            *a += d * d;
+        }
+    }
+}
+
+/// out[r, ch] = activation((x[r, ch] − mean[ch])·scale[ch] + β[ch]).
+fn normalise_rows(
+    out: &mut [f32],
+    x: &[f32],
+    [mean, scale, beta]: [&[f32]; 3],
+    activation: impl Fn(f32) -> f32,
+) {
+    let c = mean.len();
+    let (scale, beta) = (&scale[..c], &beta[..c]);
+    for (o_row, x_row) in out.chunks_exact_mut(c).zip(x.chunks_exact(c)) {
+        let (o_row, x_row) = (&mut o_row[..c], &x_row[..c]);
+        for ch in 0..c {
+            o_row[ch] = activation((x_row[ch] - mean[ch]) * scale[ch] + beta[ch]);
+        }
+    }
+}
+
+/// Σ g and Σ g·x̂ per channel (g through `gate`, x̂ = (x − mean)·inv_std) over the rows
+/// of `x` and `g` in order.
+fn add_gradient_sums(
+    (sum_g, sum_gx): (&mut [f64], &mut [f64]),
+    x: &[f32],
+    g: &[f32],
+    [mean, inv_std]: [&[f32]; 2],
+    gate: impl Gate,
+) {
+    let c = mean.len();
+    let (sum_g, sum_gx, inv_std) = (&mut sum_g[..c], &mut sum_gx[..c], &inv_std[..c]);
+    let gate = gate.channels(c);
+    for (x_row, g_row) in x.chunks_exact(c).zip(g.chunks_exact(c)) {
+        let (x_row, g_row) = (&x_row[..c], &g_row[..c]);
+        for ch in 0..c {
+            let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
+            let g = gate.gate(ch, x_row[ch], g_row[ch]);
+            sum_g[ch] += g as f64;
+            sum_gx[ch] += (g * x_hat) as f64;
+        }
+    }
+}
+
+/// dx[r, ch] = scale[ch]·((g − mean(g)[ch]) − x̂·mean(g·x̂)[ch]) for the rows of `x` and `g`
+/// (g through `gate`).
+fn input_gradient_rows(
+    dx: &mut [f32],
+    (x, g): (&[f32], &[f32]),
+    [mean, inv_std, scale, mean_g, mean_gx]: [&[f32]; 5],
+    gate: impl Gate,
+) {
+    let c = mean.len();
+    let (inv_std, scale) = (&inv_std[..c], &scale[..c]);
+    let (mean_g, mean_gx) = (&mean_g[..c], &mean_gx[..c]);
+    let gate = gate.channels(c);
+    let rows = x.chunks_exact(c).zip(g.chunks_exact(c));
+    for (d_row, (x_row, g_row)) in dx.chunks_exact_mut(c).zip(rows) {
+        let (d_row, x_row, g_row) = (&mut d_row[..c], &x_row[..c], &g_row[..c]);
+        for ch in 0..c {
+            let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
+            let g = gate.gate(ch, x_row[ch], g_row[ch]);
+            d_row[ch] = scale[ch] * ((g - mean_g[ch]) - x_hat * mean_gx[ch]);
+        }
+    }
+}
+
 /// Training batch norm of [rows, C]: (output, mean, biased variance). Two reading passes
 /// for the statistics (mean, then the centred squares) and one writing the output, where
 /// burn's generic form transposes the rows twice and makes about eight passes.
@@ -185,26 +333,21 @@ fn rows_forward(
     gamma: &FlexTensor,
     beta: &FlexTensor,
     epsilon: f64,
-    activation: fn(f32) -> f32,
+    activation: impl Fn(f32) -> f32 + Copy + Sync,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
     let [rows, c] = dims2(x);
     let data = values(x);
     let (gamma, beta) = (values(gamma), values(beta));
     assert_eq!((gamma.len(), beta.len()), (c, c), "γ and β per channel");
     let n = rows.max(1) as f64;
-    let mean: Vec<f32> = column_sums(rows, c, |r, acc| {
-        for (a, &v) in acc.iter_mut().zip(&data[r * c..(r + 1) * c]) {
-            *a += v as f64;
-        }
+    let mean: Vec<f32> = column_sums(rows, c, |rows, acc| {
+        add_columns(acc, row_block(&data, c, rows))
     })
     .into_iter()
     .map(|s| (s / n) as f32)
     .collect();
-    let variance: Vec<f32> = column_sums(rows, c, |r, acc| {
-        for ((a, &v), &m) in acc.iter_mut().zip(&data[r * c..(r + 1) * c]).zip(&mean) {
-            let d = (v - m) as f64;
-            *a += d * d;
-        }
+    let variance: Vec<f32> = column_sums(rows, c, |rows, acc| {
+        add_centred_squares(acc, row_block(&data, c, rows), &mean)
     })
     .into_iter()
     .map(|s| (s / n) as f32)
@@ -213,17 +356,7 @@ fn rows_forward(
     let block = ROWS_PER_BLOCK * c;
     let out = par_chunks_filled(rows * c, block, |b, dst| {
         let src = &data[b * block..][..dst.len()];
-        for (d_row, s_row) in dst.chunks_exact_mut(c).zip(src.chunks_exact(c)) {
-            for ((((o, &v), &m), &k), &b) in d_row
-                .iter_mut()
-                .zip(s_row)
-                .zip(&mean)
-                .zip(&scale)
-                .zip(beta.iter())
-            {
-                *o = activation((v - m) * k + b);
-            }
-        }
+        normalise_rows(dst, src, [&mean, &scale, &beta], activation);
     });
     let vector = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [c]));
     (flex_tensor(out, [rows, c]), vector(mean), vector(variance))
@@ -232,43 +365,29 @@ fn rows_forward(
 /// The row layout's gradients ([`backward`]): one reading pass for the sums, one writing x'.
 fn rows_backward(
     x: &FlexTensor,
-    gamma: &[f32],
-    mean: &[f32],
-    variance: &[f32],
-    epsilon: f64,
+    (gamma, mean, variance, epsilon): Statistics,
     grad: &FlexTensor,
-    gate: ReluGate,
+    gate: impl Gate,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
     let [rows, c] = dims2(x);
     assert_eq!(dims2(grad), [rows, c], "a gradient per output");
     let (data, g) = (values(x), values(grad));
     let inv_std = inverse_std(variance, epsilon);
     // Σ g and Σ g·x̂ per channel, side by side in one accumulator of 2C.
-    let sums = column_sums(rows, 2 * c, |r, acc| {
-        let (sum_g, sum_gx) = acc.split_at_mut(c);
-        let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
-        for ch in 0..c {
-            let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
-            let g = gate.gate(ch, x_row[ch], g_row[ch]);
-            sum_g[ch] += g as f64;
-            sum_gx[ch] += (g * x_hat) as f64;
-        }
+    let sums = column_sums(rows, 2 * c, |rows, acc| {
+        let (x, g) = (row_block(&data, c, rows.clone()), row_block(&g, c, rows));
+        add_gradient_sums(acc.split_at_mut(c), x, g, [mean, &inv_std], gate);
     });
     let n = rows.max(1) as f64;
     let mean_g: Vec<f32> = sums[..c].iter().map(|&s| (s / n) as f32).collect();
     let mean_gx: Vec<f32> = sums[c..].iter().map(|&s| (s / n) as f32).collect();
     let scale: Vec<f32> = gamma.iter().zip(&inv_std).map(|(&g, &s)| g * s).collect();
+    let per_channel = [mean, &inv_std, &scale, &mean_g, &mean_gx];
     let dx = par_chunks_filled(rows * c, ROWS_PER_BLOCK * c, |b, dst| {
         let first = b * ROWS_PER_BLOCK;
-        for (i, d_row) in dst.chunks_exact_mut(c).enumerate() {
-            let r = first + i;
-            let (x_row, g_row) = (&data[r * c..(r + 1) * c], &g[r * c..(r + 1) * c]);
-            for ch in 0..c {
-                let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
-                let g = gate.gate(ch, x_row[ch], g_row[ch]);
-                d_row[ch] = scale[ch] * ((g - mean_g[ch]) - x_hat * mean_gx[ch]);
-            }
-        }
+        let rows = first..first + dst.len() / c.max(1);
+        let (x, g) = (row_block(&data, c, rows.clone()), row_block(&g, c, rows));
+        input_gradient_rows(dst, (x, g), per_channel, gate);
     });
     let vector = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [c]));
     (
@@ -347,7 +466,7 @@ fn maps_forward(
     gamma: &FlexTensor,
     beta: &FlexTensor,
     epsilon: f64,
-    activation: fn(f32) -> f32,
+    activation: impl Fn(f32) -> f32 + Copy + Sync,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
     let dims @ [batch, c, spatial] = extents(x);
     let data = values(x);
@@ -396,12 +515,9 @@ fn maps_forward(
 /// one pass writing x'.
 fn maps_backward(
     x: &FlexTensor,
-    gamma: &[f32],
-    mean: &[f32],
-    variance: &[f32],
-    epsilon: f64,
+    (gamma, mean, variance, epsilon): Statistics,
     grad: &FlexTensor,
-    gate: ReluGate,
+    gate: impl Gate,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
     let dims @ [batch, c, spatial] = extents(x);
     assert_eq!(
@@ -525,5 +641,132 @@ impl<C: CheckpointStrategy> BatchNormOps for Autodiff<Flex, C> {
         };
         // The statistics are constants (the running statistics' update detaches them).
         (out, Self::from_inner(mean), Self::from_inner(variance))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The row layout as plain scalar loops: per channel, f64 sums over blocks of
+    /// `ROWS_PER_BLOCK` rows in row order, the blocks added in order; then the output or the
+    /// input gradient element by element. (output, mean, variance, dx, dγ, dβ).
+    fn scalar_rows(
+        x: &[f32],
+        [rows, c]: [usize; 2],
+        (gamma, beta, epsilon): (&[f32], &[f32], f64),
+        g: &[f32],
+        relu: bool,
+    ) -> [Vec<f32>; 6] {
+        let sums = |term: &dyn Fn(usize, usize) -> f64| -> Vec<f64> {
+            (0..c)
+                .map(|ch| {
+                    let mut total = 0f64;
+                    for block in (0..rows).step_by(ROWS_PER_BLOCK) {
+                        let mut acc = 0f64;
+                        for r in block..(block + ROWS_PER_BLOCK).min(rows) {
+                            acc += term(r, ch);
+                        }
+                        total += acc;
+                    }
+                    total
+                })
+                .collect()
+        };
+        let n = rows.max(1) as f64;
+        let mean: Vec<f32> = sums(&|r, ch| x[r * c + ch] as f64)
+            .iter()
+            .map(|&s| (s / n) as f32)
+            .collect();
+        let variance: Vec<f32> = sums(&|r, ch| {
+            let d = (x[r * c + ch] - mean[ch]) as f64;
+            d * d
+        })
+        .iter()
+        .map(|&s| (s / n) as f32)
+        .collect();
+        let inv_std: Vec<f32> = (0..c)
+            .map(|ch| 1.0 / (variance[ch] + epsilon as f32).sqrt())
+            .collect();
+        let scale: Vec<f32> = (0..c).map(|ch| inv_std[ch] * gamma[ch]).collect();
+        let norm = |r: usize, ch: usize| (x[r * c + ch] - mean[ch]) * scale[ch] + beta[ch];
+        let activation = |v: f32| {
+            if !relu || v.is_nan() || v > 0.0 {
+                v
+            } else {
+                0.0
+            }
+        };
+        let out: Vec<f32> = (0..rows * c)
+            .map(|i| activation(norm(i / c, i % c)))
+            .collect();
+        let gated = |r: usize, ch: usize| {
+            let keep = !relu || norm(r, ch).is_nan() || norm(r, ch) > 0.0;
+            if keep { g[r * c + ch] } else { 0.0 }
+        };
+        let x_hat = |r: usize, ch: usize| (x[r * c + ch] - mean[ch]) * inv_std[ch];
+        let sum_g = sums(&|r, ch| gated(r, ch) as f64);
+        let sum_gx = sums(&|r, ch| (gated(r, ch) * x_hat(r, ch)) as f64);
+        let dx: Vec<f32> = (0..rows * c)
+            .map(|i| {
+                let (r, ch) = (i / c, i % c);
+                let (mean_g, mean_gx) = ((sum_g[ch] / n) as f32, (sum_gx[ch] / n) as f32);
+                gamma[ch] * inv_std[ch] * ((gated(r, ch) - mean_g) - x_hat(r, ch) * mean_gx)
+            })
+            .collect();
+        let to_f32 = |s: Vec<f64>| s.into_iter().map(|v| v as f32).collect();
+        [out, mean, variance, dx, to_f32(sum_gx), to_f32(sum_g)]
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// The row layout's block kernels compute the scalar loops' values to the bit: widths
+    /// that do and do not fill a vector, row counts below, at and across a block, with and
+    /// without the ReLU.
+    #[test]
+    fn the_row_kernels_give_the_scalar_loops_bits() {
+        for (rows, c) in [(1, 1), (5, 3), (255, 16), (256, 7), (700, 37), (513, 64)] {
+            let x: Vec<f32> = (0..rows * c)
+                .map(|i| ((i * 7919) % 613) as f32 * 0.0137 - 3.0 + (i % c) as f32 * 0.5)
+                .collect();
+            let g: Vec<f32> = (0..rows * c)
+                .map(|i| ((i * 104_729) % 211) as f32 / 50.0 - 2.0)
+                .collect();
+            let gamma: Vec<f32> = (0..c).map(|ch| 0.75 + ch as f32 * 0.125).collect();
+            let beta: Vec<f32> = (0..c).map(|ch| ch as f32 * 0.25 - 0.5).collect();
+            for relu in [false, true] {
+                let input = flex_tensor(x.clone(), [rows, c]);
+                let vector = |v: &[f32]| FlexTensor::from_data(TensorData::new(v.to_vec(), [c]));
+                let (out, mean, variance) = forward(
+                    &input,
+                    &vector(&gamma),
+                    &vector(&beta),
+                    1e-3,
+                    NormLayout::Rows,
+                    relu,
+                );
+                let (mean, variance) = (values(&mean).into_owned(), values(&variance).into_owned());
+                let grad = flex_tensor(g.clone(), [rows, c]);
+                let (dx, dgamma, dbeta) = backward(
+                    &input,
+                    (&gamma, &mean, &variance),
+                    1e-3,
+                    NormLayout::Rows,
+                    &grad,
+                    relu.then_some(beta.as_slice()),
+                );
+                let reference = scalar_rows(&x, [rows, c], (&gamma, &beta, 1e-3), &g, relu);
+                let got = [values(&out), mean.into(), variance.into(), values(&dx)];
+                let got = [&got[..], &[values(&dgamma), values(&dbeta)]].concat();
+                for (what, (a, b)) in ["output", "mean", "variance", "dx", "dγ", "dβ"]
+                    .iter()
+                    .zip(got.iter().zip(&reference))
+                {
+                    assert_eq!(bits(a), bits(b), "{what}, {rows}×{c}, ReLU {relu}");
+                }
+            }
+        }
     }
 }

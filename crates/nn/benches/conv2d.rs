@@ -1,0 +1,93 @@
+//! The dense 3×3 convolutions of the Voxel R-CNN CPU row's BEV backbone (stride 1, padding
+//! 1; [2, 64, 64, 80] and [2, 128, 32, 40] maps) on the flex device: the forward pass, and the
+//! input gradient two ways — flex's (`conv2d_x_backward`: a transposed convolution, one
+//! product into a [C_in·9, H·W] column buffer per frame and a scatter of the columns) and as
+//! a forward convolution of the output gradient with the kernel flipped and its channel axes
+//! swapped. On a rayon pool of the machine's cores, as training runs them.
+//!
+//! `cargo bench -p fusiondet-nn --bench conv2d` (about 1 minute on two cores).
+
+use burn::backend::Flex;
+use burn::backend::flex::FlexTensor;
+use burn::backend::ops::{ConvOptions, ModuleOps};
+use burn::prelude::*;
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+
+/// As the binary: mimalloc, keeping freed memory (`fusiondet_alloc`).
+#[global_allocator]
+static ALLOCATOR: fusiondet_alloc::MiMalloc = fusiondet_alloc::MiMalloc;
+
+fn filled(shape: [usize; 4], salt: usize) -> FlexTensor {
+    let n: usize = shape.iter().product();
+    let v: Vec<f32> = (0..n)
+        .map(|i| ((i * 7919 + salt * 104_729) % 2003) as f32 / 1001.5 - 1.0)
+        .collect();
+    FlexTensor::from_data(TensorData::new(v, shape))
+}
+
+/// `weight` [C_out, C_in, k, k] as the kernel of the input gradient's forward convolution:
+/// [C_in, C_out, k, k], flipped in both spatial axes.
+fn flipped(weight: &[f32], [c_out, c_in, k, _]: [usize; 4]) -> FlexTensor {
+    let mut out = vec![0f32; weight.len()];
+    for o in 0..c_out {
+        for i in 0..c_in {
+            for y in 0..k {
+                for x in 0..k {
+                    out[((i * c_out + o) * k + (k - 1 - y)) * k + (k - 1 - x)] =
+                        weight[((o * c_in + i) * k + y) * k + x];
+                }
+            }
+        }
+    }
+    FlexTensor::from_data(TensorData::new(out, [c_in, c_out, k, k]))
+}
+
+fn dense_convolutions(c: &mut Criterion) {
+    fusiondet_alloc::keep_freed_memory();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .build()
+        .expect("a rayon pool");
+    let mut group = c.benchmark_group("conv3x3");
+    group.sample_size(20);
+    for [batch, channels, height, width] in [[2, 64, 64, 80], [2, 128, 32, 40]] {
+        let id = format!("{batch}x{channels}x{height}x{width}");
+        let x = filled([batch, channels, height, width], 1);
+        let weight_shape = [channels, channels, 3, 3];
+        let weight = filled(weight_shape, 2);
+        let weight_values = weight.clone().into_data().try_to_vec::<f32>().unwrap();
+        let weight_flipped = flipped(&weight_values, weight_shape);
+        let grad = filled([batch, channels, height, width], 3);
+        let options = ConvOptions::new([1, 1], [1, 1], [1, 1], 1);
+        group.bench_function(BenchmarkId::new("forward", &id), |b| {
+            b.iter(|| {
+                pool.install(|| Flex::conv2d(x.clone(), weight.clone(), None, options.clone()))
+            })
+        });
+        group.bench_function(BenchmarkId::new("input gradient, transposed", &id), |b| {
+            b.iter(|| {
+                pool.install(|| {
+                    Flex::conv2d_x_backward(
+                        x.clone(),
+                        weight.clone(),
+                        grad.clone(),
+                        options.clone(),
+                    )
+                })
+            })
+        });
+        group.bench_function(
+            BenchmarkId::new("input gradient, flipped forward", &id),
+            |b| {
+                b.iter(|| {
+                    pool.install(|| {
+                        Flex::conv2d(grad.clone(), weight_flipped.clone(), None, options.clone())
+                    })
+                })
+            },
+        );
+    }
+    group.finish();
+}
+
+criterion_group!(benches, dense_convolutions);
+criterion_main!(benches);
