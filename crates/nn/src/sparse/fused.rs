@@ -19,13 +19,13 @@
 //! kernel-map layout) keep burn's operations ([`super::conv::SparseConv3d::forward`]).
 
 use super::rulebook::HostRules;
+use crate::matmul::{MatrixRef, product};
 use crate::ragged::values;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
-use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::prelude::*;
@@ -59,21 +59,34 @@ fn matrix(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
 
 /// Rows `rows` of the [_, c] matrix `data`, stacked: [rows.len(), c]. Appended row by row
 /// into an unfilled buffer: zeroing it first, to split the copy over threads, cost more
-/// than the copy (memory-bound either way).
-fn gather_rows(data: &[f32], c: usize, rows: &[u32]) -> FlexTensor {
-    let mut out = Vec::with_capacity(rows.len() * c);
-    for &r in rows {
-        out.extend_from_slice(&data[r as usize * c..][..c]);
+/// than the copy (memory-bound either way). The layers' widths are copied as fixed-size
+/// rows ([`gather_fixed`]): a `memmove` call per 16- to 64-float row cost more than the
+/// copy itself.
+fn gather_rows(data: &[f32], c: usize, rows: &[u32]) -> Vec<f32> {
+    match c {
+        16 => gather_fixed::<16>(data, rows),
+        32 => gather_fixed::<32>(data, rows),
+        64 => gather_fixed::<64>(data, rows),
+        _ => {
+            let mut out = Vec::with_capacity(rows.len() * c);
+            for &r in rows {
+                out.extend_from_slice(&data[r as usize * c..][..c]);
+            }
+            out
+        }
     }
-    matrix(out, [rows.len(), c])
+}
+
+/// [`gather_rows`] for rows of `C` values, each copied as one array.
+fn gather_fixed<const C: usize>(data: &[f32], rows: &[u32]) -> Vec<f32> {
+    let (table, _) = data.as_chunks::<C>();
+    let gathered: Vec<[f32; C]> = rows.iter().map(|&r| table[r as usize]).collect();
+    gathered.into_flattened()
 }
 
 /// Offset k's [C_in, C_out] slice of the weight.
-fn offset_weight(weight: &[f32], k: usize, [c_in, c_out]: [usize; 2]) -> FlexTensor {
-    matrix(
-        weight[k * c_in * c_out..][..c_in * c_out].to_vec(),
-        [c_in, c_out],
-    )
+fn offset_weight(weight: &[f32], k: usize, [c_in, c_out]: [usize; 2]) -> MatrixRef<'_> {
+    MatrixRef::new(&weight[k * c_in * c_out..][..c_in * c_out], [c_in, c_out])
 }
 
 fn weight_dims(weight: &FlexTensor) -> [usize; 3] {
@@ -95,9 +108,12 @@ fn forward(features: &FlexTensor, weight: &FlexTensor, rules: &HostRules) -> Fle
     );
     let (centre, products) = rayon::join(
         || {
-            rules
-                .identity_offset
-                .map(|k| Flex::float_matmul(features.clone(), offset_weight(&w, k, [c_in, c_out])))
+            rules.identity_offset.map(|k| {
+                product(
+                    MatrixRef::rows(&x, c_in),
+                    offset_weight(&w, k, [c_in, c_out]),
+                )
+            })
         },
         || {
             rules
@@ -105,19 +121,17 @@ fn forward(features: &FlexTensor, weight: &FlexTensor, rules: &HostRules) -> Fle
                 .par_iter()
                 .map(|(k, input, _)| {
                     let gathered = gather_rows(&x, c_in, input);
-                    Flex::float_matmul(gathered, offset_weight(&w, *k, [c_in, c_out]))
+                    product(
+                        MatrixRef::rows(&gathered, c_in),
+                        offset_weight(&w, *k, [c_in, c_out]),
+                    )
                 })
                 .collect::<Vec<_>>()
         },
     );
-    let products: Vec<_> = products.iter().map(values).collect();
     let out = match centre {
         // The centre product's own buffer (no copy), the other offsets added in.
-        Some(product) => {
-            let mut out = product
-                .into_data()
-                .try_into_vec::<f32>()
-                .expect("f32 products");
+        Some(mut out) => {
             rules.by_output.add_into(&mut out, c_out, None, &products);
             out
         }
@@ -139,20 +153,24 @@ fn backward(
 ) -> (Option<FlexTensor>, Option<FlexTensor>) {
     let dims @ [volume, c_in, c_out] = weight_dims(weight);
     let (x, w, g) = (values(features), values(weight), values(grad));
-    let transposed = |t: FlexTensor| Flex::float_swap_dims(t, 0, 1);
     // (dW_k, g[outputs] · W_kᵀ) of one offset.
-    let offset_grads = |k: usize, x_rows: FlexTensor, g_rows: FlexTensor| {
-        let dw_k = want_w.then(|| Flex::float_matmul(transposed(x_rows), g_rows.clone()));
-        let dx_k = want_x
-            .then(|| Flex::float_matmul(g_rows, transposed(offset_weight(&w, k, [c_in, c_out]))));
+    let offset_grads = |k: usize, x_rows: &[f32], g_rows: &[f32]| {
+        let dw_k = want_w.then(|| {
+            product(
+                MatrixRef::rows(x_rows, c_in).t(),
+                MatrixRef::rows(g_rows, c_out),
+            )
+        });
+        let dx_k = want_x.then(|| {
+            product(
+                MatrixRef::rows(g_rows, c_out),
+                offset_weight(&w, k, [c_in, c_out]).t(),
+            )
+        });
         (dw_k, dx_k)
     };
     let (centre, others) = rayon::join(
-        || {
-            rules
-                .identity_offset
-                .map(|k| (k, offset_grads(k, features.clone(), grad.clone())))
-        },
+        || rules.identity_offset.map(|k| (k, offset_grads(k, &x, &g))),
         || {
             rules
                 .rules
@@ -160,7 +178,7 @@ fn backward(
                 .map(|(k, input, output)| {
                     let x_rows = gather_rows(&x, c_in, input);
                     let g_rows = gather_rows(&g, c_out, output);
-                    offset_grads(*k, x_rows, g_rows)
+                    offset_grads(*k, &x_rows, &g_rows)
                 })
                 .collect::<Vec<_>>()
         },
@@ -177,19 +195,17 @@ fn backward(
         );
         for (k, dw_k) in offsets {
             let dw_k = dw_k.as_ref().expect("weight gradients asked for");
-            dw[k * c_in * c_out..][..c_in * c_out].copy_from_slice(&values(dw_k));
+            dw[k * c_in * c_out..][..c_in * c_out].copy_from_slice(dw_k);
         }
         FlexTensor::from_data(TensorData::new(dw, dims))
     });
     let dx = want_x.then(|| {
-        let centre = centre
-            .as_ref()
-            .map(|(_, (_, dx_k))| values(dx_k.as_ref().expect("input gradients asked for")));
-        let products: Vec<_> = others
-            .iter()
-            .map(|(_, dx_k)| values(dx_k.as_ref().expect("input gradients asked for")))
-            .collect();
-        let dx = rules.by_input.sums(c_in, centre.as_deref(), &products);
+        fn asked(dx_k: &Option<Vec<f32>>) -> &[f32] {
+            dx_k.as_deref().expect("input gradients asked for")
+        }
+        let centre = centre.as_ref().map(|(_, (_, dx_k))| asked(dx_k));
+        let products: Vec<&[f32]> = others.iter().map(|(_, dx_k)| asked(dx_k)).collect();
+        let dx = rules.by_input.sums(c_in, centre, &products);
         matrix(dx, [rules.input_rows, c_in])
     });
     (dx, dw)
