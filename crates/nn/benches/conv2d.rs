@@ -89,5 +89,32 @@ fn dense_convolutions(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, dense_convolutions);
+/// The matrix products behind one frame's 3×3 convolution of the 64-channel 64 × 80 map, in
+/// both orientations: weights · patches ([64, 576] · [576, 5120], channels-first) and
+/// patches · weights ([5120, 576] · [576, 64], pixels-first), beside a 1024³ product.
+fn convolution_products(c: &mut Criterion) {
+    use fusiondet_nn::matmul::{MatrixRef, product};
+    let pool = rayon::ThreadPoolBuilder::new()
+        .build()
+        .expect("a rayon pool");
+    let mut group = c.benchmark_group("conv3x3_products");
+    group.sample_size(20);
+    for (name, [m, k, n]) in [
+        ("channels-first 64x576x5120", [64, 576, 5120]),
+        ("pixels-first 5120x576x64", [5120, 576, 64]),
+        ("1024x1024x1024", [1024, 1024, 1024]),
+    ] {
+        let a: Vec<f32> = (0..m * k).map(|i| (i % 7) as f32 - 3.0).collect();
+        let b: Vec<f32> = (0..k * n).map(|i| (i % 5) as f32 - 2.0).collect();
+        group.throughput(criterion::Throughput::Elements((2 * m * k * n) as u64));
+        group.bench_function(name, |bench| {
+            bench.iter(|| {
+                pool.install(|| product(MatrixRef::new(&a, [m, k]), MatrixRef::new(&b, [k, n])))
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, dense_convolutions, convolution_products);
 criterion_main!(benches);

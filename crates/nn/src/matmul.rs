@@ -53,28 +53,58 @@ const PARALLEL_THRESHOLD: usize = 192 * 192 * 192;
 
 /// `lhs · rhs` as a row-major [lhs.rows, rhs.cols] vector.
 pub fn product(lhs: MatrixRef, rhs: MatrixRef) -> Vec<f32> {
+    let len = lhs.rows * rhs.cols;
+    let mut out = Vec::<f32>::with_capacity(len);
+    // SAFETY: `gemm_into` writes all `len` values of the row-major [lhs.rows, rhs.cols]
+    // output, which lies in `out`'s capacity, without reading them.
+    unsafe {
+        gemm_into(lhs, rhs, out.as_mut_ptr());
+        out.set_len(len);
+    }
+    out
+}
+
+/// `lhs · rhs` written over `out`, a row-major [lhs.rows, rhs.cols] slice.
+pub fn product_into(lhs: MatrixRef, rhs: MatrixRef, out: &mut [f32]) {
+    assert_eq!(
+        out.len(),
+        lhs.rows * rhs.cols,
+        "an output of the product's size"
+    );
+    // SAFETY: `out` holds the whole output.
+    unsafe { gemm_into(lhs, rhs, out.as_mut_ptr()) }
+}
+
+/// Writes every value of the row-major [lhs.rows, rhs.cols] product at `out`, reading none.
+///
+/// # Safety
+/// `out` must be valid for writes of lhs.rows · rhs.cols values.
+unsafe fn gemm_into(lhs: MatrixRef, rhs: MatrixRef, out: *mut f32) {
     assert_eq!(lhs.cols, rhs.rows, "matching inner dimensions");
     let (m, k, n) = (lhs.rows, lhs.cols, rhs.cols);
-    if m == 0 || n == 0 || k == 0 {
-        return vec![0.0; m * n];
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        // SAFETY: the caller's promise.
+        unsafe { std::ptr::write_bytes(out, 0, m * n) };
+        return;
     }
     let parallelism = if m.saturating_mul(n).saturating_mul(k) >= PARALLEL_THRESHOLD {
         gemm::Parallelism::Rayon(0)
     } else {
         gemm::Parallelism::None
     };
-    let mut out = Vec::<f32>::with_capacity(m * n);
     // SAFETY: both inputs are read within their slices (each view's largest index,
     // (rows − 1)·row_stride + (cols − 1)·col_stride, is below its slice's length by
-    // construction); the output is m × n row-major in `out`'s capacity, and with
-    // `read_dst` false gemm writes every one of its m·n values without reading them, so
-    // all of them are initialised when the length is set.
+    // construction); the output is m × n row-major at `out` (the caller's promise), and with
+    // `read_dst` false gemm writes every one of its values without reading them.
     unsafe {
         gemm::gemm(
             m,
             n,
             k,
-            out.as_mut_ptr(),
+            out,
             1,
             n as isize,
             false,
@@ -91,9 +121,7 @@ pub fn product(lhs: MatrixRef, rhs: MatrixRef) -> Vec<f32> {
             false,
             parallelism,
         );
-        out.set_len(m * n);
     }
-    out
 }
 
 #[cfg(test)]

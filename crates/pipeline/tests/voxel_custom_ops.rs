@@ -1,5 +1,5 @@
 //! Training the voxel family with the custom flex operations (`fusiondet_nn::batch_norm_ops`'
-//! batch norms over rows and maps, `fusiondet_nn::conv2d`'s matrix-product weight gradient, `fusiondet_nn::sparse::fused`'s sparse convolution) against
+//! batch norms over rows and maps, `fusiondet_nn::conv2d`'s dense convolutions as matrix products, `fusiondet_nn::sparse::fused`'s sparse convolution) against
 //! training with burn's generic operations, for the tiny Voxel R-CNN and DASANet
 //! configurations: the same loss curve within float tolerance, and the custom path
 //! bit-reproducible run to run.
@@ -58,15 +58,18 @@ fn custom_operations_keep_the_voxel_loss_curves_and_reproduce_bit_for_bit() {
         println!("{name}: generic {generic:?}\n{name}: custom  {custom:?}");
         // Rounding differences (the sums' order) carried forward by Adam. The first epoch
         // (two steps: the second after one update) agrees within 1e-5 (measured: 2e-7), which
-        // a wrong gradient would not. Adam's first updates move each weight by about the
-        // learning rate whatever its gradient's size, so a rounding difference in a near-zero
-        // gradient becomes a weight difference of that size, and a discrete choice can flip
-        // early: in the second epoch the means part by 1.1e-3 for Voxel R-CNN and 2e-7 for
-        // DASANet (measured), and over longer runs a difference flips discrete choices (which proposals survive NMS,
-        // which RoIs are sampled) and the curves part by a few percent, as two seeds would.
+        // a wrong forward pass or a gradient of the wrong sign would not. Adam's first updates
+        // move each weight by about the learning rate whatever its gradient's size, so a
+        // rounding difference in a near-zero gradient becomes a weight difference of that
+        // size, and discrete choices (which proposals survive NMS, which RoIs are sampled)
+        // flip early: in the second epoch the means part by 1.4e-2 for Voxel R-CNN (since the
+        // dense convolutions' forward pass and input gradient sum in another order than
+        // flex's; 1.1e-3 before) and 2e-7 for DASANet (measured), and over longer runs the
+        // curves part by a few percent, as two seeds would. The gradients themselves are
+        // checked against burn's operation by operation (`fusiondet_nn`'s tests).
         for (epoch, (a, b)) in generic.iter().zip(&custom).enumerate() {
             let relative = (a - b).abs() / a.abs().max(1.0);
-            let tolerance = if epoch == 0 { 1e-5 } else { 5e-3 };
+            let tolerance = if epoch == 0 { 1e-5 } else { 3e-2 };
             assert!(
                 relative <= tolerance,
                 "{name}: epoch {epoch}: generic {a} vs custom {b}"
