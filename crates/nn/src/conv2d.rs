@@ -23,7 +23,7 @@
 //! this off with the other custom operations.
 
 use crate::buffers::par_chunks_filled;
-use crate::matmul::{MatrixRef, product_into};
+use crate::matmul::{MatrixRef, product, product_into};
 use crate::ragged::{custom_path, values};
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -31,7 +31,7 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
-use burn::backend::ops::{ConvOptions, FloatTensorOps, ModuleOps};
+use burn::backend::ops::{ConvOptions, ModuleOps};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::nn::conv::{Conv1d, Conv2d};
@@ -182,8 +182,8 @@ fn im2col(
     })
 }
 
-/// dL/dweight = Σ_b grad_b [C_out, H_out·W_out] · patches_bᵀ, as one batched product and a
-/// sum over the batch.
+/// dL/dweight = Σ_b grad_b [C_out, H_out·W_out] · patches_bᵀ: one product per frame (frames
+/// in parallel), summed over the frames in order.
 fn weight_grad(
     x: &FlexTensor,
     grad: &FlexTensor,
@@ -194,25 +194,39 @@ fn weight_grad(
     let [_, c_out, ho, wo] = dims4(grad);
     let [_, _, kh, kw] = weight_shape;
     let k = c_in * kh * kw;
-    let one_by_one = is_one_by_one([kh, kw], options);
-    // Reshapes are views of contiguous tensors (flex copies only what is not).
-    let patches = if one_by_one {
-        x.clone()
+    let x_values = values(x);
+    let patches = if is_one_by_one([kh, kw], options) {
+        x_values
     } else {
-        let cols = im2col(
-            &values(x),
+        Cow::Owned(im2col(
+            &x_values,
             [batch, c_in, height, width],
             [kh, kw],
             [ho, wo],
             options,
-        );
-        FlexTensor::from_data(TensorData::new(cols, [batch, k, ho * wo]))
+        ))
     };
-    let patches = Flex::float_reshape(patches, [batch, k, ho * wo].into());
-    let grad = Flex::float_reshape(grad.clone(), [batch, c_out, ho * wo].into());
-    let per_frame = Flex::float_matmul(grad, Flex::float_swap_dims(patches, 1, 2));
-    let summed = Flex::float_sum_dim(per_frame, 0);
-    Flex::float_reshape(summed, weight_shape.into())
+    let (g, positions) = (values(grad), ho * wo);
+    let per_frame: Vec<Vec<f32>> = (0..batch)
+        .into_par_iter()
+        .map(|b| {
+            let grad_b = MatrixRef::new(
+                &g[b * c_out * positions..][..c_out * positions],
+                [c_out, positions],
+            );
+            let patches_b = MatrixRef::new(
+                &patches[b * k * positions..][..k * positions],
+                [k, positions],
+            );
+            product(grad_b, patches_b.t())
+        })
+        .collect();
+    let mut frames = per_frame.into_iter();
+    let mut summed = frames.next().unwrap_or_else(|| vec![0.0; c_out * k]);
+    for frame in frames {
+        summed.iter_mut().zip(&frame).for_each(|(s, v)| *s += v);
+    }
+    FlexTensor::from_data(TensorData::new(summed, weight_shape))
 }
 
 /// The convolution as one product per frame of the weight [C_out, C_in·k_h·k_w] with the
