@@ -12,6 +12,7 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::ops::{ConvOptions, ModuleOps};
 use burn::prelude::*;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use fusiondet_nn::conv2d::flipped_kernel;
 
 /// As the binary: mimalloc, keeping freed memory (`fusiondet_alloc`).
 #[global_allocator]
@@ -23,23 +24,6 @@ fn filled(shape: [usize; 4], salt: usize) -> FlexTensor {
         .map(|i| ((i * 7919 + salt * 104_729) % 2003) as f32 / 1001.5 - 1.0)
         .collect();
     FlexTensor::from_data(TensorData::new(v, shape))
-}
-
-/// `weight` [C_out, C_in, k, k] as the kernel of the input gradient's forward convolution:
-/// [C_in, C_out, k, k], flipped in both spatial axes.
-fn flipped(weight: &[f32], [c_out, c_in, k, _]: [usize; 4]) -> FlexTensor {
-    let mut out = vec![0f32; weight.len()];
-    for o in 0..c_out {
-        for i in 0..c_in {
-            for y in 0..k {
-                for x in 0..k {
-                    out[((i * c_out + o) * k + (k - 1 - y)) * k + (k - 1 - x)] =
-                        weight[((o * c_in + i) * k + y) * k + x];
-                }
-            }
-        }
-    }
-    FlexTensor::from_data(TensorData::new(out, [c_in, c_out, k, k]))
 }
 
 fn dense_convolutions(c: &mut Criterion) {
@@ -55,7 +39,10 @@ fn dense_convolutions(c: &mut Criterion) {
         let weight_shape = [channels, channels, 3, 3];
         let weight = filled(weight_shape, 2);
         let weight_values = weight.clone().into_data().try_to_vec::<f32>().unwrap();
-        let weight_flipped = flipped(&weight_values, weight_shape);
+        let weight_flipped = FlexTensor::from_data(TensorData::new(
+            flipped_kernel(&weight_values, weight_shape),
+            [channels, channels, 3, 3],
+        ));
         let grad = filled([batch, channels, height, width], 3);
         let options = ConvOptions::new([1, 1], [1, 1], [1, 1], 1);
         group.bench_function(BenchmarkId::new("forward", &id), |b| {

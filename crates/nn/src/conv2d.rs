@@ -299,22 +299,28 @@ fn input_grad(
     if !flippable {
         return Flex::conv2d_x_backward(x.clone(), weight.clone(), grad.clone(), options.clone());
     }
-    let w = values(weight);
-    let mut flipped = vec![0f32; w.len()];
-    for o in 0..c_out {
-        for i in 0..c_in {
-            for y in 0..kh {
-                for xx in 0..kw {
-                    flipped[((i * c_out + o) * kh + (kh - 1 - y)) * kw + (kw - 1 - xx)] =
-                        w[((o * c_in + i) * kh + y) * kw + xx];
-                }
-            }
-        }
-    }
+    let flipped = flipped_kernel(&values(weight), [c_out, c_in, kh, kw]);
     let flipped = FlexTensor::from_data(TensorData::new(flipped, [c_in, c_out, kh, kw]));
     let padding = [kh - 1 - top, kw - 1 - left];
     let options = ConvOptions::new([1, 1], padding, [1, 1], 1);
     forward(grad, &flipped, None, &options)
+}
+
+/// A [C_out, C_in, k_h, k_w] kernel as the kernel of its input gradient's forward
+/// convolution: [C_in, C_out, k_h, k_w], flipped in both spatial axes.
+pub fn flipped_kernel(weight: &[f32], [c_out, c_in, kh, kw]: [usize; 4]) -> Vec<f32> {
+    let mut flipped = vec![0f32; weight.len()];
+    for o in 0..c_out {
+        for i in 0..c_in {
+            for y in 0..kh {
+                for x in 0..kw {
+                    flipped[((i * c_out + o) * kh + (kh - 1 - y)) * kw + (kw - 1 - x)] =
+                        weight[((o * c_in + i) * kh + y) * kw + x];
+                }
+            }
+        }
+    }
+    flipped
 }
 
 impl DenseConvOps for Flex {
