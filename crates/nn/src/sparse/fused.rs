@@ -59,14 +59,18 @@ fn matrix(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
 
 /// Rows `rows` of the [_, c] matrix `data`, stacked: [rows.len(), c]. Appended row by row
 /// into an unfilled buffer: zeroing it first, to split the copy over threads, cost more
-/// than the copy (memory-bound either way). The layers' widths are copied as fixed-size
-/// rows ([`gather_fixed`]): a `memmove` call per 16- to 64-float row cost more than the
-/// copy itself.
+/// than the copy (memory-bound either way). The networks' widths (voxel features of 4 and
+/// 6 values, layers of 16 to 128 channels) are copied as fixed-size rows
+/// ([`gather_fixed`]): a `memmove` call per row cost more than the copy itself.
 fn gather_rows(data: &[f32], c: usize, rows: &[u32]) -> Vec<f32> {
     match c {
+        4 => gather_fixed::<4>(data, rows),
+        6 => gather_fixed::<6>(data, rows),
         16 => gather_fixed::<16>(data, rows),
         32 => gather_fixed::<32>(data, rows),
+        48 => gather_fixed::<48>(data, rows),
         64 => gather_fixed::<64>(data, rows),
+        128 => gather_fixed::<128>(data, rows),
         _ => {
             let mut out = Vec::with_capacity(rows.len() * c);
             for &r in rows {
@@ -337,6 +341,22 @@ mod tests {
                 false,
                 [2, 3],
             ),
+            // The widths whose rows are gathered as fixed-size arrays.
+            (
+                [10, 14, 14],
+                400,
+                ConvGeometry::same([3; 3]),
+                true,
+                [16, 48],
+            ),
+            (
+                [10, 14, 14],
+                400,
+                ConvGeometry::strided([3; 3], [2; 3], [1; 3]),
+                false,
+                [32, 64],
+            ),
+            ([8, 8, 8], 100, ConvGeometry::same([3; 3]), true, [6, 128]),
         ];
         for (case, (shape, count, geometry, submanifold, [c_in, c_out])) in
             cases.into_iter().enumerate()
