@@ -31,6 +31,7 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
+use burn::backend::ops::conv::calculate_conv_output_size_asymmetric;
 use burn::backend::ops::{ConvOptions, ModuleOps};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
@@ -190,22 +191,11 @@ fn weight_grad(
     weight_shape: [usize; 4],
     options: &ConvOptions<2>,
 ) -> FlexTensor {
-    let [batch, c_in, height, width] = dims4(x);
+    let [batch, c_in, _, _] = dims4(x);
     let [_, c_out, ho, wo] = dims4(grad);
     let [_, _, kh, kw] = weight_shape;
     let k = c_in * kh * kw;
-    let x_values = values(x);
-    let patches = if is_one_by_one([kh, kw], options) {
-        x_values
-    } else {
-        Cow::Owned(im2col(
-            &x_values,
-            [batch, c_in, height, width],
-            [kh, kw],
-            [ho, wo],
-            options,
-        ))
-    };
+    let patches = patches(x, [kh, kw], [ho, wo], options);
     let (g, positions) = (values(grad), ho * wo);
     let per_frame: Vec<Vec<f32>> = (0..batch)
         .into_par_iter()
@@ -238,42 +228,48 @@ fn forward(
     bias: Option<&FlexTensor>,
     options: &ConvOptions<2>,
 ) -> FlexTensor {
-    let dims @ [batch, c_in, height, width] = dims4(x);
+    let [batch, c_in, height, width] = dims4(x);
     let [c_out, _, kh, kw] = dims4(weight);
-    let out_size = |size: usize, kernel: usize, axis: usize| {
-        let (before, after) = options.padding[axis];
-        let span = options.dilation[axis] * (kernel - 1) + 1;
-        (size + before + after).saturating_sub(span) / options.stride[axis] + 1
+    let out_size = |axis: usize, kernel: usize, size: usize| {
+        let (stride, dilation) = (options.stride[axis], options.dilation[axis]);
+        calculate_conv_output_size_asymmetric(kernel, stride, options.padding[axis], dilation, size)
     };
-    let [ho, wo] = [out_size(height, kh, 0), out_size(width, kw, 1)];
+    let [ho, wo] = [out_size(0, kh, height), out_size(1, kw, width)];
     let (k, positions) = (c_in * kh * kw, ho * wo);
-    let x_values = values(x);
-    let patches = if is_one_by_one([kh, kw], options) {
-        x_values
-    } else {
-        Cow::Owned(im2col(&x_values, dims, [kh, kw], [ho, wo], options))
-    };
+    let patches = patches(x, [kh, kw], [ho, wo], options);
     let w = values(weight);
     let w = MatrixRef::new(&w, [c_out, k]);
     let bias = bias.map(values);
-    let mut out = vec![0f32; batch * c_out * positions];
-    out.par_chunks_exact_mut(c_out * positions.max(1))
-        .enumerate()
-        .for_each(|(b, frame)| {
-            let frame_patches = &patches[b * k * positions..][..k * positions];
-            product_into(w, MatrixRef::new(frame_patches, [k, positions]), frame);
-            if let Some(bias) = &bias {
-                for (channel, &beta) in frame.chunks_exact_mut(positions).zip(bias.iter()) {
-                    channel.iter_mut().for_each(|v| *v += beta);
-                }
+    let frame_len = c_out * positions;
+    let out = par_chunks_filled(batch * frame_len, frame_len, |b, frame| {
+        let frame_patches = &patches[b * k * positions..][..k * positions];
+        product_into(w, MatrixRef::new(frame_patches, [k, positions]), frame);
+        if let Some(bias) = &bias {
+            for (channel, &beta) in frame.chunks_exact_mut(positions).zip(bias.iter()) {
+                channel.iter_mut().for_each(|v| *v += beta);
             }
-        });
+        }
+    });
     FlexTensor::from_data(TensorData::new(out, [batch, c_out, ho, wo]))
 }
 
-/// A 1×1 kernel at stride 1 without padding: the input is its own patch matrix.
-fn is_one_by_one([kh, kw]: [usize; 2], options: &ConvOptions<2>) -> bool {
-    kh == 1 && kw == 1 && options.stride == [1, 1] && options.padding == [(0, 0), (0, 0)]
+/// The patch matrix of `x` for a `kernel` convolution with an `out`-sized output,
+/// [B, C_in·k_h·k_w, H_out·W_out] ([`im2col`]); for a 1×1 kernel at stride 1 without
+/// padding, `x`'s own values.
+fn patches<'a>(
+    x: &'a FlexTensor,
+    kernel @ [kh, kw]: [usize; 2],
+    out: [usize; 2],
+    options: &ConvOptions<2>,
+) -> Cow<'a, [f32]> {
+    let x_values = values(x);
+    let one_by_one =
+        kh == 1 && kw == 1 && options.stride == [1, 1] && options.padding == [(0, 0), (0, 0)];
+    if one_by_one {
+        x_values
+    } else {
+        Cow::Owned(im2col(&x_values, dims4(x), kernel, out, options))
+    }
 }
 
 /// dL/dx. At stride 1 without dilation and with the same padding p ≤ k − 1 on both sides of
