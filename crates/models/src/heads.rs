@@ -70,8 +70,8 @@ impl Heads {
     pub fn forward(&self, x: Tensor<3>) -> (Tensor<3>, Tensor<3>) {
         let [b, c, p] = x.dims();
         let x = x.swap_dims(1, 2).reshape([b * p, c]);
-        let cls = self.cls.forward(x.clone());
-        let reg = self.reg.forward(x);
+        let cls = fusiondet_nn::linear::linear(&self.cls, x.clone());
+        let reg = fusiondet_nn::linear::linear(&self.reg, x);
         let r = reg.dims()[1];
         (cls.reshape([b, p, 2]), reg.reshape([b, p, r]))
     }

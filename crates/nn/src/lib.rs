@@ -12,6 +12,7 @@ pub mod batch_norm_ops;
 pub mod buffers;
 pub mod conv2d;
 pub mod host_max;
+pub mod linear;
 pub mod matmul;
 pub mod mlp;
 pub mod norm;

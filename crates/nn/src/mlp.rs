@@ -50,7 +50,7 @@ impl MlpLayer {
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
         match &self.folded {
             Some(_) => relu(self.forward_pre_activation(x)),
-            None => norm_rows_relu(&self.norm, self.linear.forward(x)),
+            None => norm_rows_relu(&self.norm, crate::linear::linear(&self.linear, x)),
         }
     }
 
@@ -90,7 +90,7 @@ impl MlpLayer {
             self.folded.is_none(),
             "the masked form checks training statistics; a folded layer has none"
         );
-        let x = self.linear.forward(x);
+        let x = crate::linear::linear(&self.linear, x);
         relu(masked_batch_norm(&self.norm, x, valid, count))
     }
 

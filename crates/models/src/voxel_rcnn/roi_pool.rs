@@ -254,12 +254,12 @@ impl LinearBn {
     }
 
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
-        norm_rows(&self.norm, self.linear.forward(x))
+        norm_rows(&self.norm, fusiondet_nn::linear::linear(&self.linear, x))
     }
 
     /// `relu(self.forward(x))`, the ReLU fused into the norm in training (`norm_rows_relu`).
     pub fn forward_relu(&self, x: Tensor<2>) -> Tensor<2> {
-        norm_rows_relu(&self.norm, self.linear.forward(x))
+        norm_rows_relu(&self.norm, fusiondet_nn::linear::linear(&self.linear, x))
     }
 }
 
