@@ -110,34 +110,21 @@ fn register_grads(
     }
 }
 
-/// The backward step without a bias.
+/// The backward step: N = 2 parents (x, W) without a bias, 3 with one (x, W, b).
 #[derive(Debug)]
-struct LinearBackward;
+struct LinearBackward<const N: usize>;
 
-impl Backward<Flex, 2> for LinearBackward {
+impl<const N: usize> Backward<Flex, N> for LinearBackward<N> {
     /// The input and the weight.
     type State = (FlexTensor, FlexTensor);
 
-    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+    fn backward(self, ops: Ops<Self::State, N>, grads: &mut Gradients, _: &mut Checkpointer) {
         let (x, weight) = ops.state;
         let grad = grads.consume::<Flex>(&ops.node);
-        let [node_x, node_weight] = ops.parents.map(|p| p.map(|p| p.id));
-        register_grads(grads, [node_x, node_weight, None], (&x, &weight), grad);
-    }
-}
-
-/// The backward step with a bias.
-#[derive(Debug)]
-struct LinearBiasBackward;
-
-impl Backward<Flex, 3> for LinearBiasBackward {
-    /// The input and the weight.
-    type State = (FlexTensor, FlexTensor);
-
-    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let (x, weight) = ops.state;
-        let grad = grads.consume::<Flex>(&ops.node);
-        let nodes = ops.parents.map(|p| p.map(|p| p.id));
+        let mut nodes = [None; 3];
+        for (node, parent) in nodes.iter_mut().zip(&ops.parents) {
+            *node = parent.as_ref().map(|p| p.id);
+        }
         register_grads(grads, nodes, (&x, &weight), grad);
     }
 }
@@ -157,7 +144,7 @@ impl<C: CheckpointStrategy> LinearRowOps for Autodiff<Flex, C> {
         let (x, node_x) = x.into_parts();
         let (weight, node_weight) = weight.into_parts();
         let out = forward(&x, &weight, None);
-        match LinearBackward
+        match LinearBackward::<2>
             .prepare::<C>([node_x, node_weight])
             .compute_bound()
             .stateful()
@@ -176,7 +163,7 @@ impl<C: CheckpointStrategy> LinearRowOps for Autodiff<Flex, C> {
         let (weight, node_weight) = weight.into_parts();
         let (bias, node_bias) = bias.into_parts();
         let out = forward(&x, &weight, Some(&bias));
-        match LinearBiasBackward
+        match LinearBackward::<3>
             .prepare::<C>([node_x, node_weight, node_bias])
             .compute_bound()
             .stateful()
