@@ -9,6 +9,7 @@ use burn::nn::conv::{Conv1d, Conv1dConfig, ConvTranspose1d, ConvTranspose1dConfi
 use burn::nn::{BatchNorm, PaddingConfig1d};
 use burn::prelude::*;
 use fusiondet_nn::conv2d::conv1d;
+use fusiondet_nn::deconv::deconv1d;
 use fusiondet_nn::{batch_norm, norm_maps_relu};
 
 /// Conv1d + BatchNorm + ReLU.
@@ -68,7 +69,7 @@ impl DeconvBnRelu {
     }
 
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        norm_maps_relu(&self.norm, self.deconv.forward(x))
+        norm_maps_relu(&self.norm, deconv1d(&self.deconv, x))
     }
 }
 

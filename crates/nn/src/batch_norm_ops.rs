@@ -16,7 +16,7 @@
 //! [`crate::norm::norm_maps`] pick this path (training on the flex device) or
 //! `BatchNorm::forward`.
 
-use crate::buffers::par_chunks_filled;
+use crate::buffers::par_chunks_written;
 use crate::ragged::{dims2, flex_tensor, values};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -27,6 +27,7 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, AutodiffBackend, Backend, Dispatch, Flex, backend_extension};
 use burn::prelude::*;
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 use std::sync::Arc;
 
 /// Which axes a batch norm's statistics run over.
@@ -264,7 +265,7 @@ fn add_centred_squares(acc: &mut [f64], x: &[f32], mean: &[f32]) {
 
 /// out[r, ch] = activation((x[r, ch] − mean[ch])·scale[ch] + β[ch]).
 fn normalise_rows(
-    out: &mut [f32],
+    out: &mut [MaybeUninit<f32>],
     x: &[f32],
     [mean, scale, beta]: [&[f32]; 3],
     activation: impl Fn(f32) -> f32,
@@ -274,7 +275,7 @@ fn normalise_rows(
     for (o_row, x_row) in out.chunks_exact_mut(c).zip(x.chunks_exact(c)) {
         let (o_row, x_row) = (&mut o_row[..c], &x_row[..c]);
         for ch in 0..c {
-            o_row[ch] = activation((x_row[ch] - mean[ch]) * scale[ch] + beta[ch]);
+            o_row[ch].write(activation((x_row[ch] - mean[ch]) * scale[ch] + beta[ch]));
         }
     }
 }
@@ -305,7 +306,7 @@ fn add_gradient_sums(
 /// dx[r, ch] = scale[ch]·((g − mean(g)[ch]) − x̂·mean(g·x̂)[ch]) for the rows of `x` and `g`
 /// (g through `gate`).
 fn input_gradient_rows(
-    dx: &mut [f32],
+    dx: &mut [MaybeUninit<f32>],
     (x, g): (&[f32], &[f32]),
     [mean, inv_std, scale, mean_g, mean_gx]: [&[f32]; 5],
     gate: impl Gate,
@@ -320,7 +321,7 @@ fn input_gradient_rows(
         for ch in 0..c {
             let x_hat = (x_row[ch] - mean[ch]) * inv_std[ch];
             let g = gate.gate(ch, x_row[ch], g_row[ch]);
-            d_row[ch] = scale[ch] * ((g - mean_g[ch]) - x_hat * mean_gx[ch]);
+            d_row[ch].write(scale[ch] * ((g - mean_g[ch]) - x_hat * mean_gx[ch]));
         }
     }
 }
@@ -354,7 +355,7 @@ fn rows_forward(
     .collect();
     let scale = output_scale(&variance, &gamma, epsilon);
     let block = ROWS_PER_BLOCK * c;
-    let out = par_chunks_filled(rows * c, block, |b, dst| {
+    let out = par_chunks_written(rows * c, block, |b, dst| {
         let src = &data[b * block..][..dst.len()];
         normalise_rows(dst, src, [&mean, &scale, &beta], activation);
     });
@@ -383,7 +384,7 @@ fn rows_backward(
     let mean_gx: Vec<f32> = sums[c..].iter().map(|&s| (s / n) as f32).collect();
     let scale: Vec<f32> = gamma.iter().zip(&inv_std).map(|(&g, &s)| g * s).collect();
     let per_channel = [mean, &inv_std, &scale, &mean_g, &mean_gx];
-    let dx = par_chunks_filled(rows * c, ROWS_PER_BLOCK * c, |b, dst| {
+    let dx = par_chunks_written(rows * c, ROWS_PER_BLOCK * c, |b, dst| {
         let first = b * ROWS_PER_BLOCK;
         let rows = first..first + dst.len() / c.max(1);
         let (x, g) = (row_block(&data, c, rows.clone()), row_block(&g, c, rows));
@@ -424,15 +425,15 @@ fn per_channel<T: Send>(
 }
 
 /// A [B, C, S] output written by `write(ch, run_offset, out_run)` for every (frame, channel)
-/// run, in parallel over blocks of whole runs.
-fn per_run_filled(
+/// run, in parallel over blocks of whole runs; `write` writes every value of its run.
+fn per_run_written(
     [batch, channels, spatial]: [usize; 3],
-    write: impl Fn(usize, usize, &mut [f32]) + Sync,
+    write: impl Fn(usize, usize, &mut [MaybeUninit<f32>]) + Sync,
 ) -> Vec<f32> {
     // Enough runs a task that small maps (the FCN's 35-long slices) are not one task each.
     let runs_per_task = (4096 / spatial.max(1)).max(1);
     let len = batch * channels * spatial;
-    par_chunks_filled(len, runs_per_task * spatial, |task, block| {
+    par_chunks_written(len, runs_per_task * spatial, |task, block| {
         for (i, run) in block.chunks_exact_mut(spatial.max(1)).enumerate() {
             let index = task * runs_per_task + i;
             write(index % channels, index * spatial, run);
@@ -496,10 +497,10 @@ fn maps_forward(
     });
     let (mean, variance): (Vec<f32>, Vec<f32>) = stats.into_iter().unzip();
     let scale = output_scale(&variance, &gamma, epsilon);
-    let out = per_run_filled(dims, |ch, offset, run| {
+    let out = per_run_written(dims, |ch, offset, run| {
         let (m, k, b) = (mean[ch], scale[ch], beta[ch]);
         for (o, &v) in run.iter_mut().zip(&data[offset..offset + spatial]) {
-            *o = activation((v - m) * k + b);
+            o.write(activation((v - m) * k + b));
         }
     });
     let shape = x.layout().shape().clone();
@@ -542,13 +543,13 @@ fn maps_backward(
     let n = (batch * spatial).max(1) as f64;
     let mean_g: Vec<f32> = sums.iter().map(|&(s, _)| (s / n) as f32).collect();
     let mean_gx: Vec<f32> = sums.iter().map(|&(_, s)| (s / n) as f32).collect();
-    let dx = per_run_filled(dims, |ch, offset, run| {
+    let dx = per_run_written(dims, |ch, offset, run| {
         let (m, s, k) = (mean[ch], inv_std[ch], gamma[ch] * inv_std[ch]);
         let (mg, mgx) = (mean_g[ch], mean_gx[ch]);
         let src = data[offset..offset + spatial].iter().zip(&g[offset..]);
         for (d, (&v, &gv)) in run.iter_mut().zip(src) {
             let gv = gate.gate(ch, v, gv);
-            *d = k * ((gv - mg) - (v - m) * s * mgx);
+            d.write(k * ((gv - mg) - (v - m) * s * mgx));
         }
     });
     let shape = x.layout().shape().clone();

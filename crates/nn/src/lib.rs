@@ -11,6 +11,7 @@
 pub mod batch_norm_ops;
 pub mod buffers;
 pub mod conv2d;
+pub mod deconv;
 pub mod host_max;
 pub mod linear;
 pub mod matmul;

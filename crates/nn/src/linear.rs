@@ -49,11 +49,20 @@ pub fn linear(layer: &Linear, x: Tensor<2>) -> Tensor<2> {
     if !(custom_path(&x) && x.device().is_autodiff()) {
         return layer.forward(x);
     }
-    let (x, weight) = (x.into_dispatch(), layer.weight.val().into_dispatch());
-    Tensor::from_dispatch(match &layer.bias {
-        Some(bias) => {
-            <Dispatch as LinearRowOps>::linear_rows_bias(x, weight, bias.val().into_dispatch())
-        }
+    linear_rows(
+        x,
+        layer.weight.val(),
+        layer.bias.as_ref().map(|bias| bias.val()),
+    )
+}
+
+/// x [rows, in] · `weight` [in, out] (+ `bias` [out]) through the custom operation, for
+/// callers whose layer is not a `Linear` but is one product (a transposed convolution whose
+/// kernel is its stride, [`crate::deconv`]). Only where [`custom_path`] holds.
+pub(crate) fn linear_rows(x: Tensor<2>, weight: Tensor<2>, bias: Option<Tensor<1>>) -> Tensor<2> {
+    let (x, weight) = (x.into_dispatch(), weight.into_dispatch());
+    Tensor::from_dispatch(match bias {
+        Some(bias) => <Dispatch as LinearRowOps>::linear_rows_bias(x, weight, bias.into_dispatch()),
         None => <Dispatch as LinearRowOps>::linear_rows(x, weight),
     })
 }
