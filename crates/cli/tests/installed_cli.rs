@@ -14,8 +14,9 @@ use std::process::Command;
 /// reshaped for a second detector family, and written anew when detection's point sampling
 /// came to draw from streams named by frame (so that a split detected in chunks gives what
 /// it gives whole) and to put a small frustum's distinct points before its repeats.
-/// Voxel R-CNN's and DASANet's were pinned when each joined the demo, SAF's anew when the
-/// shipped SAF was retrained on the baseline's budget, the two-stage and people models' when
+/// Voxel R-CNN's and DASANet's were pinned when each joined the demo (DASANet's anew when its
+/// third-form model was shipped), SAF's anew when the shipped SAF was retrained on the
+/// baseline's budget, the two-stage and people models' when
 /// they were shipped (each the same with 1 and 2 threads).
 #[test]
 fn the_demo_writes_the_same_result_files_as_before_with_every_shipped_model() {
