@@ -19,21 +19,13 @@ pub fn par_chunks_filled(
     chunk_len: usize,
     fill: impl Fn(usize, &mut [f32]) + Sync,
 ) -> Vec<f32> {
-    let mut out: Vec<f32> = Vec::with_capacity(len);
-    out.spare_capacity_mut()[..len]
-        .par_chunks_mut(chunk_len.max(1))
-        .enumerate()
-        .for_each(|(i, chunk)| {
-            chunk.fill(MaybeUninit::new(0.0));
-            // SAFETY: every element of `chunk` was initialised on the line above, and
-            // `MaybeUninit<f32>` has the layout of `f32`.
-            let chunk = unsafe { &mut *(chunk as *mut [MaybeUninit<f32>] as *mut [f32]) };
-            fill(i, chunk);
-        });
-    // SAFETY: the chunks cover indices 0..len and each was initialised above (a panic in
-    // `fill` propagates before this line, leaving the vector empty).
-    unsafe { out.set_len(len) };
-    out
+    par_chunks_written(len, chunk_len, |i, chunk| {
+        chunk.fill(MaybeUninit::new(0.0));
+        // SAFETY: every element of `chunk` was initialised on the line above, and
+        // `MaybeUninit<f32>` has the layout of `f32`.
+        let chunk = unsafe { &mut *(chunk as *mut [MaybeUninit<f32>] as *mut [f32]) };
+        fill(i, chunk);
+    })
 }
 
 /// A vector of `len` values, `write(i, chunk)` writing chunk i (values `i·chunk_len..`, the

@@ -25,18 +25,18 @@ use burn::prelude::*;
 /// for a deconvolution whose kernel k is its stride (no padding, dilation 1, one group), as
 /// one product (see the module's documentation); otherwise burn's.
 pub fn deconv1d(deconv: &ConvTranspose1d, x: Tensor<3>) -> Tensor<3> {
+    // The weight's shape, not `kernel_size`, is what burn's operation convolves with.
     let [c_in, c_out, kernel] = deconv.weight.dims();
-    let non_overlapping = deconv.kernel_size == deconv.stride
-        && kernel == deconv.stride
+    let [batch, channels, length] = x.dims();
+    let non_overlapping = kernel == deconv.stride
         && deconv.padding == 0
         && deconv.padding_out == 0
         && deconv.dilation == 1
         && deconv.groups == 1
-        && x.dims()[1] == c_in;
+        && channels == c_in;
     if !(non_overlapping && custom_path(&x) && x.device().is_autodiff()) {
         return deconv.forward(x);
     }
-    let [batch, _, length] = x.dims();
     let rows = x.swap_dims(1, 2).reshape([batch * length, c_in]);
     let weight = deconv.weight.val().reshape([c_in, c_out * kernel]);
     let bias = deconv.bias.as_ref().map(|bias| {
