@@ -56,8 +56,15 @@ impl MlpLayer {
 
     /// Linear + BatchNorm, without the ReLU.
     pub fn forward_pre_activation(&self, x: Tensor<2>) -> Tensor<2> {
-        let (weight, bias) = self.affine();
-        self.normalize(burn::tensor::module::linear(x, weight, bias))
+        match &self.folded {
+            Some((weight, bias)) => {
+                burn::tensor::module::linear(x, weight.clone(), Some(bias.clone()))
+            }
+            // Training's product through `crate::linear` like `forward`'s: the PointNets'
+            // last layer before the max-pool took burn's generic product, an eighth of the
+            // F-ConvNet step.
+            None => norm_rows(&self.norm, crate::linear::linear(&self.linear, x)),
+        }
     }
 
     /// The linear map the layer applies before its norm, (W [in, out], b): the folded one
