@@ -31,6 +31,7 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::prelude::*;
+use multiversion::multiversion;
 use burn::tensor::DType;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -243,9 +244,42 @@ pub(crate) fn flex_tensor(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
 
 /// One step of flex's `max_dim_with_indices` scan: `v` replaces `best` when `best` is not
 /// NaN and `v` is larger or NaN.
-#[inline]
+#[inline(always)]
 fn replaces(best: f32, v: f32) -> bool {
     !best.is_nan() && (v.is_nan() || v > best)
+}
+
+/// One run's per-channel max into `dst` ([C]) over its rows `rows` ([count ≥ 1, C], the
+/// first being row `first` of the input) and, with `arg`, each channel's winning row.
+/// Compiled per instruction set and chosen at run time (`multiversion`, as batch norm's
+/// kernels): the channels are independent, so the values are the baseline build's.
+#[multiversion(targets = "simd")]
+fn run_max(dst: &mut [f32], arg: Option<&mut [u32]>, rows: &[f32], first: u32) {
+    let c = dst.len();
+    dst.copy_from_slice(&rows[..c]);
+    match arg {
+        None => {
+            for row in rows[c..].chunks_exact(c) {
+                for (best, &v) in dst.iter_mut().zip(row) {
+                    if replaces(*best, v) {
+                        *best = v;
+                    }
+                }
+            }
+        }
+        Some(arg) => {
+            arg.fill(first);
+            for (r, row) in rows[c..].chunks_exact(c).enumerate() {
+                let r = first + 1 + r as u32;
+                for ((best, at), &v) in dst.iter_mut().zip(arg.iter_mut()).zip(row) {
+                    if replaces(*best, v) {
+                        *best = v;
+                        *at = r;
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// The per-run max of `x` and, when `with_argmax`, each (run, channel)'s winning row.
@@ -269,33 +303,7 @@ fn runs_max_forward(x: &FlexTensor, runs: &Runs, with_argmax: bool) -> (FlexTens
             if count == 0 {
                 return;
             }
-            dst.copy_from_slice(&data[start * c..(start + 1) * c]);
-            match arg {
-                None => {
-                    for row in data[(start + 1) * c..(start + count) * c].chunks_exact(c) {
-                        for (best, &v) in dst.iter_mut().zip(row) {
-                            if replaces(*best, v) {
-                                *best = v;
-                            }
-                        }
-                    }
-                }
-                Some(arg) => {
-                    arg.fill(start as u32);
-                    for (r, row) in data[(start + 1) * c..(start + count) * c]
-                        .chunks_exact(c)
-                        .enumerate()
-                    {
-                        let r = (start + 1 + r) as u32;
-                        for ((best, at), &v) in dst.iter_mut().zip(arg.iter_mut()).zip(row) {
-                            if replaces(*best, v) {
-                                *best = v;
-                                *at = r;
-                            }
-                        }
-                    }
-                }
-            }
+            run_max(dst, arg, &data[start * c..(start + count) * c], start as u32);
         };
         if with_argmax {
             out.par_chunks_mut(c)
