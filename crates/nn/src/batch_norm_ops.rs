@@ -581,7 +581,10 @@ fn maps_backward(
     let mean_gx: Vec<f32> = sums.iter().map(|&(_, s)| (s / n) as f32).collect();
     let dx = per_run_written(dims, |ch, offset, run| {
         let (m, s, k) = (mean[ch], inv_std[ch], gamma[ch] * inv_std[ch]);
-        let src = (&data[offset..offset + spatial], &g[offset..offset + spatial]);
+        let src = (
+            &data[offset..offset + spatial],
+            &g[offset..offset + spatial],
+        );
         let per_channel = [m, s, k, mean_g[ch], mean_gx[ch]];
         input_gradient_run(run, src, per_channel, (gate, ch));
     });

@@ -31,8 +31,8 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
 use burn::prelude::*;
-use multiversion::multiversion;
 use burn::tensor::DType;
+use multiversion::multiversion;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
@@ -303,7 +303,12 @@ fn runs_max_forward(x: &FlexTensor, runs: &Runs, with_argmax: bool) -> (FlexTens
             if count == 0 {
                 return;
             }
-            run_max(dst, arg, &data[start * c..(start + count) * c], start as u32);
+            run_max(
+                dst,
+                arg,
+                &data[start * c..(start + count) * c],
+                start as u32,
+            );
         };
         if with_argmax {
             out.par_chunks_mut(c)
