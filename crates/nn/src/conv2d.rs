@@ -1,4 +1,4 @@
-//! Training's dense 2D convolutions (and 1D ones, as [B, C, L, 1] maps: [`conv1d`]) on the
+//! Training's dense 2D convolutions (and 1D ones, as [B, C, 1, L] maps: [`conv1d`]) on the
 //! flex CPU device, with the weight gradient as one matrix product.
 //!
 //! Why: burn 0.22 differentiates a convolution's weight as another convolution — of the
@@ -94,7 +94,7 @@ fn custom_conv(
 }
 
 /// `conv.forward(x)` for a [`Conv1d`] on [B, C, L]: in training on the flex CPU device
-/// through [`conv2d`]'s operation as a [B, C, L, 1] map with a [k, 1] kernel, so its weight
+/// through [`conv2d`]'s operation as a [B, C, 1, L] map with a [1, k] kernel, so its weight
 /// gradient is the same one matrix product (burn differentiates a 1D convolution's weight as
 /// a convolution too; the frustum FCN's ran on one core).
 pub fn conv1d(conv: &Conv1d, x: Tensor<3>) -> Tensor<3> {
@@ -108,17 +108,19 @@ pub fn conv1d(conv: &Conv1d, x: Tensor<3>) -> Tensor<3> {
         Some(padding) if usable && custom_path(&x) && x.device().is_autodiff() => padding,
         _ => return conv.forward(x),
     };
+    // The sequence along the width: each patch row is then one contiguous run of the input
+    // (one copy per row; along the height it was one copy per element).
     let options =
-        ConvOptions::new_with_padding([conv.stride, 1], [padding, (0, 0)], [conv.dilation, 1], 1);
+        ConvOptions::new_with_padding([1, conv.stride], [(0, 0), padding], [1, conv.dilation], 1);
     let [batch, channels, length] = x.dims();
     let [c_out, c_in, kernel] = conv.weight.dims();
     let out = custom_conv(
-        x.reshape([batch, channels, length, 1]),
-        conv.weight.val().reshape([c_out, c_in, kernel, 1]),
+        x.reshape([batch, channels, 1, length]),
+        conv.weight.val().reshape([c_out, c_in, 1, kernel]),
         conv.bias.as_ref().map(|b| b.val()),
         options,
     );
-    let [b, c, l, _] = out.dims();
+    let [b, c, _, l] = out.dims();
     out.reshape([b, c, l])
 }
 
@@ -519,7 +521,7 @@ mod tests {
         }
     }
 
-    /// A `Conv1d` through the operation as a [B, C, L, 1] map against burn's `Conv1d`:
+    /// A `Conv1d` through the operation as a [B, C, 1, L] map against burn's `Conv1d`:
     /// forward values, input, weight and bias gradients, as the FCN uses it (kernel 3 at
     /// strides 1 and 2, the 1×1 merge, with and without a bias).
     #[test]
