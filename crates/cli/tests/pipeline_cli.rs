@@ -931,3 +931,38 @@ fn a_killed_ablation_takes_its_training_with_it() {
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
 }
+
+/// The binary an ablation was started from is removed (a rebuild or an upgrade while it
+/// runs) before its first training starts: the trainings still run, in the ablation's own
+/// image.
+#[cfg(target_os = "linux")]
+#[test]
+fn an_ablation_outlives_the_removal_of_its_binary() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = simulate_six_frames(dir.path(), &["--seed", "6"]);
+    let copy = dir.path().join("fusiondet-copy");
+    std::fs::copy(env!("CARGO_BIN_EXE_fusiondet"), &copy).unwrap();
+    let out = dir.path().join("ablation");
+    let ablation = std::process::Command::new(&copy)
+        .args([
+            "ablation",
+            "--configs",
+            configs().join("tiny.toml").to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--epochs",
+            "1",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // `spawn` returns once the new process runs the copy, so the file can go now.
+    std::fs::remove_file(&copy).unwrap();
+    let o = ablation.wait_with_output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(out.join("runs/tiny/model.bpk").is_file(), "{}", text(&o));
+    assert!(text(&o).contains("| tiny "), "{}", text(&o));
+}

@@ -296,6 +296,9 @@ fn run_one(
         None => config.name.clone(),
     };
     let mut train = Command::new(&args.executable);
+    // The name the child reports itself by (its usage lines), whatever path runs it.
+    #[cfg(unix)]
+    std::os::unix::process::CommandExt::arg0(&mut train, "fusiondet");
     train
         .arg("train")
         .arg("--config")

@@ -10,7 +10,7 @@
 use crate::commands::train::TrainOverrides;
 use anyhow::Context;
 use fusiondet_workflows::ablation::AblationOptions;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
 #[command(after_help = "\
@@ -53,7 +53,19 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
         out: args.out,
         train_flags: args.overrides.to_args(),
         seeds: args.seeds,
-        executable: std::env::current_exe().context("cannot locate the fusiondet binary")?,
+        executable: own_executable()?,
         device: Default::default(),
     })
+}
+
+/// The executable the trainings run in. On Linux this process's own image
+/// (`/proc/self/exe`), which stays runnable when the file it was started from is replaced or
+/// removed during a long ablation (a rebuild, an upgrade): `current_exe()` then names a path
+/// that no longer exists, and the next row could not start.
+fn own_executable() -> anyhow::Result<PathBuf> {
+    let image = Path::new("/proc/self/exe");
+    if cfg!(target_os = "linux") && image.exists() {
+        return Ok(image.to_path_buf());
+    }
+    std::env::current_exe().context("cannot locate the fusiondet binary")
 }
