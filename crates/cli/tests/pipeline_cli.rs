@@ -891,23 +891,31 @@ fn running(pid: u32) -> bool {
     })
 }
 
+/// `BINARY ablation` of the tiny configuration on `data` into `out` for `epochs` epochs.
+#[cfg(target_os = "linux")]
+fn tiny_ablation(binary: &Path, data: &Path, out: &Path, epochs: &str) -> std::process::Command {
+    let mut command = std::process::Command::new(binary);
+    command.args([
+        "ablation",
+        "--configs",
+        configs().join("tiny.toml").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--epochs",
+        epochs,
+    ]);
+    command
+}
+
 #[cfg(target_os = "linux")]
 #[test]
 fn a_killed_ablation_takes_its_training_with_it() {
     let dir = tempfile::tempdir().unwrap();
     let data = simulate_six_frames(dir.path(), &["--seed", "6"]);
-    let mut ablation = std::process::Command::new(env!("CARGO_BIN_EXE_fusiondet"))
-        .args([
-            "ablation",
-            "--configs",
-            configs().join("tiny.toml").to_str().unwrap(),
-            "--data",
-            data.to_str().unwrap(),
-            "--out",
-            dir.path().join("ablation").to_str().unwrap(),
-            "--epochs",
-            "1000",
-        ])
+    let binary = Path::new(env!("CARGO_BIN_EXE_fusiondet"));
+    let mut ablation = tiny_ablation(binary, &data, &dir.path().join("ablation"), "1000")
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()
@@ -943,18 +951,7 @@ fn an_ablation_outlives_the_removal_of_its_binary() {
     let copy = dir.path().join("fusiondet-copy");
     std::fs::copy(env!("CARGO_BIN_EXE_fusiondet"), &copy).unwrap();
     let out = dir.path().join("ablation");
-    let ablation = std::process::Command::new(&copy)
-        .args([
-            "ablation",
-            "--configs",
-            configs().join("tiny.toml").to_str().unwrap(),
-            "--data",
-            data.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--epochs",
-            "1",
-        ])
+    let ablation = tiny_ablation(&copy, &data, &out, "1")
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
