@@ -48,22 +48,27 @@ impl MlpLayer {
     }
 
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        let y = self.linear_map(x);
         match &self.folded {
-            Some(_) => relu(self.forward_pre_activation(x)),
-            None => norm_rows_relu(&self.norm, crate::linear::linear(&self.linear, x)),
+            Some(_) => relu(y),
+            None => norm_rows_relu(&self.norm, y),
         }
     }
 
     /// Linear + BatchNorm, without the ReLU.
     pub fn forward_pre_activation(&self, x: Tensor<2>) -> Tensor<2> {
+        self.normalize(self.linear_map(x))
+    }
+
+    /// x·W + b: the folded map when the norm is folded, else the `Linear` (in training
+    /// through [`crate::linear`]; burn's generic `linear` allocates, copies and transposes
+    /// around its product).
+    fn linear_map(&self, x: Tensor<2>) -> Tensor<2> {
         match &self.folded {
             Some((weight, bias)) => {
                 burn::tensor::module::linear(x, weight.clone(), Some(bias.clone()))
             }
-            // Training's product through `crate::linear` like `forward`'s: the PointNets'
-            // last layer before the max-pool took burn's generic product, an eighth of the
-            // F-ConvNet step.
-            None => norm_rows(&self.norm, crate::linear::linear(&self.linear, x)),
+            None => crate::linear::linear(&self.linear, x),
         }
     }
 
