@@ -333,3 +333,95 @@ fn bad_options_are_clear_errors() {
         "{help}"
     );
 }
+
+#[test]
+fn a_baseline_gets_the_difference_with_its_bootstrap_interval() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (_, det) = copy_mixed(tmp.path());
+    // The baseline: the same results with every tenth frame's detections gone.
+    let baseline = tmp.path().join("baseline");
+    std::fs::create_dir_all(&baseline).unwrap();
+    let mut names: Vec<_> = std::fs::read_dir(&det)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    names.sort();
+    for (i, name) in names.iter().enumerate() {
+        let text = std::fs::read_to_string(det.join(name)).unwrap();
+        std::fs::write(baseline.join(name), if i % 10 == 0 { "" } else { &text }).unwrap();
+    }
+    let json = tmp.path().join("eval.json");
+    let m = mixed();
+    let args = mixed_args(
+        &m,
+        &[
+            "--baseline",
+            s(&baseline),
+            "--resamples",
+            "200",
+            "--seed",
+            "5",
+            "--json",
+            s(&json),
+        ],
+    );
+    let out = run(&args);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(
+        stdout.contains("95% interval over 200 resamples of the frames (seed 5)"),
+        "{stdout}"
+    );
+    let got: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let rows = got["baseline"]["rows"].as_array().unwrap();
+    // Per class: bbox, bev and 3d at the official overlaps, bev and 3d at the looser ones
+    // (the looser setting's bbox overlap is the official one, reported once).
+    assert_eq!(rows.len(), 3 * 5, "{rows:?}");
+    let car_3d = rows
+        .iter()
+        .find(|r| r["class"] == "Car" && r["metric"] == "3d" && r["min_overlap"] == 0.7)
+        .unwrap();
+    let at = |key: &str| car_3d[key][1].as_f64().unwrap();
+    // The results' own AP is the one the main table reports.
+    let main = got["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["class"] == "Car" && r["metric"] == "3d" && r["min_overlap"] == 0.7)
+        .unwrap();
+    assert_eq!(at("ap40"), main["ap40"][1].as_f64().unwrap());
+    // Dropping frames' detections can only lose AP here; the interval holds the difference.
+    assert!(at("difference") > 0.0, "{car_3d}");
+    assert!(at("interval_low") <= at("difference") && at("difference") <= at("interval_high"));
+    assert!(at("ahead") > 0.5, "{car_3d}");
+
+    // Against itself: no difference on any resample.
+    let args = mixed_args(&m, &["--baseline", s(&det), "--resamples", "20"]);
+    let out = run(&args);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stdout).contains("+0.00  [ +0.00,  +0.00]  ahead in   0.0%"),
+        "{}",
+        text(&out.stdout)
+    );
+
+    // Too few resamples and resampling options without a baseline are refused.
+    let out = run(&mixed_args(
+        &m,
+        &["--baseline", s(&det), "--resamples", "1"],
+    ));
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("at least 2"),
+        "{}",
+        text(&out.stderr)
+    );
+    let out = run(&mixed_args(&m, &["--resamples", "100"]));
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("--baseline"),
+        "{}",
+        text(&out.stderr)
+    );
+}

@@ -541,22 +541,34 @@ pub(crate) fn run(
     masks: Option<&[Vec<BinMask>]>,
     aos: bool,
 ) -> Vec<[Counts; 3]> {
+    let every_frame: Vec<usize> = (0..prep.frames.len()).collect();
+    run_frames(prep, &every_frame, tasks, masks, aos)
+}
+
+/// [`run`] on the prepared frames `order` names, in that order and as often as it names
+/// them: a frame named twice counts twice (a bootstrap resample of the frames).
+pub(crate) fn run_frames(
+    prep: &Prepared,
+    order: &[usize],
+    tasks: &[Task],
+    masks: Option<&[Vec<BinMask>]>,
+    aos: bool,
+) -> Vec<[Counts; 3]> {
     let slots = tasks.len() * 3;
     let mask_of = |fi: usize, ci: usize| masks.map(|m| &m[fi][ci]);
 
     // Pass 1: true-positive scores and ground-truth counts.
-    let partial: Vec<(Vec<Vec<f64>>, Vec<usize>)> = prep
-        .frames
+    let partial: Vec<(Vec<Vec<f64>>, Vec<usize>)> = order
         .par_chunks(CHUNK)
-        .enumerate()
-        .map(|(c, chunk)| {
+        .map(|chunk| {
             let mut v = vec![Vec::new(); slots];
             let mut n = vec![0usize; slots];
             let mut s = Scratch::default();
-            for (k, classes) in chunk.iter().enumerate() {
+            for &fi in chunk {
+                let classes = &prep.frames[fi];
                 for (ti, task) in tasks.iter().enumerate() {
                     let cf = &classes[task.class_idx];
-                    let mask = mask_of(c * CHUNK + k, task.class_idx);
+                    let mask = mask_of(fi, task.class_idx);
                     s.build(cf, task);
                     for d in 0..3 {
                         n[ti * 3 + d] += count_valid_gt(cf, d, mask);
@@ -593,20 +605,19 @@ pub(crate) fn run(
     // Pass 2: counts at every threshold. A frame's matching only changes when a
     // threshold crosses one of its candidate detections' scores, so it is recomputed
     // only then; lone false positives are added by counting scores.
-    let partial: Vec<Vec<Acc>> = prep
-        .frames
+    let partial: Vec<Vec<Acc>> = order
         .par_chunks(CHUNK)
-        .enumerate()
-        .map(|(c, chunk)| {
+        .map(|chunk| {
             let mut acc = vec![Acc::default(); total];
             let mut s = Scratch::default();
-            for (k, classes) in chunk.iter().enumerate() {
+            for &fi in chunk {
+                let classes = &prep.frames[fi];
                 for (ti, task) in tasks.iter().enumerate() {
                     if (0..3).all(|d| thresholds[ti * 3 + d].is_empty()) {
                         continue;
                     }
                     let cf = &classes[task.class_idx];
-                    let mask = mask_of(c * CHUNK + k, task.class_idx);
+                    let mask = mask_of(fi, task.class_idx);
                     let with_aos = aos && task.overlap == 0;
                     s.build(cf, task);
                     for d in 0..3 {

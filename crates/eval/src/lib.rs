@@ -36,6 +36,7 @@
 //! use 0.
 
 pub mod ablation;
+pub mod bootstrap;
 pub mod breakdown;
 pub mod compare;
 #[cfg(test)]
@@ -58,6 +59,7 @@ pub mod synthetic;
 pub use ablation::{
     AblationRow, ablation_breakdown_table, ablation_table, ablation_to_json, write_ablation_json,
 };
+pub use bootstrap::{DifferenceRow, PairedBootstrap, Resampling, paired_bootstrap};
 pub use breakdown::{
     BreakdownAxis, BreakdownRow, FramePoints, box_centre_range, breakdown_table,
     count_lidar_points, evaluate_breakdown,
@@ -81,6 +83,8 @@ struct JsonDoc<'a> {
     breakdown: Option<Vec<breakdown::JsonBreakdownRow>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     errors: Option<&'a [ErrorRow]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    baseline: Option<&'a PairedBootstrap>,
 }
 
 /// What the JSON document holds beside the AP rows.
@@ -89,10 +93,13 @@ pub struct JsonExtras<'a> {
     pub breakdown: Option<&'a [BreakdownRow]>,
     /// True-positive errors ([`true_positive_errors`]).
     pub errors: Option<&'a [ErrorRow]>,
+    /// The difference from a baseline's results ([`paired_bootstrap`]).
+    pub baseline: Option<&'a PairedBootstrap>,
 }
 
 /// The JSON document: `{"results": [{"class", "metric", "min_overlap", "ap11", "ap40"}, ...]}`
-/// with AP in percent, plus a `"breakdown"` array and an `"errors"` array when given.
+/// with AP in percent, plus a `"breakdown"` array, an `"errors"` array and a `"baseline"`
+/// object (the paired bootstrap's rows) when given.
 pub fn to_json(report: &EvalReport, extras: JsonExtras<'_>) -> String {
     let doc = JsonDoc {
         results: report.results.iter().map(Into::into).collect(),
@@ -100,6 +107,7 @@ pub fn to_json(report: &EvalReport, extras: JsonExtras<'_>) -> String {
             .breakdown
             .map(|rows| rows.iter().map(Into::into).collect()),
         errors: extras.errors,
+        baseline: extras.baseline,
     };
     let mut text = serde_json::to_string_pretty(&doc).expect("plain data serialises");
     text.push('\n');

@@ -98,6 +98,7 @@ fn evaluate_kitti_json(
         let extras = JsonExtras {
             breakdown: rows.as_deref(),
             errors: None,
+            baseline: None,
         };
         Ok((to_json(&report, extras), frames.missing_results))
     })

@@ -8,8 +8,9 @@ use fusiondet_eval::indoor::{
     IOU_THRESHOLDS, evaluate_indoor, load_indoor_dirs, write_indoor_json,
 };
 use fusiondet_eval::{
-    EvalConfig, JsonExtras, breakdown_table, count_lidar_points, errors_table, evaluate,
-    evaluate_breakdown, frame_ids, load_dirs, parse_classes, true_positive_errors, write_json,
+    EvalConfig, JsonExtras, Resampling, breakdown_table, count_lidar_points, errors_table,
+    evaluate, evaluate_breakdown, frame_ids, load_dirs, paired_bootstrap, parse_classes,
+    true_positive_errors, write_json,
 };
 use fusiondet_kitti::{ObjectClass, read_manifest, split_file, split_is_file};
 use fusiondet_workflows::{out, outln};
@@ -47,6 +48,14 @@ LiDAR points inside it for lidar_points, and to every bin for occlusion (detecti
 no occlusion level). In other bins it is not counted. Thus every ground-truth box and
 every false positive belongs to exactly one bin (false positives overlapping nothing:
 every occlusion bin).
+
+--baseline DIR compares --result-dir with another model's results on the same frames: for
+AP_R40 of every bbox, bev and 3d row it prints both APs, their difference, the interval of
+the difference over --resamples resamples of the frames (drawn with replacement, the same
+resample for both, each evaluated with the devkit's matching; --confidence 0.95: the 2.5th
+to 97.5th percentile; --seed), and the share of resamples in which --result-dir leads. An
+interval that includes 0 says the frames do not settle which model is ahead. With --json,
+a \"baseline\" object holds the rows.
 
 --dataset sunrgbd: SUN RGB-D's indoor evaluation, on label and result files of the prepared
 layout (<id>.txt, one box a line: class cx cy cz dx dy dz yaw x1 y1 x2 y2, results with the
@@ -112,6 +121,20 @@ pub struct EvalArgs {
     /// Calibration files (NNNNNN.txt) for --breakdown.
     #[arg(long, value_name = "DIR")]
     calib_dir: Option<PathBuf>,
+    /// A second result directory of the same frames (e.g. the model to beat): also report
+    /// AP_R40 of --result-dir minus this one's, with a paired bootstrap interval over frames
+    /// (see --help).
+    #[arg(long, value_name = "DIR")]
+    baseline: Option<PathBuf>,
+    /// Frame resamples for --baseline's interval.
+    #[arg(long, value_name = "N", default_value_t = 1000, requires = "baseline")]
+    resamples: usize,
+    /// Coverage of --baseline's interval.
+    #[arg(long, value_name = "P", default_value_t = 0.95, requires = "baseline")]
+    confidence: f64,
+    /// Seed of --baseline's frame resamples.
+    #[arg(long, value_name = "S", default_value_t = 0, requires = "baseline")]
+    seed: u64,
 }
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
@@ -138,6 +161,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             &[
                 ("--label-dir", Some(args.label_dir.as_path())),
                 ("--result-dir", Some(args.result_dir.as_path())),
+                ("--baseline", args.baseline.as_deref()),
                 ("--velodyne-dir", args.velodyne_dir.as_deref()),
                 ("--calib-dir", args.calib_dir.as_deref()),
                 (
@@ -149,6 +173,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     }
     let start = Instant::now();
     refuse_non_results(&args.result_dir)?;
+    if let Some(baseline) = &args.baseline {
+        refuse_non_results(baseline)?;
+    }
     let (ids, frames_from) = eval_frames(&args, "training/label_2", "ImageSets")?;
     let frames = load_dirs(&args.label_dir, &args.result_dir, &ids)?;
     let (classes, classes_from) = match &args.classes {
@@ -168,22 +195,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         classes,
         ..EvalConfig::default()
     };
-    let missing = &frames.missing_results;
-    if !missing.is_empty() {
-        let shown: Vec<&str> = missing.iter().take(5).map(String::as_str).collect();
-        eprintln!(
-            "warning: {} of {} frames have no result file in {} (evaluated as frames without detections): {}{}",
-            missing.len(),
-            ids.len(),
-            args.result_dir.display(),
-            shown.join(", "),
-            if missing.len() > shown.len() {
-                ", ..."
-            } else {
-                ""
-            }
-        );
-    }
+    warn_missing_results(&frames.missing_results, ids.len(), &args.result_dir);
     let report = evaluate(&frames.gt, &frames.det, &cfg)?;
     out!("{}", report.table());
 
@@ -210,10 +222,27 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if let Some(rows) = &errors {
         out!("{}", errors_table(rows));
     }
+    let versus = match &args.baseline {
+        Some(dir) => {
+            let baseline = load_dirs(&args.label_dir, dir, &ids)?;
+            warn_missing_results(&baseline.missing_results, ids.len(), dir);
+            let resampling = Resampling {
+                resamples: args.resamples,
+                seed: args.seed,
+                confidence: args.confidence,
+            };
+            let result =
+                paired_bootstrap(&frames.gt, &frames.det, &baseline.det, &cfg, resampling)?;
+            out!("{}", result.table());
+            Some(result)
+        }
+        None => None,
+    };
     if let Some(out) = &args.json {
         let extras = JsonExtras {
             breakdown: breakdown.as_deref(),
             errors: errors.as_deref(),
+            baseline: versus.as_ref(),
         };
         write_json(out, &report, extras)?;
         eprintln!("wrote {}", out.display());
@@ -226,6 +255,27 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Warns that `missing` of `total` frames have no result file in `dir` (they are evaluated as
+/// frames without detections).
+fn warn_missing_results(missing: &[String], total: usize, dir: &Path) {
+    if missing.is_empty() {
+        return;
+    }
+    let shown: Vec<&str> = missing.iter().take(5).map(String::as_str).collect();
+    eprintln!(
+        "warning: {} of {} frames have no result file in {} (evaluated as frames without detections): {}{}",
+        missing.len(),
+        total,
+        dir.display(),
+        shown.join(", "),
+        if missing.len() > shown.len() {
+            ", ..."
+        } else {
+            ""
+        }
+    );
+}
+
 /// `--dataset sunrgbd`: the indoor evaluation of every scene of the split (default: every
 /// label file), printed as the papers' table and optionally written as JSON.
 fn run_sunrgbd(args: EvalArgs) -> anyhow::Result<()> {
@@ -235,6 +285,7 @@ fn run_sunrgbd(args: EvalArgs) -> anyhow::Result<()> {
         ("--velodyne-dir", args.velodyne_dir.is_some()),
         ("--calib-dir", args.calib_dir.is_some()),
         ("--classes", args.classes.is_some()),
+        ("--baseline", args.baseline.is_some()),
     ];
     if let Some((flag, _)) = kitti_only.iter().find(|(_, given)| *given) {
         bail!(
