@@ -250,6 +250,7 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
         "over 2 seeds",
         "tiny-dasanet (2 seeds)",
         "*vs tiny-voxel-rcnn*",
+        "| tiny-dasanet (seed 2) |    2 |",
         "by distance, occlusion and LiDAR points",
         "GMACs",
     ] {

@@ -594,6 +594,27 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
     };
     assert!(row_of("tiny-fconvnet-refine").contains(" two "), "{t}");
     assert!(row_of("tiny-saf").contains(" one "), "{t}");
+    // Each row after the baseline against it, with a frame-bootstrap interval (3D and BEV).
+    let intervals = t
+        .split("Car: differences from the baseline beyond the frames drawn")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no interval tables\n{t}"));
+    let intervals = intervals.split("###").next().unwrap();
+    assert!(
+        intervals.contains("1000 resamples of the 3 val frames"),
+        "{intervals}"
+    );
+    for name in ["tiny-fconvnet-refine", "tiny-fcam", "tiny-saf"] {
+        assert_eq!(
+            intervals.matches(&format!("| {name} ")).count(),
+            2,
+            "{name}: a 3D and a BEV line\n{intervals}"
+        );
+    }
+    assert!(
+        !intervals.contains("| tiny "),
+        "the baseline has no line\n{intervals}"
+    );
     assert!(
         t.contains("3,724,013") && t.contains("79.91"),
         "the paper's SAF row\n{t}"
@@ -661,10 +682,16 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
         data.to_str().unwrap(),
         "--out",
         again.to_str().unwrap(),
+        "--resamples",
+        "0",
     ]);
     let t2 = text(&o);
     assert!(o.status.success(), "{t2}");
     assert!(!t2.contains("training"), "nothing is trained\n{t2}");
+    assert!(
+        !t2.contains("beyond the frames drawn"),
+        "--resamples 0\n{t2}"
+    );
     assert!(!again.join("runs").exists());
     let two_stage = t2
         .lines()

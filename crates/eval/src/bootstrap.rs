@@ -229,6 +229,65 @@ impl PairedBootstrap {
     }
 }
 
+/// One row of an ablation's interval table: a configuration, the training seed of its run
+/// (`None`: the configuration's own) and its bootstrap against the baseline's run of that seed.
+#[derive(Debug, Clone, Copy)]
+pub struct RowDifference<'a> {
+    pub name: &'a str,
+    pub seed: Option<u64>,
+    pub result: &'a PairedBootstrap,
+}
+
+/// An ablation's differences from its baseline for `class` and `metric` at the official
+/// overlap: per row and difficulty the difference, its interval and the share of resamples
+/// in which the row leads, as a markdown table.
+pub fn difference_table(rows: &[RowDifference], class: ObjectClass, metric: Metric) -> String {
+    let Some(first) = rows.first() else {
+        return String::new();
+    };
+    let label = match metric {
+        Metric::ThreeD => "3D",
+        Metric::Bev => "BEV",
+        _ => metric.as_str(),
+    };
+    let out = format!(
+        "{class}, {label} AP_R40 minus the baseline's (same training seed): difference [{:.0}% interval over {} resamples of the {} val frames, seed {}] and the share of resamples where the row leads\n\n",
+        first.result.confidence * 100.0,
+        first.result.resamples,
+        first.result.frames,
+        first.result.seed
+    );
+    let header: Vec<String> = ["Configuration", "Seed", "Easy", "Mod.", "Hard"]
+        .map(String::from)
+        .to_vec();
+    let cells: Vec<Vec<String>> = rows
+        .iter()
+        .filter_map(|r| {
+            // The first row of this class and metric: the official overlap setting's.
+            let d = r
+                .result
+                .rows
+                .iter()
+                .find(|x| x.class == class && x.metric == metric && x.setting == 0)?;
+            let mut line = vec![
+                r.name.to_string(),
+                r.seed.map_or("-".into(), |s| s.to_string()),
+            ];
+            line.extend((0..3).map(|i| {
+                format!(
+                    "{:+.2} [{:+.2}, {:+.2}] {:.0}%",
+                    d.difference[i],
+                    d.interval_low[i],
+                    d.interval_high[i],
+                    d.ahead[i] * 100.0
+                )
+            }));
+            Some(line)
+        })
+        .collect();
+    out + &crate::ablation::markdown_table(&header, &cells)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -386,6 +445,36 @@ mod tests {
         resampling.confidence = 1.0;
         let err = paired_bootstrap(&g, &a, &a, &car_cfg(), resampling).unwrap_err();
         assert!(err.to_string().contains("between 0 and 1"), "{err}");
+    }
+
+    #[test]
+    fn the_ablation_table_has_a_line_per_row_with_its_interval() {
+        let all = [true; 40];
+        let half: Vec<bool> = (0..40).map(|i| i % 2 == 0).collect();
+        let p = run(&half, &all, 1);
+        let rows = [RowDifference {
+            name: "half",
+            seed: Some(2),
+            result: &p,
+        }];
+        let table = difference_table(&rows, ObjectClass::Car, Metric::ThreeD);
+        let d = row(&p, Metric::ThreeD);
+        let cell = format!(
+            "{:+.2} [{:+.2}, {:+.2}] 0%",
+            d.difference[1], d.interval_low[1], d.interval_high[1]
+        );
+        assert!(table.contains("| half "), "{table}");
+        assert!(table.contains(&cell), "{cell} not in {table}");
+        assert!(
+            table.contains("over 200 resamples of the 40 val frames, seed 1"),
+            "{table}"
+        );
+        assert_eq!(
+            table.lines().filter(|l| l.starts_with('|')).count(),
+            3,
+            "{table}"
+        );
+        assert!(difference_table(&[], ObjectClass::Car, Metric::Bev).is_empty());
     }
 
     #[test]

@@ -59,7 +59,9 @@ pub mod synthetic;
 pub use ablation::{
     AblationRow, ablation_breakdown_table, ablation_table, ablation_to_json, write_ablation_json,
 };
-pub use bootstrap::{DifferenceRow, PairedBootstrap, Resampling, paired_bootstrap};
+pub use bootstrap::{
+    DifferenceRow, PairedBootstrap, Resampling, RowDifference, difference_table, paired_bootstrap,
+};
 pub use breakdown::{
     BreakdownAxis, BreakdownRow, FramePoints, box_centre_range, breakdown_table,
     count_lidar_points, evaluate_breakdown,

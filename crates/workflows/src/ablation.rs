@@ -12,9 +12,10 @@ use crate::{out, outln};
 use anyhow::{Context, bail};
 use fusiondet_eval::saf_tables::saf_table;
 use fusiondet_eval::{
-    AblationRow, Difficulty, EvalConfig, Metric, SeedGroup, ablation_breakdown_table,
-    ablation_table, count_lidar_points, evaluate, evaluate_breakdown, frame_ids, load_dirs,
-    seed_ablation_table, seed_breakdown_table, write_ablation_json,
+    AblationRow, Difficulty, EvalConfig, FrameDet, FrameGt, Metric, Resampling, RowDifference,
+    SeedGroup, ablation_breakdown_table, ablation_table, count_lidar_points, difference_table,
+    evaluate, evaluate_breakdown, frame_ids, load_dirs, paired_bootstrap, seed_ablation_table,
+    seed_breakdown_table, write_ablation_json,
 };
 use fusiondet_kitti::DatasetDir;
 use fusiondet_pipeline::{
@@ -48,11 +49,21 @@ pub struct AblationOptions {
     pub executable: PathBuf,
     /// Where detection runs (each training takes the `train` default).
     pub device: ComputeDevice,
+    /// Resamples of the val frames for each row's interval against the baseline (0: no
+    /// interval tables).
+    pub resamples: usize,
+    /// Seed of those resamples.
+    pub resample_seed: u64,
 }
 
 /// One configuration's results.
 struct Entry {
     name: String,
+    /// The training seed given for this run (`None`: the configuration's own).
+    seed: Option<u64>,
+    /// The val frames' ground truth and this row's detections.
+    gt: Vec<FrameGt>,
+    det: Vec<FrameDet>,
     report: fusiondet_eval::EvalReport,
     breakdown: Vec<fusiondet_eval::BreakdownRow>,
     params: usize,
@@ -179,6 +190,15 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
             runs: runs.iter().map(row).collect(),
         })
         .collect();
+    let bootstraps = row_bootstraps(args, &groups, &classes)?;
+    let intervals: Vec<RowDifference> = bootstraps
+        .iter()
+        .map(|(e, result)| RowDifference {
+            name: &e.name,
+            seed: e.seed,
+            result,
+        })
+        .collect();
     let mut text = format!(
         "# Ablation on {} ({} val frames)\n\n",
         args.data.display(),
@@ -191,6 +211,14 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
             &format!("\n### {class}: AP_R40 by distance, occlusion and LiDAR points (hard)\n\n");
         text += &ablation_breakdown_table(&rows, class, 0, Difficulty::Hard);
         text += "\n";
+        if !intervals.is_empty() {
+            text +=
+                &format!("### {class}: differences from the baseline beyond the frames drawn\n\n");
+            for metric in [Metric::ThreeD, Metric::Bev] {
+                text += &difference_table(&intervals, class, metric);
+                text += "\n";
+            }
+        }
         if seeds.len() >= 2 {
             text += &format!("### {class}: over {} seeds\n\n", seeds.len());
             text += &seed_ablation_table(&seed_groups, class, 0);
@@ -235,6 +263,38 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
 }
 
 /// `OUT/<kind>/<name>`, or `OUT/<kind>/<name>/seed-<seed>` when the ablation has seeds.
+/// Each row after the baseline against the baseline's run of the same seed, by a paired
+/// bootstrap over the val frames (none with `resamples` 0 or a single row).
+fn row_bootstraps<'a>(
+    args: &AblationOptions,
+    groups: &'a [Vec<Entry>],
+    classes: &[fusiondet_kitti::ObjectClass],
+) -> anyhow::Result<Vec<(&'a Entry, fusiondet_eval::PairedBootstrap)>> {
+    let Some((baselines, others)) = groups.split_first() else {
+        return Ok(Vec::new());
+    };
+    if args.resamples == 0 {
+        return Ok(Vec::new());
+    }
+    let cfg = EvalConfig {
+        classes: classes.to_vec(),
+        ..Default::default()
+    };
+    let resampling = Resampling {
+        resamples: args.resamples,
+        seed: args.resample_seed,
+        confidence: 0.95,
+    };
+    let mut out = Vec::new();
+    for runs in others {
+        for (run, baseline) in runs.iter().zip(baselines) {
+            let result = paired_bootstrap(&run.gt, &run.det, &baseline.det, &cfg, resampling)?;
+            out.push((run, result));
+        }
+    }
+    Ok(out)
+}
+
 fn dir_of(
     args: &AblationOptions,
     kind: &str,
@@ -337,7 +397,8 @@ fn run_one(
         checkpoint: &run_dir.join("model.bpk"),
         results: &results,
     };
-    evaluate_row(args, &row, label_dir, ids)
+    let entry = evaluate_row(args, &row, label_dir, ids)?;
+    Ok(Entry { seed, ..entry })
 }
 
 /// A trained model to detect with and evaluate: its row name, its configuration, its
@@ -424,6 +485,9 @@ fn evaluate_row(
     );
     Ok(Entry {
         name: name.to_string(),
+        seed: None,
+        gt: frames.gt,
+        det: frames.det,
         report,
         breakdown,
         params,

@@ -43,6 +43,13 @@ pub struct AblationArgs {
     /// their range, and which differences from the baseline exceed it.
     #[arg(long, value_delimiter = ',', conflicts_with = "seed")]
     pub seeds: Vec<u64>,
+    /// Resamples of the val frames for the tables of each row's difference from the baseline
+    /// with its 95% interval (a paired bootstrap, as `eval --baseline`); 0: no such tables.
+    #[arg(long, value_name = "N", default_value_t = 1000)]
+    pub resamples: usize,
+    /// Seed of those resamples.
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    pub resample_seed: u64,
 }
 
 pub fn run(args: AblationArgs) -> anyhow::Result<()> {
@@ -55,6 +62,8 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
         seeds: args.seeds,
         executable: own_executable()?,
         device: Default::default(),
+        resamples: args.resamples,
+        resample_seed: args.resample_seed,
     })
 }
 
