@@ -6,8 +6,9 @@
 
 use fusiondet_eval::indoor::{IOU_THRESHOLDS, evaluate_indoor, indoor_json, load_indoor_dirs};
 use fusiondet_eval::{
-    EvalConfig, FrameDet, FrameGt, JsonExtras, count_lidar_points, evaluate, evaluate_breakdown,
-    frame_ids, load_dirs, parse_classes, read_result_file, to_json,
+    EvalConfig, FrameDet, FrameGt, JsonExtras, Resampling, count_lidar_points, evaluate,
+    evaluate_breakdown, frame_ids, load_dirs, paired_bootstrap, parse_classes, read_result_file,
+    to_json,
 };
 use fusiondet_kitti::{Box2d, Box3d, Object, ObjectClass};
 use pyo3::create_exception;
@@ -50,7 +51,7 @@ fn resolve_ids(
 /// The KITTI evaluation of a label and a result directory: `(json, missing_result_ids)`,
 /// the JSON exactly as `fusiondet eval --json` writes it.
 #[pyfunction]
-#[pyo3(signature = (label_dir, result_dir, split_ids=None, split_file=None, classes=None, breakdown=false, velodyne_dir=None, calib_dir=None))]
+#[pyo3(signature = (label_dir, result_dir, split_ids=None, split_file=None, classes=None, breakdown=false, velodyne_dir=None, calib_dir=None, baseline_dir=None, resamples=1000, seed=0, confidence=0.95))]
 #[allow(clippy::too_many_arguments)]
 fn evaluate_kitti_json(
     py: Python<'_>,
@@ -62,6 +63,10 @@ fn evaluate_kitti_json(
     breakdown: bool,
     velodyne_dir: Option<PathBuf>,
     calib_dir: Option<PathBuf>,
+    baseline_dir: Option<PathBuf>,
+    resamples: usize,
+    seed: u64,
+    confidence: f64,
 ) -> PyResult<(String, Vec<String>)> {
     let mut cfg = EvalConfig::default();
     if let Some(list) = classes {
@@ -95,12 +100,29 @@ fn evaluate_kitti_json(
             }
             None => None,
         };
+        let mut missing = frames.missing_results;
+        let versus = match &baseline_dir {
+            Some(dir) => {
+                let baseline = load_dirs(&label_dir, dir, &ids).map_err(err)?;
+                missing.extend(baseline.missing_results);
+                let resampling = Resampling {
+                    resamples,
+                    seed,
+                    confidence,
+                };
+                Some(
+                    paired_bootstrap(&frames.gt, &frames.det, &baseline.det, &cfg, resampling)
+                        .map_err(err)?,
+                )
+            }
+            None => None,
+        };
         let extras = JsonExtras {
             breakdown: rows.as_deref(),
             errors: None,
-            baseline: None,
+            baseline: versus.as_ref(),
         };
-        Ok((to_json(&report, extras), frames.missing_results))
+        Ok((to_json(&report, extras), missing))
     })
 }
 

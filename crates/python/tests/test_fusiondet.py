@@ -58,6 +58,28 @@ def test_same_dict_as_the_binary_json_layout():
     assert by_all["results"] != by_list["results"]
 
 
+def test_a_baseline_adds_the_difference_and_its_interval(tmp_path):
+    # The baseline: the mixed case's results with every tenth frame's detections gone.
+    ids = (MIXED / "ids.txt").read_text().split()
+    (tmp_path / "base").mkdir()
+    for i, path in enumerate(sorted((MIXED / "det").iterdir())):
+        (tmp_path / "base" / path.name).write_text("" if i % 10 == 0 else path.read_text())
+    out = fusiondet.evaluate_kitti(
+        MIXED / "gt", MIXED / "det", split=ids, classes="Car", baseline_dir=tmp_path / "base", resamples=100, seed=3
+    )
+    b = out["baseline"]
+    assert (b["resamples"], b["seed"], b["confidence"], b["frames"]) == (100, 3, 0.95, len(ids))
+    row = next(r for r in b["rows"] if r["metric"] == "3d" and r["min_overlap"] == 0.7)
+    main = next(r for r in out["results"] if r["metric"] == "3d" and r["min_overlap"] == 0.7)
+    assert row["ap40"] == main["ap40"]
+    for d in range(3):
+        assert row["difference"][d] == row["ap40"][d] - row["baseline_ap40"][d]
+        assert row["interval_low"][d] <= row["interval_high"][d]
+    assert row["difference"][1] > 0
+    with pytest.raises(fusiondet.FusiondetError, match="at least 2"):
+        fusiondet.evaluate_kitti(MIXED / "gt", MIXED / "det", split=ids, baseline_dir=MIXED / "det", resamples=1)
+
+
 def parse_text(text):
     """OpenPCDet's result_str as {(class, setting, "AP" | "AP_R40", metric): [e, m, h]}."""
     out, seen, head = {}, {}, None

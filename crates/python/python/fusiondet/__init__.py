@@ -75,6 +75,10 @@ def evaluate_kitti(
     breakdown: bool = False,
     velodyne_dir: Optional[PathLike] = None,
     calib_dir: Optional[PathLike] = None,
+    baseline_dir: Optional[PathLike] = None,
+    resamples: int = 1000,
+    seed: int = 0,
+    confidence: float = 0.95,
 ) -> Dict[str, Any]:
     """The official KITTI evaluation (devkit protocol, AP11 and AP_R40 in percent) of a
     ``label_2``-style directory and a result directory: the same dict as
@@ -82,7 +86,10 @@ def evaluate_kitti(
     "ap11", "ap40"}, ...]}`` plus ``"breakdown"`` with ``breakdown=True`` (which needs
     ``velodyne_dir`` and ``calib_dir``). ``split``: a list of ids, a split file or a split
     name; default every label file. A missing result file is a frame without detections
-    (a warning names them). Bad input raises ``FusiondetError`` with file:line:field."""
+    (a warning names them). ``baseline_dir``: another model's results on the same frames;
+    adds ``"baseline"``, AP_R40 of both, their difference and its interval over
+    ``resamples`` resamples of the frames (as ``fusiondet eval --baseline``). Bad input
+    raises ``FusiondetError`` with file:line:field."""
     ids, split_file = _split_args(label_dir, split)
     text, missing = _native.evaluate_kitti_json(
         os.fspath(label_dir),
@@ -93,6 +100,10 @@ def evaluate_kitti(
         bool(breakdown),
         None if velodyne_dir is None else os.fspath(velodyne_dir),
         None if calib_dir is None else os.fspath(calib_dir),
+        None if baseline_dir is None else os.fspath(baseline_dir),
+        int(resamples),
+        int(seed),
+        float(confidence),
     )
     _warn_missing(missing, result_dir, "frames")
     return json.loads(text)

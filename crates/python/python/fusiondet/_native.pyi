@@ -17,6 +17,10 @@ def evaluate_kitti_json(
     breakdown: bool = False,
     velodyne_dir: Optional[str] = None,
     calib_dir: Optional[str] = None,
+    baseline_dir: Optional[str] = None,
+    resamples: int = 1000,
+    seed: int = 0,
+    confidence: float = 0.95,
 ) -> Tuple[str, List[str]]: ...
 def evaluate_sunrgbd_json(
     label_dir: str,
