@@ -631,6 +631,14 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
         serde_json::from_str(&std::fs::read_to_string(out.join("ablation.json")).unwrap()).unwrap();
     let rows = json["configurations"].as_array().unwrap();
     assert_eq!(rows.len(), 4);
+    let against = json["against_baseline"].as_array().unwrap();
+    let names: Vec<&str> = against
+        .iter()
+        .map(|d| d["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["tiny-fconvnet-refine", "tiny-fcam", "tiny-saf"]);
+    assert_eq!(against[2]["resamples"], 1000, "{json}");
+    assert!(against[2]["rows"].as_array().unwrap().len() >= 3, "{json}");
     assert_eq!(
         rows[1]["params"].as_u64().unwrap(),
         2 * rows[0]["params"].as_u64().unwrap(),
@@ -703,6 +711,7 @@ fn ablation_trains_detects_evaluates_and_plots_every_configuration() {
             .unwrap();
     let rows2 = json2["configurations"].as_array().unwrap();
     assert_eq!(rows2.len(), 2);
+    assert!(json2.get("against_baseline").is_none(), "--resamples 0");
     for (a, b) in rows.iter().zip(rows2) {
         assert_eq!(a["name"], b["name"]);
         assert_eq!(a["params"], b["params"]);

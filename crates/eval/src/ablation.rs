@@ -384,13 +384,35 @@ struct JsonConfiguration<'a> {
 #[derive(Serialize)]
 struct JsonAblation<'a> {
     configurations: Vec<JsonConfiguration<'a>>,
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    against_baseline: Vec<JsonDifference<'a>>,
+}
+
+#[derive(Serialize)]
+struct JsonDifference<'a> {
+    name: &'a str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    seed: Option<u64>,
+    #[serde(flatten)]
+    result: &'a crate::PairedBootstrap,
 }
 
 /// The whole ablation as JSON: `{"configurations": [{"name", "params"?,
 /// "multiply_adds"?, "frames_per_second"?, "frames", "results", "breakdown"?}, ...]}`, where `results`
-/// and `breakdown` have the rows of [`to_json`](crate::to_json) (AP in percent).
-pub fn ablation_to_json(rows: &[AblationRow]) -> String {
+/// and `breakdown` have the rows of [`to_json`](crate::to_json) (AP in percent), and, given
+/// `differences`, `"against_baseline": [{"name", "seed"? (of the training), "frames",
+/// "resamples", "resample_seed", "confidence", "rows"}]` with the rows of
+/// [`paired_bootstrap`](crate::paired_bootstrap).
+pub fn ablation_to_json(rows: &[AblationRow], differences: &[crate::RowDifference]) -> String {
     let doc = JsonAblation {
+        against_baseline: differences
+            .iter()
+            .map(|d| JsonDifference {
+                name: d.name,
+                seed: d.seed,
+                result: d.result,
+            })
+            .collect(),
         configurations: rows
             .iter()
             .map(|r| JsonConfiguration {
@@ -413,12 +435,15 @@ pub fn ablation_to_json(rows: &[AblationRow]) -> String {
 }
 
 /// Writes [`ablation_to_json`] to `path` atomically (a reader never sees half a file).
-pub fn write_ablation_json(path: &Path, rows: &[AblationRow]) -> Result<(), EvalError> {
-    fusiondet_kitti::write_atomic(path, ablation_to_json(rows).as_bytes()).map_err(|e| {
-        EvalError::Dir {
-            path: path.to_path_buf(),
-            message: format!("cannot write the ablation JSON: {e}"),
-        }
+pub fn write_ablation_json(
+    path: &Path,
+    rows: &[AblationRow],
+    differences: &[crate::RowDifference],
+) -> Result<(), EvalError> {
+    let json = ablation_to_json(rows, differences);
+    fusiondet_kitti::write_atomic(path, json.as_bytes()).map_err(|e| EvalError::Dir {
+        path: path.to_path_buf(),
+        message: format!("cannot write the ablation JSON: {e}"),
     })
 }
 
@@ -659,7 +684,7 @@ mod tests {
         let shown = far.ap40[2].map_or("-".to_string(), |v| format!("{v:.2}"));
         assert_eq!(cells(&by_bin, "full")[3], shown);
 
-        let json: serde_json::Value = serde_json::from_str(&ablation_to_json(&rows)).unwrap();
+        let json: serde_json::Value = serde_json::from_str(&ablation_to_json(&rows, &[])).unwrap();
         let configs = json["configurations"].as_array().unwrap();
         assert_eq!(configs.len(), 2);
         assert_eq!(configs[1]["name"], "weaker");
@@ -674,11 +699,11 @@ mod tests {
 
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("ablation.json");
-        write_ablation_json(&path, &rows).unwrap();
+        write_ablation_json(&path, &rows, &[]).unwrap();
         assert_eq!(
             std::fs::read_to_string(&path).unwrap(),
-            ablation_to_json(&rows)
+            ablation_to_json(&rows, &[])
         );
-        assert!(write_ablation_json(&dir.path().join("no/such/dir/a.json"), &rows).is_err());
+        assert!(write_ablation_json(&dir.path().join("no/such/dir/a.json"), &rows, &[]).is_err());
     }
 }

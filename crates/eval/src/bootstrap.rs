@@ -72,6 +72,7 @@ fn as_name<T: std::fmt::Display, S: serde::Serializer>(v: &T, s: S) -> Result<S:
 pub struct PairedBootstrap {
     pub frames: usize,
     pub resamples: usize,
+    #[serde(rename = "resample_seed")]
     pub seed: u64,
     pub confidence: f64,
     pub rows: Vec<DifferenceRow>,

@@ -68,7 +68,7 @@ def test_a_baseline_adds_the_difference_and_its_interval(tmp_path):
         MIXED / "gt", MIXED / "det", split=ids, classes="Car", baseline_dir=tmp_path / "base", resamples=100, seed=3
     )
     b = out["baseline"]
-    assert (b["resamples"], b["seed"], b["confidence"], b["frames"]) == (100, 3, 0.95, len(ids))
+    assert (b["resamples"], b["resample_seed"], b["confidence"], b["frames"]) == (100, 3, 0.95, len(ids))
     row = next(r for r in b["rows"] if r["metric"] == "3d" and r["min_overlap"] == 0.7)
     main = next(r for r in out["results"] if r["metric"] == "3d" and r["min_overlap"] == 0.7)
     assert row["ap40"] == main["ap40"]

@@ -254,7 +254,7 @@ pub fn run(args: &AblationOptions) -> anyhow::Result<()> {
     out!("{text}");
     fusiondet_kitti::write_atomic(&args.out.join("ablation.md"), text.as_bytes())
         .with_context(|| format!("{}: cannot write", args.out.display()))?;
-    write_ablation_json(&args.out.join("ablation.json"), &rows)?;
+    write_ablation_json(&args.out.join("ablation.json"), &rows, &intervals)?;
     outln!(
         "wrote {}/ablation.md, ablation.json and the PR plots",
         args.out.display()
