@@ -1037,6 +1037,13 @@ mod shipped_configs {
             let row = load(file);
             assert_eq!(without_modules(&row, slicing, lfa, pl), base, "{file}");
         }
+        // The LFA row with scaled inputs differs from the LFA row in the two scales only.
+        let mut scaled = load("saf-lfa-norm-car-sim.toml");
+        let lfa = scaled.model.lfa.as_mut().unwrap();
+        assert_eq!((lfa.position_scale_m, lfa.offset_scale_m), (5.0, 1.0));
+        (lfa.position_scale_m, lfa.offset_scale_m) = (1.0, 1.0);
+        scaled.name = "saf-lfa-car-sim".into();
+        assert_eq!(scaled, load("saf-lfa-car-sim.toml"));
         // The shipped SAF was trained on the full row's recipe with the CPU-sized LFA.
         let shipped = ExperimentConfig::from_file(
             &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/saf-car.toml"),
