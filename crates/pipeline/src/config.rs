@@ -1044,6 +1044,15 @@ mod shipped_configs {
         (lfa.position_scale_m, lfa.offset_scale_m) = (1.0, 1.0);
         scaled.name = "saf-lfa-car-sim".into();
         assert_eq!(scaled, load("saf-lfa-car-sim.toml"));
+        // The slicing row without a near region differs from the slicing row in ω only.
+        let mut w0 = load("saf-slicing-w0-car-sim.toml");
+        let Slicing::DepthGuided(guided) = &mut w0.frustum.slicing else {
+            panic!("saf-slicing-w0-car-sim.toml: depth-guided slicing expected");
+        };
+        assert_eq!(guided.omega, 0.0);
+        guided.omega = 0.55;
+        w0.name = "saf-slicing-car-sim".into();
+        assert_eq!(w0, load("saf-slicing-car-sim.toml"));
         // The shipped SAF was trained on the full row's recipe with the CPU-sized LFA.
         let shipped = ExperimentConfig::from_file(
             &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/saf-car.toml"),
