@@ -48,8 +48,9 @@ fn resolve_ids(
     }
 }
 
-/// The KITTI evaluation of a label and a result directory: `(json, missing_result_ids)`,
-/// the JSON exactly as `fusiondet eval --json` writes it.
+/// The KITTI evaluation of a label and a result directory: `(json, missing_result_ids,
+/// missing_baseline_ids)`, the JSON exactly as `fusiondet eval --json` writes it (the last
+/// list empty without `baseline_dir`).
 #[pyfunction]
 #[pyo3(signature = (label_dir, result_dir, split_ids=None, split_file=None, classes=None, breakdown=false, velodyne_dir=None, calib_dir=None, baseline_dir=None, resamples=1000, seed=0, confidence=0.95))]
 #[allow(clippy::too_many_arguments)]
@@ -67,7 +68,7 @@ fn evaluate_kitti_json(
     resamples: usize,
     seed: u64,
     confidence: f64,
-) -> PyResult<(String, Vec<String>)> {
+) -> PyResult<(String, Vec<String>, Vec<String>)> {
     let mut cfg = EvalConfig::default();
     if let Some(list) = classes {
         cfg.classes = parse_classes(&list.join(",")).map_err(|m| err(format!("classes: {m}")))?;
@@ -100,11 +101,11 @@ fn evaluate_kitti_json(
             }
             None => None,
         };
-        let mut missing = frames.missing_results;
+        let mut baseline_missing = Vec::new();
         let versus = match &baseline_dir {
             Some(dir) => {
                 let baseline = load_dirs(&label_dir, dir, &ids).map_err(err)?;
-                missing.extend(baseline.missing_results);
+                baseline_missing = baseline.missing_results;
                 let resampling = Resampling {
                     resamples,
                     seed,
@@ -122,7 +123,11 @@ fn evaluate_kitti_json(
             errors: None,
             baseline: versus.as_ref(),
         };
-        Ok((to_json(&report, extras), missing))
+        Ok((
+            to_json(&report, extras),
+            frames.missing_results,
+            baseline_missing,
+        ))
     })
 }
 

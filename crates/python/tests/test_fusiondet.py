@@ -78,6 +78,11 @@ def test_a_baseline_adds_the_difference_and_its_interval(tmp_path):
     assert row["difference"][1] > 0
     with pytest.raises(fusiondet.FusiondetError, match="at least 2"):
         fusiondet.evaluate_kitti(MIXED / "gt", MIXED / "det", split=ids, baseline_dir=MIXED / "det", resamples=1)
+    # A frame without a result file in the baseline is named against the baseline's folder.
+    (tmp_path / "base" / f"{ids[1]}.txt").unlink()
+    with pytest.warns(UserWarning, match=r"1 frames have no result file in .*base") as caught:
+        fusiondet.evaluate_kitti(MIXED / "gt", MIXED / "det", split=ids, baseline_dir=tmp_path / "base", resamples=10)
+    assert len(caught) == 1, [str(w.message) for w in caught]
 
 
 def parse_text(text):

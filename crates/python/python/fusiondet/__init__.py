@@ -91,7 +91,7 @@ def evaluate_kitti(
     ``resamples`` resamples of the frames (as ``fusiondet eval --baseline``). Bad input
     raises ``FusiondetError`` with file:line:field."""
     ids, split_file = _split_args(label_dir, split)
-    text, missing = _native.evaluate_kitti_json(
+    text, missing, baseline_missing = _native.evaluate_kitti_json(
         os.fspath(label_dir),
         os.fspath(result_dir),
         ids,
@@ -106,6 +106,8 @@ def evaluate_kitti(
         float(confidence),
     )
     _warn_missing(missing, result_dir, "frames")
+    if baseline_dir is not None:
+        _warn_missing(baseline_missing, baseline_dir, "frames")
     return json.loads(text)
 
 

@@ -21,7 +21,7 @@ def evaluate_kitti_json(
     resamples: int = 1000,
     seed: int = 0,
     confidence: float = 0.95,
-) -> Tuple[str, List[str]]: ...
+) -> Tuple[str, List[str], List[str]]: ...
 def evaluate_sunrgbd_json(
     label_dir: str,
     result_dir: str,
