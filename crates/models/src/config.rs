@@ -80,6 +80,25 @@ pub struct LfaConfig {
     pub position_scale_m: f64,
     /// Metres that divide the neighbour offsets p_i − p_k and their length (1 = raw).
     pub offset_scale_m: f64,
+    /// How LFA's features reach the PointNets (`none` = the paper's concatenation).
+    pub feature_gate: LfaFeatureGate,
+}
+
+/// What stands between LFA's features f and the slice PointNets' first layers.
+///
+/// `none` is the paper (Eq. 10's output concatenated to each pair's coordinates as it
+/// is). With LFA's 512 channels beside the 3 coordinates, a freshly initialised first
+/// layer draws almost all of its input from f, and the full-size LFA row lost 10–12
+/// points of 3D AP to F-ConvNet with a higher training loss (docs/frustum.md). `zero`
+/// multiplies f by a learned per-channel scale started at 0 (as LayerScale and ReZero
+/// start residual branches): the network starts as F-ConvNet on the same points, and
+/// LFA's weights receive gradient as soon as a scale moves off zero. Not in the paper.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LfaFeatureGate {
+    #[default]
+    None,
+    Zero,
 }
 
 /// The MLP widths of one LFA stage.
@@ -118,6 +137,7 @@ impl Default for LfaConfig {
             ],
             position_scale_m: 1.0,
             offset_scale_m: 1.0,
+            feature_gate: LfaFeatureGate::None,
         }
     }
 }

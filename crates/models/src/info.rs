@@ -111,6 +111,9 @@ impl ParamTable {
                     trainable_params(stage),
                 );
             }
+            if let Some(gate) = &lfa.gate {
+                row(Block::Lfa, "lfa feature gate".into(), gate.dims()[0]);
+            }
         }
         for (k, enc) in model.encoders.iter().enumerate() {
             let crate::pointnet::SliceEncoder::PointNet(p) = enc;

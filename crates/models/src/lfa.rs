@@ -12,14 +12,17 @@
 //! (`position_scale_m`, `offset_scale_m`) positions and offsets are divided by their own
 //! scales first, so that neither dominates the first layer. Only survivors get
 //! features: the dropped half would feed nothing downstream. The slice PointNets then see
-//! each pair's coordinates relative to its sub-frustum centre together with `f` of its point.
+//! each pair's coordinates relative to its sub-frustum centre together with `f` of its point,
+//! or with `γ ⊙ f` under `feature_gate = "zero"` (γ learned per channel, started at 0;
+//! not in the paper, see [`LfaFeatureGate`]).
 //!
 //! The neighbour search runs on the host when the batch's tensors are built (a k-d tree
 //! from `kiddo` over the frustum's distinct points: repeated samples are one neighbour),
 //! the frustums in parallel.
 
-use crate::config::{LfaConfig, ModelConfig};
+use crate::config::{LfaConfig, LfaFeatureGate, ModelConfig};
 use crate::error::ModelError;
+use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use fusiondet_nn::ragged::{self, Neighbours, Runs};
@@ -197,6 +200,8 @@ fn run(layers: &[MlpLayer], mut x: Tensor<2>) -> Tensor<2> {
 #[derive(Module, Debug)]
 pub struct Lfa {
     pub stages: Vec<LfaStage>,
+    /// [C]: the per-channel scale γ of `feature_gate = "zero"` (absent in the paper's form).
+    pub gate: Option<Param<Tensor<1>>>,
 }
 
 impl Lfa {
@@ -214,7 +219,11 @@ impl Lfa {
                 stage
             })
             .collect();
-        Self { stages }
+        let gate = match lfa.feature_gate {
+            LfaFeatureGate::None => None,
+            LfaFeatureGate::Zero => Some(Param::from_tensor(Tensor::zeros([prev], device))),
+        };
+        Self { stages, gate }
     }
 
     /// Features of the surviving points, [B · N_S, C] (frustum-major, in sample order).
@@ -241,7 +250,14 @@ impl Lfa {
             feats = Some(Tensor::cat(vec![local, point], 1));
             coords = q;
         }
-        feats.expect("LFA has at least one stage")
+        let feats = feats.expect("LFA has at least one stage");
+        match &self.gate {
+            Some(gate) => {
+                let c = gate.dims()[0];
+                feats * gate.val().reshape([1, c])
+            }
+            None => feats,
+        }
     }
 }
 
@@ -586,6 +602,7 @@ mod tests {
                 stages,
                 position_scale_m: scales.0,
                 offset_scale_m: scales.1,
+                ..LfaConfig::default()
             };
             let model = ModelConfig {
                 lfa: Some(config.clone()),
@@ -664,6 +681,56 @@ mod tests {
             assert_eq!(by_tensors, on_host, "offset gain {offset_gain}");
             assert_eq!(by_tensors, bits(custom), "offset gain {offset_gain}");
         }
+    }
+
+    /// `feature_gate = "zero"` starts LFA's output at zero (the PointNets see only the
+    /// coordinates, as in F-ConvNet); the gate gets a gradient from the first step, LFA's
+    /// own weights once the gate has moved.
+    #[test]
+    fn a_zero_gate_starts_lfa_shut_and_learns_to_open() {
+        let device = Device::flex().autodiff();
+        let n0 = 32;
+        let points: Vec<f32> = (0..2 * n0 * 3)
+            .map(|i| ((i * 53) % 97) as f32 * 0.25 - 6.0)
+            .collect();
+        let config = LfaConfig {
+            neighbours: 4,
+            feature_gate: LfaFeatureGate::Zero,
+            ..LfaConfig::default()
+        };
+        let model = ModelConfig {
+            lfa: Some(config.clone()),
+            ..ModelConfig::default()
+        };
+        let mut lfa = Lfa::new(&model, &config, &device);
+        let inputs = LfaInputs::new(&points, 2, n0, &config, &device).unwrap();
+        let out = lfa.forward(&inputs);
+        assert_eq!(out.dims(), [2 * n0 / 4, config.out_channels()]);
+        let largest: f32 = out.clone().abs().max().into_scalar();
+        assert_eq!(largest, 0.0);
+        let grads = out.sum().backward();
+        let gate = lfa.gate.as_ref().unwrap();
+        let gate_grad = gate.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap();
+        assert!(gate_grad.iter().any(|&g| g != 0.0));
+        let weight = |lfa: &Lfa| lfa.stages[0].point[0].linear.weight.clone();
+        let shut: f32 = weight(&lfa)
+            .grad(&grads)
+            .map_or(0.0, |g| g.abs().max().into_scalar());
+        assert_eq!(shut, 0.0);
+        // Opened a little, the gate passes f scaled and LFA's weights learn.
+        let c = config.out_channels();
+        lfa.gate = Some(Param::from_tensor(
+            Tensor::ones([c], &device).mul_scalar(0.5),
+        ));
+        let out = lfa.forward(&inputs);
+        let largest: f32 = out.clone().abs().max().into_scalar();
+        assert!(largest > 0.0);
+        let grads = out.sum().backward();
+        let open: f32 = weight(&lfa).grad(&grads).unwrap().abs().max().into_scalar();
+        assert!(open > 0.0);
+        // The paper's form has no gate.
+        let paper = Lfa::new(&model, &LfaConfig::default(), &device);
+        assert!(paper.gate.is_none());
     }
 
     #[test]

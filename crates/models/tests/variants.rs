@@ -1,6 +1,7 @@
 //! The seeds' variants of F-ConvNet: FCAM's attention, SAF's LFA and projection loss —
 //! parameter counts, training behaviour and the projection term by hand.
 
+use burn::module::Param;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use fusiondet_models::boxes::box_corners;
@@ -148,34 +149,65 @@ fn every_variant_fits_a_tiny_batch() {
         (SliceEncoderKind::ImprovedCbam, true, true),
     ] {
         let config = tiny_variant(kind, lfa, projection);
-        let device = Device::flex().autodiff();
-        device.seed(5);
-        let mut model = FConvNet::new(&config.model, &device).unwrap();
-        let spec = SyntheticSpec::tiny(4);
-        let batch = if lfa {
-            lfa_batch(&spec, 3, 4)
-        } else {
-            synthetic_batch(&spec, 3)
-        };
-        let inputs = model.inputs(&batch, &device).unwrap();
-        let targets = LossTargets::new(&batch, &config.model, &config.loss, &device).unwrap();
-        let mut optim = AdamConfig::new().init();
-        let mut losses = vec![];
-        for _ in 0..30 {
-            let out = model.forward_inputs(&inputs);
-            let loss = fconvnet_loss(&out, &targets, &config.loss).unwrap();
-            if projection {
-                assert!(loss.components.projection > 0.0);
+        let gated = config.model.lfa.as_ref().map(|l| FConvNetConfig {
+            model: ModelConfig {
+                lfa: Some(LfaConfig {
+                    feature_gate: LfaFeatureGate::Zero,
+                    ..l.clone()
+                }),
+                ..config.model.clone()
+            },
+            ..config.clone()
+        });
+        for config in std::iter::once(config).chain(gated) {
+            let device = Device::flex().autodiff();
+            device.seed(5);
+            let mut model = FConvNet::new(&config.model, &device).unwrap();
+            let spec = SyntheticSpec::tiny(4);
+            let batch = if lfa {
+                lfa_batch(&spec, 3, 4)
             } else {
-                assert_eq!(loss.components.projection, 0.0);
+                synthetic_batch(&spec, 3)
+            };
+            let inputs = model.inputs(&batch, &device).unwrap();
+            let targets = LossTargets::new(&batch, &config.model, &config.loss, &device).unwrap();
+            let mut optim = AdamConfig::new().init();
+            let mut losses = vec![];
+            for _ in 0..30 {
+                let out = model.forward_inputs(&inputs);
+                let loss = fconvnet_loss(&out, &targets, &config.loss).unwrap();
+                if projection {
+                    assert!(loss.components.projection > 0.0);
+                } else {
+                    assert_eq!(loss.components.projection, 0.0);
+                }
+                losses.push(loss.components.total);
+                let grads = GradientsParams::from_grads(loss.total.backward(), &model);
+                model = optim.step(3e-3, model, grads);
             }
-            losses.push(loss.components.total);
-            let grads = GradientsParams::from_grads(loss.total.backward(), &model);
-            model = optim.step(3e-3, model, grads);
+            let (first, last) = (losses[0], *losses.last().unwrap());
+            let gate = config.model.lfa.as_ref().map(|l| l.feature_gate);
+            println!("{kind:?} lfa {gate:?} pl {projection}: {first} → {last}");
+            assert!(
+                last < 0.5 * first,
+                "{kind:?} {gate:?}: loss {first} → {last}"
+            );
+            if gate == Some(LfaFeatureGate::Zero) {
+                // The gate opened during training.
+                let opened: f32 = model
+                    .lfa
+                    .as_ref()
+                    .unwrap()
+                    .gate
+                    .as_ref()
+                    .unwrap()
+                    .val()
+                    .abs()
+                    .max()
+                    .into_scalar();
+                assert!(opened > 0.0, "{kind:?}: the gate stayed shut");
+            }
         }
-        let (first, last) = (losses[0], *losses.last().unwrap());
-        println!("{kind:?} lfa {lfa} pl {projection}: {first} → {last}");
-        assert!(last < 0.5 * first, "{kind:?}: loss {first} → {last}");
     }
 }
 
@@ -249,6 +281,35 @@ fn checkpoints_remember_the_variant() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("lfa"), "{err}");
+    // A gated model keeps its gate; a config without the gate refuses its file, and the
+    // gated config refuses an ungated file.
+    let gated_config = ModelConfig {
+        lfa: Some(LfaConfig {
+            feature_gate: LfaFeatureGate::Zero,
+            ..config.lfa.clone().unwrap()
+        }),
+        ..config.clone()
+    };
+    let mut gated = FConvNet::new(&gated_config, &device).unwrap();
+    let c = gated_config.lfa.as_ref().unwrap().out_channels();
+    let values: Vec<f32> = (0..c).map(|i| i as f32 * 0.01 - 0.1).collect();
+    gated.lfa.as_mut().unwrap().gate = Some(Param::from_tensor(Tensor::from_data(
+        TensorData::new(values.clone(), [c]),
+        &device,
+    )));
+    let gated_path = dir.join("gated.bpk");
+    save_checkpoint(&gated, &gated_path).unwrap();
+    let back = load_checkpoint(&gated_config, &gated_path, &device).unwrap();
+    let gate = back.lfa.unwrap().gate.unwrap().val();
+    assert_eq!(gate.try_into_vec_as::<f32>().unwrap(), values);
+    let err = load_checkpoint(&config, &gated_path, &device)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("feature_gate"), "{err}");
+    let err = load_checkpoint(&gated_config, &path, &device)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("feature_gate"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

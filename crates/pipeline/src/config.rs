@@ -832,6 +832,16 @@ mod tests {
         .to_string();
         assert!(err.contains("c.toml") && err.contains("epochz"), "{err}");
         let err = ExperimentConfig::from_toml_str(
+            &with_kind("[model.lfa]\nfeature_gate = \"one\"\n"),
+            Path::new("c.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("c.toml") && err.contains("feature_gate") && err.contains("zero"),
+            "{err}"
+        );
+        let err = ExperimentConfig::from_toml_str(
             &with_kind("[train]\nbatch_size = 0\n"),
             Path::new("c.toml"),
         )
@@ -994,7 +1004,7 @@ mod shipped_configs {
     #[test]
     fn the_saf_module_rows_differ_only_in_the_modules() {
         use fusiondet_frustum::Slicing;
-        use fusiondet_models::LfaConfig;
+        use fusiondet_models::{LfaConfig, LfaFeatureGate};
         let base = load("fconvnet-car-sim.toml");
         // `row` with its modules' keys set back to the baseline's.
         let without_modules = |row: &ExperimentConfig, slicing: bool, lfa: bool, pl: bool| {
@@ -1044,6 +1054,13 @@ mod shipped_configs {
         (lfa.position_scale_m, lfa.offset_scale_m) = (1.0, 1.0);
         scaled.name = "saf-lfa-car-sim".into();
         assert_eq!(scaled, load("saf-lfa-car-sim.toml"));
+        // The gated LFA row differs from the LFA row in the gate only.
+        let mut gated = load("saf-lfa-gate-car-sim.toml");
+        let lfa = gated.model.lfa.as_mut().unwrap();
+        assert_eq!(lfa.feature_gate, LfaFeatureGate::Zero);
+        lfa.feature_gate = LfaFeatureGate::None;
+        gated.name = "saf-lfa-car-sim".into();
+        assert_eq!(gated, load("saf-lfa-car-sim.toml"));
         // The slicing row without a near region differs from the slicing row in ω only.
         let mut w0 = load("saf-slicing-w0-car-sim.toml");
         let Slicing::DepthGuided(guided) = &mut w0.frustum.slicing else {
