@@ -1061,6 +1061,12 @@ mod shipped_configs {
         lfa.feature_gate = LfaFeatureGate::None;
         gated.name = "saf-lfa-car-sim".into();
         assert_eq!(gated, load("saf-lfa-car-sim.toml"));
+        let mut gated = load("saf-gate-car-sim.toml");
+        let lfa = gated.model.lfa.as_mut().unwrap();
+        assert_eq!(lfa.feature_gate, LfaFeatureGate::Zero);
+        lfa.feature_gate = LfaFeatureGate::None;
+        gated.name = "saf-car-sim".into();
+        assert_eq!(gated, load("saf-car-sim.toml"));
         // The slicing row without a near region differs from the slicing row in ω only.
         let mut w0 = load("saf-slicing-w0-car-sim.toml");
         let Slicing::DepthGuided(guided) = &mut w0.frustum.slicing else {
