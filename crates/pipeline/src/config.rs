@@ -1061,10 +1061,16 @@ mod shipped_configs {
         lfa.feature_gate = LfaFeatureGate::None;
         gated.name = "saf-lfa-car-sim".into();
         assert_eq!(gated, load("saf-lfa-car-sim.toml"));
-        let mut gated = load("saf-gate-car-sim.toml");
+        // The gated full row without a near region differs from the full row in those two.
+        let mut gated = load("saf-gate-w0-car-sim.toml");
         let lfa = gated.model.lfa.as_mut().unwrap();
         assert_eq!(lfa.feature_gate, LfaFeatureGate::Zero);
         lfa.feature_gate = LfaFeatureGate::None;
+        let Slicing::DepthGuided(guided) = &mut gated.frustum.slicing else {
+            panic!("saf-gate-w0-car-sim.toml: depth-guided slicing expected");
+        };
+        assert_eq!(guided.omega, 0.0);
+        guided.omega = 0.55;
         gated.name = "saf-car-sim".into();
         assert_eq!(gated, load("saf-car-sim.toml"));
         // The slicing row without a near region differs from the slicing row in ω only.
