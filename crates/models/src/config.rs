@@ -82,6 +82,27 @@ pub struct LfaConfig {
     pub offset_scale_m: f64,
     /// How LFA's features reach the PointNets (`none` = the paper's concatenation).
     pub feature_gate: LfaFeatureGate,
+    /// How the PointNets' first layers draw the weights of the 3 pair coordinates.
+    pub coordinate_init: CoordinateInit,
+}
+
+/// The starting weights of the pair coordinates' rows in each PointNet's first layer.
+///
+/// With LFA that layer has 3 + C inputs (C = 512 at the paper's size), and a linear layer
+/// draws its weights at ±1/√fan-in, so `shared` (the default; the paper is silent) starts
+/// the coordinate rows 13 times smaller than F-ConvNet's, whose layer has 3 inputs. A
+/// batch norm follows, so the size itself does not change the function, but Adam moves
+/// every weight by about the learning rate a step whatever its size, and the coordinates'
+/// weights then turn over 13 times faster relative to their size than in F-ConvNet. `own`
+/// draws those rows at their own fan-in (3), as F-ConvNet does, and the feature rows at
+/// the layer's as before; with `feature_gate = "zero"` the network then starts as
+/// F-ConvNet does, in distribution.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CoordinateInit {
+    #[default]
+    Shared,
+    Own,
 }
 
 /// What stands between LFA's features f and the slice PointNets' first layers.
@@ -138,6 +159,7 @@ impl Default for LfaConfig {
             position_scale_m: 1.0,
             offset_scale_m: 1.0,
             feature_gate: LfaFeatureGate::None,
+            coordinate_init: CoordinateInit::Shared,
         }
     }
 }

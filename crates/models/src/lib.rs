@@ -43,8 +43,8 @@ pub use checkpoint::{
     load_checkpoint, read_checkpoint_config, read_checkpoint_kind, save_checkpoint,
 };
 pub use config::{
-    AttentionConfig, FConvNetConfig, LfaConfig, LfaFeatureGate, LfaStageConfig, LossConfig,
-    ModelConfig, SliceEncoderKind,
+    AttentionConfig, CoordinateInit, FConvNetConfig, LfaConfig, LfaFeatureGate, LfaStageConfig,
+    LossConfig, ModelConfig, SliceEncoderKind,
 };
 pub use decode::{FrustumPrediction, decode};
 pub use error::ModelError;

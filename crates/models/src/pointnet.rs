@@ -8,11 +8,24 @@
 //! same function with far more work and exists to check the ragged one.
 
 use crate::attention::Cbam;
-use crate::config::{ModelConfig, SliceEncoderKind};
+use crate::config::{CoordinateInit, ModelConfig, SliceEncoderKind};
 use crate::inputs::{PaddedScaleInputs, ScaleInputs};
+use burn::module::Param;
+use burn::nn::LinearConfig;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use fusiondet_nn::{MlpLayer, mlp_stack};
+
+/// Redraws the first 3 rows of `layer`'s weight (the pair coordinates) as a linear layer
+/// with those 3 inputs alone draws them (see [`CoordinateInit::Own`]).
+fn draw_coordinate_rows_alone(layer: &mut MlpLayer, device: &Device) {
+    let weight = layer.linear.weight.val();
+    let [d_in, d_out] = weight.dims();
+    let own = LinearConfig::new(3, d_out).init(device).weight.val();
+    let features = weight.slice([3..d_in, 0..d_out]);
+    // Detached: on an autodiff device the concatenation is not a leaf, and a parameter must be.
+    layer.linear.weight = Param::from_tensor(Tensor::cat(vec![own, features], 0).detach());
+}
 
 /// The PointNet of F-ConvNet: a shared MLP on pair coordinates relative to the slice
 /// centre, max-pooled per slice (empty slices give zeros). FCAM's variants attend the
@@ -28,12 +41,19 @@ pub struct PointNet {
 
 impl PointNet {
     pub fn new(widths: &[usize], config: &ModelConfig, device: &Device) -> Self {
-        let layers = mlp_stack(
+        let mut layers = mlp_stack(
             config.pointnet_input_channels(),
             widths,
             &config.norm(),
             device,
         );
+        if config
+            .lfa
+            .as_ref()
+            .is_some_and(|l| l.coordinate_init == CoordinateInit::Own)
+        {
+            draw_coordinate_rows_alone(&mut layers[0], device);
+        }
         let attention_after = if config.slice_encoder.uses_attention() {
             config.attention.after_layers.clone()
         } else {
@@ -146,5 +166,46 @@ impl SliceEncoder {
         match self {
             Self::PointNet(p) => p.out_channels(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::LfaConfig;
+
+    /// With LFA the first layer has 3 + C inputs; `coordinate_init = "own"` draws the three
+    /// coordinate rows at ±1/√3 (F-ConvNet's range) and leaves the feature rows at the
+    /// layer's ±1/√(3 + C); `shared` draws every row at the layer's.
+    #[test]
+    fn coordinate_rows_are_drawn_at_their_own_fan_in() {
+        let device = Device::flex();
+        device.seed(3);
+        let largest = |coordinate_init| {
+            let config = ModelConfig {
+                lfa: Some(LfaConfig {
+                    coordinate_init,
+                    ..LfaConfig::paper()
+                }),
+                ..ModelConfig::car()
+            };
+            let net = PointNet::new(&[128, 128], &config, &device);
+            let w = net.layers[0].linear.weight.val();
+            let [d_in, d_out] = w.dims();
+            assert_eq!(d_in, 515);
+            let max = |r: std::ops::Range<usize>| -> f32 {
+                w.clone().slice([r, 0..d_out]).abs().max().into_scalar()
+            };
+            (max(0..3), max(3..d_in))
+        };
+        let layer_bound = 1.0 / 515f32.sqrt();
+        let (coords, features) = largest(CoordinateInit::Shared);
+        assert!(coords <= layer_bound && features <= layer_bound);
+        let (coords, features) = largest(CoordinateInit::Own);
+        assert!(features <= layer_bound, "{features}");
+        assert!(
+            coords > 5.0 * layer_bound && coords <= 1.0 / 3f32.sqrt(),
+            "{coords}"
+        );
     }
 }

@@ -153,6 +153,7 @@ fn every_variant_fits_a_tiny_batch() {
             model: ModelConfig {
                 lfa: Some(LfaConfig {
                     feature_gate: LfaFeatureGate::Zero,
+                    coordinate_init: CoordinateInit::Own,
                     ..l.clone()
                 }),
                 ..config.model.clone()

@@ -1004,7 +1004,7 @@ mod shipped_configs {
     #[test]
     fn the_saf_module_rows_differ_only_in_the_modules() {
         use fusiondet_frustum::Slicing;
-        use fusiondet_models::{LfaConfig, LfaFeatureGate};
+        use fusiondet_models::{CoordinateInit, LfaConfig, LfaFeatureGate};
         let base = load("fconvnet-car-sim.toml");
         // `row` with its modules' keys set back to the baseline's.
         let without_modules = |row: &ExperimentConfig, slicing: bool, lfa: bool, pl: bool| {
@@ -1061,11 +1061,21 @@ mod shipped_configs {
         lfa.feature_gate = LfaFeatureGate::None;
         gated.name = "saf-lfa-car-sim".into();
         assert_eq!(gated, load("saf-lfa-car-sim.toml"));
-        // The gated full row without a near region differs from the full row in those two.
+        // ... and with the coordinates' own init in that one key.
+        let mut own = load("saf-lfa-gate-own-car-sim.toml");
+        let lfa = own.model.lfa.as_mut().unwrap();
+        assert_eq!(lfa.coordinate_init, CoordinateInit::Own);
+        lfa.coordinate_init = CoordinateInit::Shared;
+        own.name = "saf-lfa-gate-car-sim".into();
+        assert_eq!(own, load("saf-lfa-gate-car-sim.toml"));
+        // The gated full row with its own init and no near region differs from the full
+        // row in those three keys.
         let mut gated = load("saf-gate-w0-car-sim.toml");
         let lfa = gated.model.lfa.as_mut().unwrap();
         assert_eq!(lfa.feature_gate, LfaFeatureGate::Zero);
+        assert_eq!(lfa.coordinate_init, CoordinateInit::Own);
         lfa.feature_gate = LfaFeatureGate::None;
+        lfa.coordinate_init = CoordinateInit::Shared;
         let Slicing::DepthGuided(guided) = &mut gated.frustum.slicing else {
             panic!("saf-gate-w0-car-sim.toml: depth-guided slicing expected");
         };
