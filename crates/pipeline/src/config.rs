@@ -1061,7 +1061,14 @@ mod shipped_configs {
         lfa.feature_gate = LfaFeatureGate::None;
         gated.name = "saf-lfa-car-sim".into();
         assert_eq!(gated, load("saf-lfa-car-sim.toml"));
-        // ... and with the coordinates' own init in that one key.
+        // The LFA row with the coordinates' own init differs from it in that key only ...
+        let mut own = load("saf-lfa-own-car-sim.toml");
+        let lfa = own.model.lfa.as_mut().unwrap();
+        assert_eq!(lfa.coordinate_init, CoordinateInit::Own);
+        lfa.coordinate_init = CoordinateInit::Shared;
+        own.name = "saf-lfa-car-sim".into();
+        assert_eq!(own, load("saf-lfa-car-sim.toml"));
+        // ... and the gated row with it from the gated row.
         let mut own = load("saf-lfa-gate-own-car-sim.toml");
         let lfa = own.model.lfa.as_mut().unwrap();
         assert_eq!(lfa.coordinate_init, CoordinateInit::Own);
