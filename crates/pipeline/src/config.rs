@@ -1303,7 +1303,9 @@ mod shipped_configs {
                     .unwrap_or(stem);
                 let parts: Vec<&str> = variant.split('-').collect();
                 let saf = parts[0] == "saf";
-                let all_three = variant == "saf";
+                // A SAF name without a module's word is the full SAF (`saf-gate-w0`: all
+                // three modules, with its own keys).
+                let all_three = saf && !parts.iter().any(|p| ["slicing", "lfa", "pl"].contains(p));
                 let slicing = all_three || (saf && parts.contains(&"slicing"));
                 let lfa = all_three || (saf && parts.contains(&"lfa"));
                 let pl = all_three || (saf && parts.contains(&"pl"));
