@@ -1047,58 +1047,58 @@ mod shipped_configs {
             let row = load(file);
             assert_eq!(without_modules(&row, slicing, lfa, pl), base, "{file}");
         }
-        // The LFA row with scaled inputs differs from the LFA row in the two scales only.
-        let mut scaled = load("saf-lfa-norm-car-sim.toml");
-        let lfa = scaled.model.lfa.as_mut().unwrap();
-        assert_eq!((lfa.position_scale_m, lfa.offset_scale_m), (5.0, 1.0));
-        (lfa.position_scale_m, lfa.offset_scale_m) = (1.0, 1.0);
-        scaled.name = "saf-lfa-car-sim".into();
-        assert_eq!(scaled, load("saf-lfa-car-sim.toml"));
-        // The gated LFA row differs from the LFA row in the gate only.
-        let mut gated = load("saf-lfa-gate-car-sim.toml");
-        let lfa = gated.model.lfa.as_mut().unwrap();
-        assert_eq!(lfa.feature_gate, LfaFeatureGate::Zero);
-        lfa.feature_gate = LfaFeatureGate::None;
-        gated.name = "saf-lfa-car-sim".into();
-        assert_eq!(gated, load("saf-lfa-car-sim.toml"));
-        // The LFA row with the coordinates' own init differs from it in that key only ...
-        let mut own = load("saf-lfa-own-car-sim.toml");
-        let lfa = own.model.lfa.as_mut().unwrap();
-        assert_eq!(lfa.coordinate_init, CoordinateInit::Own);
-        lfa.coordinate_init = CoordinateInit::Shared;
-        own.name = "saf-lfa-car-sim".into();
-        assert_eq!(own, load("saf-lfa-car-sim.toml"));
-        // ... and the gated row with it from the gated row.
-        let mut own = load("saf-lfa-gate-own-car-sim.toml");
-        let lfa = own.model.lfa.as_mut().unwrap();
-        assert_eq!(lfa.coordinate_init, CoordinateInit::Own);
-        lfa.coordinate_init = CoordinateInit::Shared;
-        own.name = "saf-lfa-gate-car-sim".into();
-        assert_eq!(own, load("saf-lfa-gate-car-sim.toml"));
-        // The gated full row with its own init and no near region differs from the full
-        // row in those three keys.
-        let mut gated = load("saf-gate-w0-car-sim.toml");
-        let lfa = gated.model.lfa.as_mut().unwrap();
-        assert_eq!(lfa.feature_gate, LfaFeatureGate::Zero);
-        assert_eq!(lfa.coordinate_init, CoordinateInit::Own);
-        lfa.feature_gate = LfaFeatureGate::None;
-        lfa.coordinate_init = CoordinateInit::Shared;
-        let Slicing::DepthGuided(guided) = &mut gated.frustum.slicing else {
-            panic!("saf-gate-w0-car-sim.toml: depth-guided slicing expected");
+        // Each derived row is its parent with only its own keys changed: `undo` checks
+        // them and sets them back to the parent's.
+        let derived_from = |file: &str, parent: &str, undo: &dyn Fn(&mut ExperimentConfig)| {
+            let mut row = load(file);
+            undo(&mut row);
+            row.name = parent.trim_end_matches(".toml").into();
+            assert_eq!(row, load(parent), "{file} against {parent}");
         };
-        assert_eq!(guided.omega, 0.0);
-        guided.omega = 0.55;
-        gated.name = "saf-car-sim".into();
-        assert_eq!(gated, load("saf-car-sim.toml"));
-        // The slicing row without a near region differs from the slicing row in ω only.
-        let mut w0 = load("saf-slicing-w0-car-sim.toml");
-        let Slicing::DepthGuided(guided) = &mut w0.frustum.slicing else {
-            panic!("saf-slicing-w0-car-sim.toml: depth-guided slicing expected");
+        fn lfa(c: &mut ExperimentConfig) -> &mut LfaConfig {
+            c.model.lfa.as_mut().unwrap()
+        }
+        let gate = |c: &mut ExperimentConfig| {
+            assert_eq!(lfa(c).feature_gate, LfaFeatureGate::Zero);
+            lfa(c).feature_gate = LfaFeatureGate::None;
         };
-        assert_eq!(guided.omega, 0.0);
-        guided.omega = 0.55;
-        w0.name = "saf-slicing-car-sim".into();
-        assert_eq!(w0, load("saf-slicing-car-sim.toml"));
+        let own_init = |c: &mut ExperimentConfig| {
+            assert_eq!(lfa(c).coordinate_init, CoordinateInit::Own);
+            lfa(c).coordinate_init = CoordinateInit::Shared;
+        };
+        let no_near_region = |c: &mut ExperimentConfig| {
+            let Slicing::DepthGuided(guided) = &mut c.frustum.slicing else {
+                panic!("{}: depth-guided slicing expected", c.name);
+            };
+            assert_eq!(guided.omega, 0.0);
+            guided.omega = 0.55;
+        };
+        derived_from("saf-lfa-norm-car-sim.toml", "saf-lfa-car-sim.toml", &|c| {
+            let l = lfa(c);
+            assert_eq!((l.position_scale_m, l.offset_scale_m), (5.0, 1.0));
+            (l.position_scale_m, l.offset_scale_m) = (1.0, 1.0);
+        });
+        derived_from("saf-lfa-gate-car-sim.toml", "saf-lfa-car-sim.toml", &gate);
+        derived_from(
+            "saf-lfa-own-car-sim.toml",
+            "saf-lfa-car-sim.toml",
+            &own_init,
+        );
+        derived_from(
+            "saf-lfa-gate-own-car-sim.toml",
+            "saf-lfa-gate-car-sim.toml",
+            &own_init,
+        );
+        derived_from(
+            "saf-slicing-w0-car-sim.toml",
+            "saf-slicing-car-sim.toml",
+            &no_near_region,
+        );
+        derived_from("saf-gate-w0-car-sim.toml", "saf-car-sim.toml", &|c| {
+            gate(c);
+            own_init(c);
+            no_near_region(c);
+        });
         // The shipped SAF was trained on the full row's recipe with the CPU-sized LFA.
         let shipped = ExperimentConfig::from_file(
             &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/saf-car.toml"),
