@@ -313,6 +313,31 @@ fn info_puts_saf_beside_the_papers_count() {
     assert_eq!(check_block_table(&t).2, 0.0, "{t}");
 }
 
+/// The gated SAF rows count the gate's 512 scales in LFA's block, and stay within 5% of
+/// the paper's count; the coordinates' own init adds nothing.
+#[test]
+fn info_counts_lfas_feature_gate() {
+    let plain = check_block_table(&info_of("saf-lfa-car-sim.toml")).0;
+    for config in [
+        "saf-lfa-gate-car-sim.toml",
+        "saf-lfa-gate-own-car-sim.toml",
+        "saf-gate-w0-car-sim.toml",
+    ] {
+        let t = info_of(config);
+        assert!(
+            t.lines()
+                .any(|l| l.trim_start().starts_with("lfa feature gate") && l.contains(" 512 ")),
+            "{config}: {t}"
+        );
+        let (total, paper, pct) = check_block_table(&t);
+        assert_eq!(total, plain + 512, "{config}");
+        assert_eq!(paper, 3_724_013);
+        assert!(pct.abs() < 5.0, "{config}: {pct}%");
+    }
+    let own = check_block_table(&info_of("saf-lfa-own-car-sim.toml")).0;
+    assert_eq!(own, plain);
+}
+
 #[test]
 fn info_counts_the_refinement_stage_alone_before_its_first_stage_is_trained() {
     // fconvnet-refine-people.toml names runs/fconvnet-people/model.bpk, made by training.
