@@ -405,6 +405,56 @@ fn train_and_detect_report_bad_input_clearly() {
     );
 }
 
+/// A SAF network with LFA's gate and the coordinates' own init trains, resumes its config
+/// from the checkpoint and detects from the command line (the keys reach the binary).
+#[test]
+fn a_gated_lfa_network_trains_and_detects_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = simulate_six_frames(dir.path(), &["--seed", "4"]);
+    let text_of = std::fs::read_to_string(configs().join("tiny-saf-lfa.toml")).unwrap();
+    assert!(text_of.contains("[model.lfa]\n"));
+    let gated = text_of.replace(
+        "[model.lfa]\n",
+        "[model.lfa]\nfeature_gate = \"zero\"\ncoordinate_init = \"own\"\n",
+    );
+    let config = dir.path().join("tiny-saf-lfa-gated.toml");
+    std::fs::write(&config, gated).unwrap();
+    let run = dir.path().join("run");
+    let o = fusiondet(&[
+        "train",
+        "--config",
+        config.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--epochs",
+        "1",
+        "--max-frames",
+        "6",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let stored = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(
+        stored.contains("feature_gate = \"zero\"") && stored.contains("coordinate_init = \"own\""),
+        "{stored}"
+    );
+    let results = dir.path().join("results");
+    let o = fusiondet(&[
+        "detect",
+        "--checkpoint",
+        run.join("model.bpk").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--split",
+        "val",
+        "--out",
+        results.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(results.join(".fusiondet-results").is_file());
+}
+
 #[test]
 fn train_then_detect_from_the_command_line() {
     let dir = tempfile::tempdir().unwrap();
