@@ -25,6 +25,36 @@ fn configs() -> std::path::PathBuf {
     common::repo_root().join("configs")
 }
 
+/// `fusiondet train --config CONFIG --data DATA --out OUT EXTRA…`.
+fn train(config: &Path, data: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "train",
+        "--config",
+        config.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    fusiondet(&args)
+}
+
+/// `fusiondet detect --checkpoint CHECKPOINT --data DATA --out OUT EXTRA…`.
+fn detect(checkpoint: &Path, data: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "detect",
+        "--checkpoint",
+        checkpoint.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    fusiondet(&args)
+}
+
 /// `fusiondet demo --out OUT --frames FRAMES EXTRA…`.
 fn demo(out: &std::path::Path, frames: &str, extra: &[&str]) -> std::process::Output {
     let mut args = vec!["demo", "--out", out.to_str().unwrap(), "--frames", frames];
@@ -420,19 +450,12 @@ fn a_gated_lfa_network_trains_and_detects_from_the_command_line() {
     let config = dir.path().join("tiny-saf-lfa-gated.toml");
     std::fs::write(&config, gated).unwrap();
     let run = dir.path().join("run");
-    let o = fusiondet(&[
-        "train",
-        "--config",
-        config.to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--out",
-        run.to_str().unwrap(),
-        "--epochs",
-        "1",
-        "--max-frames",
-        "6",
-    ]);
+    let o = train(
+        &config,
+        &data,
+        &run,
+        &["--epochs", "1", "--max-frames", "6"],
+    );
     assert!(o.status.success(), "{}", text(&o));
     let stored = std::fs::read_to_string(run.join("config.toml")).unwrap();
     assert!(
@@ -440,17 +463,7 @@ fn a_gated_lfa_network_trains_and_detects_from_the_command_line() {
         "{stored}"
     );
     let results = dir.path().join("results");
-    let o = fusiondet(&[
-        "detect",
-        "--checkpoint",
-        run.join("model.bpk").to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--split",
-        "val",
-        "--out",
-        results.to_str().unwrap(),
-    ]);
+    let o = detect(&run.join("model.bpk"), &data, &results, &["--split", "val"]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(results.join(".fusiondet-results").is_file());
 }
@@ -461,21 +474,7 @@ fn train_then_detect_from_the_command_line() {
     let data = simulate_six_frames(dir.path(), &["--seed", "3"]);
     let run = dir.path().join("run");
     let tiny = configs().join("tiny.toml");
-    let train_into = |out: &Path| {
-        fusiondet(&[
-            "train",
-            "--config",
-            tiny.to_str().unwrap(),
-            "--data",
-            data.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--epochs",
-            "1",
-            "--max-frames",
-            "6",
-        ])
-    };
+    let train_into = |out: &Path| train(&tiny, &data, out, &["--epochs", "1", "--max-frames", "6"]);
     let o = train_into(&run);
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("1 epoch(s) run"), "{}", text(&o));
@@ -490,21 +489,12 @@ fn train_then_detect_from_the_command_line() {
     );
     let results = dir.path().join("results");
     let detect_into = |out: &Path, force: bool| {
-        let mut args = vec![
-            "detect",
-            "--checkpoint",
-            run.join("model.bpk").to_str().unwrap().to_string().leak(),
-            "--data",
-            data.to_str().unwrap().to_string().leak(),
-            "--split",
-            "val",
-            "--out",
-            out.to_str().unwrap().to_string().leak(),
-        ];
-        if force {
-            args.push("--force");
-        }
-        fusiondet(&args)
+        let extra: &[&str] = if force {
+            &["--split", "val", "--force"]
+        } else {
+            &["--split", "val"]
+        };
+        detect(&run.join("model.bpk"), &data, out, extra)
     };
     let labels = data.join("training/label_2");
     let eval_results = || {
@@ -896,20 +886,8 @@ fn a_refinement_stage_trains_and_detects_from_the_command_line() {
     let dir = tempfile::tempdir().unwrap();
     let data = simulate_six_frames(dir.path(), &["--seed", "4"]);
     let first = dir.path().join("first");
-    let train = |config: &std::path::Path, out: &std::path::Path, extra: &[&str]| {
-        let mut args = vec![
-            "train",
-            "--config",
-            config.to_str().unwrap(),
-            "--data",
-            data.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ];
-        args.extend_from_slice(extra);
-        fusiondet(&args)
-    };
-    let o = train(&configs().join("tiny.toml"), &first, &["--epochs", "2"]);
+    let train_on_sim = |config: &Path, out: &Path, extra: &[&str]| train(config, &data, out, extra);
+    let o = train_on_sim(&configs().join("tiny.toml"), &first, &["--epochs", "2"]);
     assert!(o.status.success(), "{}", text(&o));
     // The shipped tiny refinement config, with this first stage and generous matching
     // (a config of the test's own, beside the first stage it names relatively).
@@ -924,18 +902,18 @@ fn a_refinement_stage_trains_and_detects_from_the_command_line() {
     )
     .unwrap();
     let refine = dir.path().join("refine");
-    let o = train(&config, &refine, &["--epochs", "1"]);
+    let o = train_on_sim(&config, &refine, &["--epochs", "1"]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(refine.join("first-stage.bpk").is_file());
     // --first-stage overrides the config; a first-stage config refuses it.
-    let o = train(
+    let o = train_on_sim(
         &config,
         &dir.path().join("r2"),
         &["--epochs", "1", "--first-stage", "/no/first.bpk"],
     );
     assert!(!o.status.success());
     assert!(text(&o).contains("/no/first"), "{}", text(&o));
-    let o = train(
+    let o = train_on_sim(
         &configs().join("tiny.toml"),
         &dir.path().join("r3"),
         &["--first-stage", "x.bpk"],
@@ -945,15 +923,7 @@ fn a_refinement_stage_trains_and_detects_from_the_command_line() {
     // Detection runs both stages from the self-contained run directory.
     std::fs::remove_dir_all(&first).unwrap();
     let results = dir.path().join("results");
-    let o = fusiondet(&[
-        "detect",
-        "--checkpoint",
-        refine.join("model.bpk").to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--out",
-        results.to_str().unwrap(),
-    ]);
+    let o = detect(&refine.join("model.bpk"), &data, &results, &[]);
     assert!(o.status.success(), "{}", text(&o));
     let ids = std::fs::read_to_string(data.join("ImageSets/val.txt")).unwrap();
     for id in ids.lines() {
