@@ -1108,10 +1108,14 @@ mod shipped_configs {
         assert_ne!(full.model.lfa, shipped.model.lfa);
         full.model.lfa = shipped.model.lfa.clone();
         assert_eq!(full, shipped);
-        // The pair at twice the budget.
+        // The pairs at twice the budget.
         for (file, row) in [
             ("fconvnet-car-sim-2x.toml", base.clone()),
             ("saf-car-sim-2x.toml", load("saf-car-sim.toml")),
+            (
+                "saf-gate-w0-car-sim-2x.toml",
+                load("saf-gate-w0-car-sim.toml"),
+            ),
         ] {
             let mut twice = load(file);
             assert_eq!(
