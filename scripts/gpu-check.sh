@@ -188,6 +188,13 @@ step_parts() { # metrics.jsonl → the second epoch's seconds per step: data wai
         echo "$line" | grep -o "\"$k\":[0-9.e+-]*" | cut -d: -f2
     done | awk -v n="${batches:-0}" '{ if (n > 0) printf "%s%.3f", (NR > 1 ? "/" : ""), $1 / n }'
 }
+forward_parts() { # metrics.jsonl → the second epoch's forward pass per step, by part (voxel family)
+    local line batches
+    line="$(sed -n 2p "$1")"
+    batches="$(echo "$line" | grep -o '"batches":[0-9]*' | cut -d: -f2)"
+    echo "$line" | grep -o '"forward_parts":{[^}]*}' | sed 's/^"forward_parts":{//; s/}$//' | tr ',' '\n' |
+        awk -F: -v n="${batches:-0}" '{ gsub(/"/, "", $1); if (n > 0) printf "%s%s %.3f", (NR > 1 ? ", " : ""), $1, $2 / n }'
+}
 first_loss() { head -1 "$1" | grep -o '"loss_total":[0-9.e+-]*' | cut -d: -f2; }
 if [ "$train" = 1 ]; then
     for config in $train_configs; do
@@ -201,7 +208,7 @@ if [ "$train" = 1 ]; then
             stamp "$name: two epochs of $steps_frames frames on $d"
             if "$bin" train --config "$config" --data "$data" --out "$run" --epochs 2 \
                 --max-frames "$steps_frames" --device "$d" >"$run.log" 2>&1; then
-                row+=("$d $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"))")
+                row+=("$d $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
                 losses+=("$(first_loss "$run/metrics.jsonl")")
                 if [ "$d" != cpu ] && [ -f "$run/model.bpk" ]; then
                     # The configuration's detection speed on the device, both sparse layouts.

@@ -5,7 +5,9 @@
 
 mod common;
 
-use common::{all_output, assert_fails_with, eval_val, repo_root, run, s};
+use common::{
+    all_output, assert_fails_with, assert_forward_parts_logged, eval_val, repo_root, run, s,
+};
 
 #[test]
 fn info_counts_the_published_rows_against_table_five() {
@@ -80,6 +82,7 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
     ] {
         assert!(metrics.contains(term), "{term} not logged: {metrics}");
     }
+    assert_forward_parts_logged(&metrics);
 
     let val: Vec<String> = std::fs::read_to_string(data.join("ImageSets/val.txt"))
         .unwrap()

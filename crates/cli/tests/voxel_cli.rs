@@ -4,7 +4,9 @@
 
 mod common;
 
-use common::{all_output, assert_fails_with, eval_val, repo_root, run, s};
+use common::{
+    all_output, assert_fails_with, assert_forward_parts_logged, eval_val, repo_root, run, s,
+};
 
 #[test]
 fn info_counts_the_published_network_and_its_multiply_adds() {
@@ -158,6 +160,7 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
     ] {
         assert!(metrics.contains(term), "{term} not logged: {metrics}");
     }
+    assert_forward_parts_logged(&metrics);
 
     let results = dir.path().join("results");
     let model = run_dir.join("model.bpk");

@@ -72,6 +72,9 @@ pub struct TrainSummary {
 pub struct StepLoss {
     pub total: Tensor<1>,
     pub components: Vec<(&'static str, f32)>,
+    /// Where the forward pass's seconds went, by named part (empty where a family does not
+    /// split it): summed over an epoch into `metrics.jsonl`'s `step_seconds.forward_parts`.
+    pub parts: ForwardParts,
 }
 
 impl StepLoss {
@@ -88,7 +91,53 @@ impl StepLoss {
                 .iter()
                 .map(|(n, t)| (*n, t.clone().into_scalar::<f32>())),
         );
-        StepLoss { total, components }
+        StepLoss {
+            total,
+            components,
+            parts: ForwardParts::default(),
+        }
+    }
+
+    /// The same loss with the forward pass's parts timed (`parts`).
+    pub fn with_parts(self, parts: ForwardParts) -> StepLoss {
+        StepLoss { parts, ..self }
+    }
+}
+
+/// Wall seconds of the named parts of one forward pass, in the order they first ran: what
+/// a step's host work (proposals, RoI sampling, the RoI query) costs beside the network. On
+/// a GPU a part that reads a tensor back also waits for the kernels queued before it, so a
+/// part's seconds there are where the host waited, not where the device worked.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct ForwardParts(Vec<(&'static str, f64)>);
+
+impl ForwardParts {
+    /// Runs `f`, adding its wall time to part `name`.
+    pub fn time<T>(&mut self, name: &'static str, f: impl FnOnce() -> T) -> T {
+        let started = Instant::now();
+        let out = f();
+        self.add(name, started.elapsed().as_secs_f64());
+        out
+    }
+
+    /// Adds `seconds` to part `name`.
+    pub fn add(&mut self, name: &'static str, seconds: f64) {
+        match self.0.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, s)) => *s += seconds,
+            None => self.0.push((name, seconds)),
+        }
+    }
+
+    /// Every part with its seconds, in the order they first ran.
+    pub fn parts(&self) -> &[(&'static str, f64)] {
+        &self.0
+    }
+
+    /// Adds every part of `other` to this one's.
+    fn absorb(&mut self, other: &ForwardParts) {
+        for &(name, seconds) in &other.0 {
+            self.add(name, seconds);
+        }
     }
 }
 
@@ -314,6 +363,7 @@ pub fn run_training<T: TrainingTask>(
                     let forward = Instant::now();
                     let loss = task.loss(&net, batch, &ad)?;
                     time.forward_loss += forward.elapsed().as_secs_f64();
+                    time.forward_parts.absorb(&loss.parts);
                     let update = Instant::now();
                     if let Some((name, value)) =
                         loss.components.iter().find(|(_, v)| !v.is_finite())
@@ -422,20 +472,33 @@ pub fn run_training<T: TrainingTask>(
 /// kernels the previous step queued), and backward with the optimizer update (on a GPU only
 /// their queuing). Written into `metrics.jsonl` as `step_seconds`, so that a slow step can be
 /// told data-bound from compute-bound on any device.
-#[derive(Debug, Default, Clone, Copy)]
+/// Where the family splits its forward pass ([`StepLoss::parts`]), `forward_parts` says how
+/// `forward_loss` divides among those parts.
+#[derive(Debug, Default, Clone)]
 struct StepTime {
     data_wait: f64,
     forward_loss: f64,
+    forward_parts: ForwardParts,
     backward_update: f64,
 }
 
 impl StepTime {
-    fn to_json(self) -> serde_json::Value {
-        json!({
+    fn to_json(&self) -> serde_json::Value {
+        let mut record = json!({
             "data_wait": self.data_wait,
             "forward_loss": self.forward_loss,
             "backward_update": self.backward_update,
-        })
+        });
+        if !self.forward_parts.parts().is_empty() {
+            let parts: serde_json::Map<String, serde_json::Value> = self
+                .forward_parts
+                .parts()
+                .iter()
+                .map(|&(name, seconds)| (name.to_string(), json!(seconds)))
+                .collect();
+            record["forward_parts"] = serde_json::Value::Object(parts);
+        }
+        record
     }
 }
 
@@ -443,6 +506,23 @@ impl StepTime {
 mod tests {
     use super::*;
     use burn::nn::{Linear, LinearConfig};
+
+    #[test]
+    fn forward_parts_add_up_by_name_in_the_order_they_first_ran() {
+        let mut step = ForwardParts::default();
+        assert_eq!(step.time("query", || 7), 7);
+        step.add("head", 0.5);
+        step.add("query", 1.0);
+        let mut epoch = StepTime::default();
+        assert!(epoch.to_json().get("forward_parts").is_none());
+        epoch.forward_parts.absorb(&step);
+        epoch.forward_parts.absorb(&step);
+        let names: Vec<&str> = epoch.forward_parts.parts().iter().map(|p| p.0).collect();
+        assert_eq!(names, ["query", "head"]);
+        let json = epoch.to_json();
+        assert_eq!(json["forward_parts"]["head"], 1.0);
+        assert!(json["forward_parts"]["query"].as_f64().unwrap() >= 2.0);
+    }
 
     /// A one-weight "network" whose batches scale its loss: a NaN batch makes a NaN loss.
     struct ScaledLoss {

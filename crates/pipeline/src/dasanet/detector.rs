@@ -28,8 +28,9 @@ pub const STAGE_LIDAR_BACKBONE: &str = "LiDAR 3D backbone";
 pub const STAGE_PSEUDO_BACKBONE: &str = "pseudo 3D backbone";
 pub const STAGE_BEV: &str = "BEV backbone + anchor head";
 pub const STAGE_PROPOSALS: &str = "proposals (decode, NMS)";
+pub const STAGE_ROI_QUERY: &str = "RoI queries (host: both grids, STCA crops)";
 pub const STAGE_TDIS: &str = "RoI grid pooling (both) + TDIS";
-pub const STAGE_STCA: &str = "STCA (crop, encoder, attention)";
+pub const STAGE_STCA: &str = "STCA (encoder, attention)";
 pub const STAGE_HEAD: &str = "detection head";
 pub const STAGE_NMS: &str = "boxes + NMS";
 
@@ -195,6 +196,8 @@ impl DasanetDetector {
         let network = &self.shape.network;
         let t = Instant::now();
         let inputs = roi_inputs(section, network, stage_one, rois, clouds);
+        timing.add(STAGE_ROI_QUERY, t.elapsed());
+        let t = Instant::now();
         let supplemented = self.model.supplemented(network, stage_one, &inputs);
         if let Some(f) = &supplemented {
             let _ = values(&f.clone().slice([0..1, 0..1]));

@@ -9,11 +9,14 @@ use super::detector::{roi_inputs, sections};
 use super::pseudo::PseudoCloudMaker;
 use crate::config::ExperimentConfig;
 use crate::error::{PipelineError, Result};
-use crate::trainer::{StepLoss, TrainOptions, TrainSummary, TrainingTask, open_run, run_training};
+use crate::trainer::{
+    ForwardParts, StepLoss, TrainOptions, TrainSummary, TrainingTask, open_run, run_training,
+};
 use crate::voxel_rcnn::VoxelRcnnSection;
 use crate::voxel_rcnn::data::VoxelData;
 use crate::voxel_rcnn::detector::batch_proposals;
 use crate::voxel_rcnn::task::{
+    PART_LOSS, PART_PROPOSALS, PART_ROI_QUERY, PART_ROI_SAMPLING, PART_STAGE_ONE, PART_STAGE_TWO,
     augment_sampler, cached_gt_database, data_gt_database_dir, epoch_frame_batches,
     roi_loss_targets, roi_seed, sample_training_rois,
 };
@@ -156,35 +159,52 @@ impl TrainingTask for DasanetTask<'_> {
         let section = &self.data.voxel.section;
         let dasanet = &self.data.section;
         let TrainBatch { batch, roi_seed } = prepared;
-        let out = net.stage_one(
-            batch.lidar_features.clone().to_device(device),
-            &batch.lidar_plan,
-            batch.pseudo_features.clone().to_device(device),
-            &batch.pseudo_plan,
-        );
+        let mut parts = ForwardParts::default();
+        let out = parts.time(PART_STAGE_ONE, || {
+            net.stage_one(
+                batch.lidar_features.clone().to_device(device),
+                &batch.lidar_plan,
+                batch.pseudo_features.clone().to_device(device),
+                &batch.pseudo_plan,
+            )
+        });
         let targets = batch
             .anchor_targets
             .as_ref()
             .expect("training batches carry targets");
-        let [cls, loc, dir] = anchor_loss(&out.anchors, targets, &section.loss);
-        let proposals = batch_proposals(&self.data.voxel, &out.anchors, &section.proposals.train);
-        let (sampled, rois) = sample_training_rois(section, &proposals, &batch.gts, roi_seed)?;
-        let inputs = roi_inputs(section, &self.shape.network, &out, &rois, &batch.clouds);
-        let pred = net.stage_two(&self.shape.network, &out, &inputs, true);
+        let [cls, loc, dir] = parts.time(PART_STAGE_ONE, || {
+            anchor_loss(&out.anchors, targets, &section.loss)
+        });
+        let proposals = parts.time(PART_PROPOSALS, || {
+            batch_proposals(&self.data.voxel, &out.anchors, &section.proposals.train)
+        });
+        let (sampled, rois) = parts.time(PART_ROI_SAMPLING, || {
+            sample_training_rois(section, &proposals, &batch.gts, roi_seed)
+        })?;
+        // Both branches' grid queries and STCA's crops.
+        let inputs = parts.time(PART_ROI_QUERY, || {
+            roi_inputs(section, &self.shape.network, &out, &rois, &batch.clouds)
+        });
+        let pred = parts.time(PART_STAGE_TWO, || {
+            net.stage_two(&self.shape.network, &out, &inputs, true)
+        });
         if self.tdis_stats
             && let Some((ratio, largest)) = net.tdis_scale(&self.shape.network, &out, &inputs)
         {
             eprintln!("tdis-scale rms_ratio {ratio:.6} max_abs_weight {largest:.6}");
         }
-        let mut terms = vec![("cls", cls), ("loc", loc), ("dir", dir)];
-        terms.extend(rcnn_loss(
-            &pred,
-            &roi_loss_targets(&sampled, device),
-            &section.loss,
-            dasanet.giou_weight,
-            dasanet.modules.aux_weights,
-        ));
-        Ok(StepLoss::from_terms(terms))
+        let loss = parts.time(PART_LOSS, || {
+            let mut terms = vec![("cls", cls), ("loc", loc), ("dir", dir)];
+            terms.extend(rcnn_loss(
+                &pred,
+                &roi_loss_targets(&sampled, device),
+                &section.loss,
+                dasanet.giou_weight,
+                dasanet.modules.aux_weights,
+            ));
+            StepLoss::from_terms(terms)
+        });
+        Ok(loss.with_parts(parts))
     }
 }
 

@@ -92,6 +92,7 @@ impl TrainingTask for FrustumTask<'_> {
         Ok(StepLoss {
             total: loss.total,
             components: loss.components.named().to_vec(),
+            parts: Default::default(),
         })
     }
 }

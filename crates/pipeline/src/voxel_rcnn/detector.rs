@@ -24,6 +24,7 @@ pub const STAGE_VOXELIZE: &str = "voxelize";
 pub const STAGE_BACKBONE: &str = "3D backbone (rulebooks, sparse convs)";
 pub const STAGE_BEV: &str = "BEV backbone + anchor head";
 pub const STAGE_PROPOSALS: &str = "proposals (decode, NMS)";
+pub const STAGE_ROI_QUERY: &str = "RoI grid query (host)";
 pub const STAGE_ROI_POOL: &str = "RoI grid pooling";
 pub const STAGE_HEAD: &str = "RoI head";
 pub const STAGE_NMS: &str = "boxes + NMS";
@@ -71,6 +72,38 @@ pub fn batch_proposals(
         .collect()
 }
 
+/// The grid points of `rois[b]` of each frame b and their neighbours at every pooling
+/// level: host work over the sites of the backbone's maps.
+pub fn roi_grid_query(
+    section: &VoxelRcnnSection,
+    backbone: &BackboneOutput,
+    rois: &[Vec<RoiBox>],
+) -> RoiGridIndex {
+    let levels = &section.network.roi.levels;
+    let sites: Vec<&fusiondet_nn::sparse::SparseSites> = pooled_maps(backbone, levels)
+        .iter()
+        .map(|m| m.sites.as_ref())
+        .collect();
+    RoiGridIndex::new(
+        rois,
+        &sites,
+        levels,
+        section.network.roi.grid_size,
+        &voxel_geometry(section),
+    )
+}
+
+/// Stage two on a grid index: RoI grid pooling and the head's predictions.
+pub fn pool_and_head(
+    model: &VoxelRcnn,
+    section: &VoxelRcnnSection,
+    backbone: &BackboneOutput,
+    index: &RoiGridIndex,
+) -> RoiPredictions {
+    let maps = pooled_maps(backbone, &section.network.roi.levels);
+    model.roi_head.forward(model.roi_pool.forward(&maps, index))
+}
+
 /// Stage two over `rois[b]` of each frame b: the grid index and the head's predictions.
 pub fn refine(
     model: &VoxelRcnn,
@@ -80,22 +113,15 @@ pub fn refine(
     timing: Option<&mut StageTimes>,
 ) -> RoiPredictions {
     let t = Instant::now();
-    let levels = &section.network.roi.levels;
-    let maps = pooled_maps(backbone, levels);
-    let sites: Vec<&fusiondet_nn::sparse::SparseSites> =
-        maps.iter().map(|m| m.sites.as_ref()).collect();
-    let index = RoiGridIndex::new(
-        rois,
-        &sites,
-        levels,
-        section.network.roi.grid_size,
-        &voxel_geometry(section),
-    );
+    let index = roi_grid_query(section, backbone, rois);
+    let queried = Instant::now();
+    let maps = pooled_maps(backbone, &section.network.roi.levels);
     let pooled = model.roi_pool.forward(&maps, &index);
     let pooled_at = Instant::now();
     let out = model.roi_head.forward(pooled);
     if let Some(timing) = timing {
-        timing.add(STAGE_ROI_POOL, pooled_at - t);
+        timing.add(STAGE_ROI_QUERY, queried - t);
+        timing.add(STAGE_ROI_POOL, pooled_at - queried);
         timing.add(STAGE_HEAD, pooled_at.elapsed());
     }
     out

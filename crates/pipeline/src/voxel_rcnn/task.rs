@@ -4,10 +4,12 @@
 
 use super::config::VoxelRcnnSection;
 use super::data::{VoxelBatch, VoxelData, collate};
-use super::detector::{batch_proposals, refine};
+use super::detector::{batch_proposals, pool_and_head, roi_grid_query};
 use crate::config::ExperimentConfig;
 use crate::error::{PipelineError, Result};
-use crate::trainer::{StepLoss, TrainOptions, TrainSummary, TrainingTask, open_run, run_training};
+use crate::trainer::{
+    ForwardParts, StepLoss, TrainOptions, TrainSummary, TrainingTask, open_run, run_training,
+};
 use burn::prelude::*;
 use fusiondet_dataset::rng::Sampler;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
@@ -19,6 +21,17 @@ use fusiondet_models::voxel_rcnn::{
 use fusiondet_voxel::{GtDatabase, GtSampler, RoiTargets, sample_rois};
 use rayon::prelude::*;
 use std::path::Path;
+
+/// The parts a training step's forward pass is timed in (`metrics.jsonl`,
+/// `step_seconds.forward_parts`), shared by DASANet's. Stage one's part is the network and
+/// its anchor loss; the proposals read its predictions back (on a GPU, waiting for it);
+/// RoI sampling and the RoI query are host work; the loss part reads every term back.
+pub(crate) const PART_STAGE_ONE: &str = "stage_one";
+pub(crate) const PART_PROPOSALS: &str = "proposals";
+pub(crate) const PART_ROI_SAMPLING: &str = "roi_sampling";
+pub(crate) const PART_ROI_QUERY: &str = "roi_query";
+pub(crate) const PART_STAGE_TWO: &str = "stage_two";
+pub(crate) const PART_LOSS: &str = "loss";
 
 /// Where a run keeps the ground-truth database it built from its training split.
 pub const GT_DATABASE_DIR: &str = "gt_database";
@@ -147,26 +160,42 @@ impl TrainingTask for VoxelRcnnTask<'_> {
     fn loss(&self, net: &VoxelRcnn, prepared: TrainBatch, device: &Device) -> Result<StepLoss> {
         let section: &VoxelRcnnSection = &self.data.section;
         let TrainBatch { batch, roi_seed } = prepared;
-        let features = batch.features.to_device(device);
-        let out = net.stage_one(features, &batch.plan);
+        let mut parts = ForwardParts::default();
+        let out = parts.time(PART_STAGE_ONE, || {
+            net.stage_one(batch.features.to_device(device), &batch.plan)
+        });
         let targets = batch
             .anchor_targets
             .as_ref()
             .expect("training batches carry targets");
-        let [cls, loc, dir] = anchor_loss(&out.anchors, targets, &section.loss);
-        let proposals = batch_proposals(&self.data, &out.anchors, &section.proposals.train);
-        let (sampled, rois) = sample_training_rois(section, &proposals, &batch.gts, roi_seed)?;
-        let pred = refine(net, section, &out.backbone, &rois, None);
-        let [rcnn_cls, rcnn_reg, corner] =
-            roi_loss(&pred, &roi_loss_targets(&sampled, device), &section.loss);
-        Ok(StepLoss::from_terms(vec![
-            ("cls", cls),
-            ("loc", loc),
-            ("dir", dir),
-            ("rcnn_cls", rcnn_cls),
-            ("rcnn_reg", rcnn_reg),
-            ("rcnn_corner", corner),
-        ]))
+        let [cls, loc, dir] = parts.time(PART_STAGE_ONE, || {
+            anchor_loss(&out.anchors, targets, &section.loss)
+        });
+        let proposals = parts.time(PART_PROPOSALS, || {
+            batch_proposals(&self.data, &out.anchors, &section.proposals.train)
+        });
+        let (sampled, rois) = parts.time(PART_ROI_SAMPLING, || {
+            sample_training_rois(section, &proposals, &batch.gts, roi_seed)
+        })?;
+        let index = parts.time(PART_ROI_QUERY, || {
+            roi_grid_query(section, &out.backbone, &rois)
+        });
+        let pred = parts.time(PART_STAGE_TWO, || {
+            pool_and_head(net, section, &out.backbone, &index)
+        });
+        let loss = parts.time(PART_LOSS, || {
+            let [rcnn_cls, rcnn_reg, corner] =
+                roi_loss(&pred, &roi_loss_targets(&sampled, device), &section.loss);
+            StepLoss::from_terms(vec![
+                ("cls", cls),
+                ("loc", loc),
+                ("dir", dir),
+                ("rcnn_cls", rcnn_cls),
+                ("rcnn_reg", rcnn_reg),
+                ("rcnn_corner", corner),
+            ])
+        });
+        Ok(loss.with_parts(parts))
     }
 }
 
