@@ -16,7 +16,7 @@ use std::process::Command;
 /// it gives whole) and to put a small frustum's distinct points before its repeats.
 /// Voxel R-CNN's and DASANet's were pinned when each joined the demo (DASANet's anew when its
 /// third-form model was shipped), SAF's anew when the shipped SAF was retrained on the
-/// baseline's budget, the two-stage and people models' when
+/// baseline's budget and again when the gated SAF with ω = 0 replaced it, the two-stage and people models' when
 /// they were shipped (each the same with 1 and 2 threads).
 #[test]
 fn the_demo_writes_the_same_result_files_as_before_with_every_shipped_model() {

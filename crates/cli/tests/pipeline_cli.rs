@@ -307,7 +307,7 @@ fn check_block_table(t: &str) -> (i64, i64, f64) {
 /// SAF's published configurations at the paper's size: the table by block beside
 /// F-ConvNet's, the paper's count beside ours and within 5% of it, for Car and for
 /// Pedestrian + Cyclist (the paper's Tables 4-6 give one count); the shipped SAF's own
-/// configuration keeps its CPU-sized LFA and says how far that is from the paper.
+/// configuration too, with LFA's gate.
 #[test]
 fn info_puts_saf_beside_the_papers_count() {
     for config in ["saf-car.toml", "saf-people.toml", "saf-car-sim.toml"] {
@@ -331,12 +331,13 @@ fn info_puts_saf_beside_the_papers_count() {
     let o = fusiondet(&["info", "--config", shipped.to_str().unwrap()]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
-    let (total, _, pct) = check_block_table(&t);
+    let (total, paper, pct) = check_block_table(&t);
     assert_eq!(
-        total, 3_355_113,
-        "the shipped SAF's network is unchanged:\n{t}"
+        total, 3_717_033,
+        "the shipped SAF: the paper-size network and LFA's 512 gate scales:\n{t}"
     );
-    assert!(pct < -5.0, "{t}");
+    assert_eq!(paper, 3_724_013, "{t}");
+    assert!(pct.abs() < 5.0, "{t}");
     // F-ConvNet's own table has no comparison column and matches its paper's count.
     let t = info_of("fconvnet-car.toml");
     assert!(!t.contains("over F-ConvNet"), "{t}");

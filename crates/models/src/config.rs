@@ -140,9 +140,9 @@ impl LfaStageConfig {
 
 impl Default for LfaConfig {
     /// Two halvings (4096 → 2048 → 1024 points), K = 16, 64 feature channels per point:
-    /// the paper gives no widths; these keep LFA near a tenth of a training step here, and
-    /// are the widths of the shipped SAF (`models/saf-car.bpk`, 3,355,113 parameters, 9.9%
-    /// under the paper's). [`LfaConfig::paper`] is the paper's size.
+    /// the paper gives no widths; these keep LFA near a tenth of a training step here
+    /// (3,355,113 parameters with the published F-ConvNet, 9.9% under the paper's; the SAF
+    /// shipped until 2026-11-28 had them). [`LfaConfig::paper`] is the paper's size.
     fn default() -> Self {
         Self {
             neighbours: 16,

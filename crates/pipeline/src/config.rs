@@ -1099,15 +1099,14 @@ mod shipped_configs {
             own_init(c);
             no_near_region(c);
         });
-        // The shipped SAF was trained on the full row's recipe with the CPU-sized LFA.
-        let shipped = ExperimentConfig::from_file(
+        // The shipped SAF is the gated full row with omega 0, under the shipped name.
+        let mut shipped = ExperimentConfig::from_file(
             &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/saf-car.toml"),
         )
         .unwrap();
-        let mut full = load("saf-car-sim.toml");
-        assert_ne!(full.model.lfa, shipped.model.lfa);
-        full.model.lfa = shipped.model.lfa.clone();
-        assert_eq!(full, shipped);
+        assert_eq!(shipped.name, "saf-car-sim");
+        shipped.name = "saf-gate-w0-car-sim".into();
+        assert_eq!(shipped, load("saf-gate-w0-car-sim.toml"));
         // The pairs at twice the budget.
         for (file, row) in [
             ("fconvnet-car-sim-2x.toml", base.clone()),
