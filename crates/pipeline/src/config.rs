@@ -1099,6 +1099,14 @@ mod shipped_configs {
             own_init(c);
             no_near_region(c);
         });
+        derived_from(
+            "saf-slicing-lfa-gate-w0-car-sim.toml",
+            "saf-gate-w0-car-sim.toml",
+            &|c| {
+                assert_eq!(c.loss.projection_weight, 0.0);
+                c.loss.projection_weight = 0.1;
+            },
+        );
         // The shipped SAF is the gated full row with omega 0, under the shipped name.
         let mut shipped = ExperimentConfig::from_file(
             &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/saf-car.toml"),
