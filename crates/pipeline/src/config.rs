@@ -1107,6 +1107,15 @@ mod shipped_configs {
                 c.loss.projection_weight = 0.1;
             },
         );
+        derived_from("saf-gate-w0-people-sim.toml", "saf-people-sim.toml", &|c| {
+            gate(c);
+            own_init(c);
+            let Slicing::DepthGuided(guided) = &mut c.frustum.slicing else {
+                panic!("{}: depth-guided slicing expected", c.name);
+            };
+            assert_eq!(guided.omega, 0.0);
+            guided.omega = 0.85;
+        });
         // The shipped SAF is the gated full row with omega 0, under the shipped name.
         let mut shipped = ExperimentConfig::from_file(
             &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/saf-car.toml"),
