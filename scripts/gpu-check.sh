@@ -130,6 +130,10 @@ bench_into() {
         --repeats "$repeats" --device "$dev" >"$log" 2>&1 || true
 }
 frames_per_second() { grep -o '[0-9.]* frames/s' "$1" | head -1 | cut -d' ' -f1; }
+stage_ms() { # a bench log → its stages in ms a frame: "voxelize 3.1, 3D backbone (…) 83.5, …"
+    awk '/ ms +[0-9.]+%$/ { ms = $(NF - 2); $NF = ""; $(NF - 1) = ""; $(NF - 2) = "";
+        sub(/^ +/, ""); sub(/ +$/, ""); printf "%s%s %s", (n++ ? ", " : ""), $0, ms }' "$1"
+}
 
 # 2. Per shipped model: detect on both devices, compare, bench on both.
 first=1
@@ -173,6 +177,7 @@ for m in $models; do
     fi
     record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
         "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$per_offset")"
+    record "$(printf '%-16s stages on %s, ms a frame: %s' "$m" "$device" "$(stage_ms "$det/bench-dev.log")")"
 done
 
 # 3. Training steps of the published configurations, on both devices.
@@ -217,6 +222,7 @@ if [ "$train" = 1 ]; then
                     record "$(printf '%-26s bench on %s: %s frames/s (per-offset layout %s)' "$name" "$d" \
                         "$(frames_per_second "$run-bench.log" || echo '?')" \
                         "$(frames_per_second "$run-bench-per-offset.log" || echo '?')")"
+                    record "$(printf '%-26s stages on %s, ms a frame: %s' "$name" "$d" "$(stage_ms "$run-bench.log")")"
                 fi
             else
                 echo "  training on $d failed:"; tail -5 "$run.log" || true

@@ -90,4 +90,13 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
     assert!(out.contains("fconvnet-car     parity same"), "{out}");
     assert!(out.contains("relative difference 0.00e+00"), "{out}");
     assert!(out.contains("s/step"), "{out}");
+    // Where the time goes: each bench's stages, and the voxel family's training step by part.
+    assert!(
+        out.contains("fconvnet-car     stages on cpu, ms a frame: "),
+        "{out}"
+    );
+    assert!(
+        out.contains("forward: ") && out.contains("roi_query "),
+        "{out}"
+    );
 }
