@@ -25,6 +25,7 @@ use crate::error::ModelError;
 use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+use fusiondet_nn::buffers::par_chunks_written;
 use fusiondet_nn::ragged::{self, Neighbours, Runs};
 use fusiondet_nn::{MlpLayer, host_max, mlp_stack};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -390,21 +391,20 @@ impl FirstLayerTerms {
             (host(self.per_point), host(self.per_query), host(self.w_d));
         let distance = at.distances();
         let neighbours = &at.index.neighbours_host.neighbours;
-        let mut y = vec![0f32; m * k * c1];
-        y.par_chunks_mut(k * c1)
-            .zip(neighbours.par_chunks(k))
-            .enumerate()
-            .for_each(|(i, (rows, neighbours))| {
-                let query = &per_query[i * c1..(i + 1) * c1];
-                for (j, (row, &nb)) in rows.chunks_exact_mut(c1).zip(neighbours).enumerate() {
-                    let nb = nb as usize;
-                    let distance = distance[i * k + j];
-                    let point = &per_point[nb * c1..(nb + 1) * c1];
-                    for (((out, &pk), &pi), &wd) in row.iter_mut().zip(point).zip(query).zip(&w_d) {
-                        *out = (pk + pi) + distance * wd;
-                    }
+        // Every value is written (a query's K rows of C₁), so the [M·K, C₁] buffer, the
+        // largest of LFA's inference, is not zeroed first.
+        let y = par_chunks_written(m * k * c1, k * c1, |i, rows| {
+            let neighbours = &neighbours[i * k..(i + 1) * k];
+            let query = &per_query[i * c1..(i + 1) * c1];
+            for (j, (row, &nb)) in rows.chunks_exact_mut(c1).zip(neighbours).enumerate() {
+                let nb = nb as usize;
+                let distance = distance[i * k + j];
+                let point = &per_point[nb * c1..(nb + 1) * c1];
+                for (((out, &pk), &pi), &wd) in row.iter_mut().zip(point).zip(query).zip(&w_d) {
+                    out.write((pk + pi) + distance * wd);
                 }
-            });
+            }
+        });
         Tensor::from_data(TensorData::new(y, [m * k, c1]), &device)
     }
 
