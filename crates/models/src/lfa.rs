@@ -25,7 +25,7 @@ use crate::error::ModelError;
 use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use fusiondet_nn::buffers::par_chunks_written;
+use fusiondet_nn::buffers::{par_chunks_filled, par_chunks_written};
 use fusiondet_nn::ragged::{self, Neighbours, Runs};
 use fusiondet_nn::{MlpLayer, host_max, mlp_stack};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -235,14 +235,30 @@ impl Lfa {
         for (stage, index) in self.stages.iter().zip(&inputs.stages) {
             let q = coords.clone().select(0, index.keep.clone()); // [M, 3]
             let (first, rest) = stage.local.split_first().expect("a local MLP has layers");
-            let local = local_first_layer(first, inputs, &coords, feats.as_ref(), &q, index, k);
+            let at = Neighbourhood {
+                coords: &coords,
+                q: &q,
+                index,
+                offset_gain: inputs.offset_gain,
+                k,
+            };
+            let terms = || first_layer_terms(first, inputs, &coords, feats.as_ref(), &q);
             // The local MLP's last ReLU after the max over the K neighbours: it commutes
             // with the max, and then runs over M rows instead of M·K.
-            let local = match rest.split_last() {
-                None => local,
-                Some((last, hidden)) => last.forward_pre_activation(run(hidden, relu(local))),
+            let local = if rest.is_empty() && first.is_folded() && host_max::host_path(&q) {
+                // One folded layer in inference on the CPU (LFA at the paper's widths):
+                // the max is taken as the sums are formed, and the [M·K, C₁] sums are
+                // never stored.
+                terms().max_on_host(&at)
+            } else {
+                let local = first.normalize(terms().combine(&at));
+                let local = match rest.split_last() {
+                    None => local,
+                    Some((last, hidden)) => last.forward_pre_activation(run(hidden, relu(local))),
+                };
+                max_over_neighbours(local, k)
             };
-            let local = relu(max_over_neighbours(local, k));
+            let local = relu(local);
             let mut point_in = vec![scaled(q.clone(), inputs.position_gain)];
             if let Some(g) = &feats {
                 point_in.push(g.clone().select(0, index.keep.clone()));
@@ -279,24 +295,23 @@ fn max_over_neighbours(x: Tensor<2>, k: usize) -> Tensor<2> {
         .reshape([rows / k, c])
 }
 
-/// The local MLP's first layer before its ReLU, [M·K, C₁], for the encoding
+/// The local MLP's first layer before its norm, for the encoding
 /// `a·p_k ⊕ b·(p_i − p_k) ⊕ d_ik ⊕ a·p_i [⊕ g_k]` (a, b the position and offset gains,
-/// d_ik = ‖b·(p_i − p_k)‖) without building that [M·K, 10 + C_g] matrix. Its linear map
-/// splits by input rows, W = [W_k; W_o; w_d; W_i; W_g], so
+/// d_ik = ‖b·(p_i − p_k)‖), as the parts of its sum over each query's K neighbours, without
+/// building that [M·K, 10 + C_g] matrix. Its linear map splits by input rows,
+/// W = [W_k; W_o; w_d; W_i; W_g], so
 /// `y_ik = (p_k·(a W_k − b W_o) + g_k W_g)  +  (p_i·(b W_o + a W_i) + bias)  +  d_ik w_d`:
 /// a term per point of the stage (N rows, then gathered for the neighbours), one per
 /// query (M rows, broadcast over its K) and the distance term. The neighbours' features
 /// g_k, the widest part of the encoding, are never gathered; the product is the same up
 /// to float rounding.
-fn local_first_layer(
+fn first_layer_terms(
     layer: &MlpLayer,
     inputs: &LfaInputs,
     coords: &Tensor<2>,
     feats: Option<&Tensor<2>>,
     q: &Tensor<2>,
-    index: &LfaStageIndex,
-    k: usize,
-) -> Tensor<2> {
+) -> FirstLayerTerms {
     let (a, b) = (inputs.position_gain, inputs.offset_gain);
     let (w, bias) = layer.affine();
     let [d_in, c1] = w.dims();
@@ -311,26 +326,11 @@ fn local_first_layer(
     if let Some(bias) = bias {
         per_query = per_query + bias.reshape([1, c1]);
     }
-    let terms = FirstLayerTerms {
+    FirstLayerTerms {
         per_point,
         per_query,
         w_d,
-    };
-    let at = Neighbourhood {
-        coords,
-        q,
-        index,
-        offset_gain: b,
-        k,
-    };
-    let y = if host_max::host_path(&terms.per_point) {
-        terms.combine_on_host(&at)
-    } else if ragged::custom_path(&terms.per_point) {
-        terms.combine_custom(&at)
-    } else {
-        terms.combine_by_tensors(&at)
-    };
-    layer.normalize(y)
+    }
 }
 
 /// Where the first local layer's sum is taken: the stage's points [N, 3], its queries
@@ -353,6 +353,50 @@ struct FirstLayerTerms {
 }
 
 impl FirstLayerTerms {
+    /// `y_ik`, [M·K, C₁]: on the host in inference on the CPU, by the custom operation in
+    /// training there, else by burn's operations.
+    fn combine(self, at: &Neighbourhood) -> Tensor<2> {
+        if host_max::host_path(&self.per_point) {
+            self.combine_on_host(at)
+        } else if ragged::custom_path(&self.per_point) {
+            self.combine_custom(at)
+        } else {
+            self.combine_by_tensors(at)
+        }
+    }
+
+    /// `max_k y_ik`, [M, C₁], in one pass on the host (inference on the flex device): each
+    /// sum as [`combine_on_host`](Self::combine_on_host) forms it and the max as
+    /// `host_max::blocks_max` scans it (neighbours in order, `flex_max`), so the same bits
+    /// as that max over the stored sums.
+    fn max_on_host(self, at: &Neighbourhood) -> Tensor<2> {
+        let k = at.k;
+        assert!(k > 0, "a query has neighbours");
+        let [m, c1] = self.per_query.dims();
+        let device = self.per_query.device();
+        let (per_point, per_query, w_d) =
+            (host(self.per_point), host(self.per_query), host(self.w_d));
+        let distance = at.distances();
+        let neighbours = &at.index.neighbours_host.neighbours;
+        let out = par_chunks_filled(m * c1, c1, |i, best| {
+            let query = &per_query[i * c1..(i + 1) * c1];
+            for (j, &nb) in neighbours[i * k..(i + 1) * k].iter().enumerate() {
+                let nb = nb as usize;
+                let distance = distance[i * k + j];
+                let point = &per_point[nb * c1..(nb + 1) * c1];
+                for (((best, &pk), &pi), &wd) in best.iter_mut().zip(point).zip(query).zip(&w_d) {
+                    let y = (pk + pi) + distance * wd;
+                    *best = if j == 0 {
+                        y
+                    } else {
+                        host_max::flex_max(*best, y)
+                    };
+                }
+            }
+        });
+        Tensor::from_data(TensorData::new(out, [m, c1]), &device)
+    }
+
     /// `y_ik = per_point_k + per_query_i + d_ik w_d`, [M·K, C₁], by burn's operations
     /// (differentiable, any backend).
     fn combine_by_tensors(self, at: &Neighbourhood) -> Tensor<2> {
@@ -631,8 +675,9 @@ mod tests {
         }
     }
 
-    /// The first layer's host sum and its custom operation give the tensor sum's bits, at
-    /// unit and other offset gains, over a real stage index.
+    /// The first layer's host sum and its custom operation give the tensor sum's bits, and
+    /// the host max taken while summing the bits of the max over those sums, at unit and
+    /// other offset gains, over a real stage index.
     #[test]
     fn host_first_layer_sum_gives_the_tensor_bits() {
         let device = Device::flex();
@@ -680,6 +725,14 @@ mod tests {
             assert_eq!(custom.dims(), [m * k, c1]);
             assert_eq!(by_tensors, on_host, "offset gain {offset_gain}");
             assert_eq!(by_tensors, bits(custom), "offset gain {offset_gain}");
+            // The max taken while summing: the bits of the max over the stored sums.
+            let fused = terms().max_on_host(&at);
+            assert_eq!(fused.dims(), [m, c1]);
+            assert_eq!(
+                bits(fused),
+                bits(host_max::blocks_max(terms().combine_on_host(&at), k)),
+                "offset gain {offset_gain}"
+            );
         }
     }
 

@@ -109,6 +109,12 @@ impl MlpLayer {
     pub fn out_channels(&self) -> usize {
         self.norm.gamma.shape().dims::<1>()[0]
     }
+
+    /// Whether the norm is folded into the linear map ([`MlpLayer::fold_norm`]), so that
+    /// [`normalize`](Self::normalize) leaves its input as it is.
+    pub fn is_folded(&self) -> bool {
+        self.folded.is_some()
+    }
 }
 
 /// A stack of [`MlpLayer`]s from `d_in` through `widths`.
