@@ -352,7 +352,33 @@ struct FirstLayerTerms {
     w_d: Tensor<2>,
 }
 
+/// [`FirstLayerTerms`] as host values, with the distances and the sizes: what the host
+/// forms of the sum read.
+struct HostTerms {
+    per_point: Vec<f32>,
+    per_query: Vec<f32>,
+    w_d: Vec<f32>,
+    /// [M·K] (see [`Neighbourhood::distances`]).
+    distance: Vec<f32>,
+    m: usize,
+    c1: usize,
+    device: Device,
+}
+
 impl FirstLayerTerms {
+    fn on_host(self, at: &Neighbourhood) -> HostTerms {
+        let [m, c1] = self.per_query.dims();
+        HostTerms {
+            device: self.per_query.device(),
+            per_point: host(self.per_point),
+            per_query: host(self.per_query),
+            w_d: host(self.w_d),
+            distance: at.distances(),
+            m,
+            c1,
+        }
+    }
+
     /// `y_ik`, [M·K, C₁]: on the host in inference on the CPU, by the custom operation in
     /// training there, else by burn's operations.
     fn combine(self, at: &Neighbourhood) -> Tensor<2> {
@@ -372,19 +398,16 @@ impl FirstLayerTerms {
     fn max_on_host(self, at: &Neighbourhood) -> Tensor<2> {
         let k = at.k;
         assert!(k > 0, "a query has neighbours");
-        let [m, c1] = self.per_query.dims();
-        let device = self.per_query.device();
-        let (per_point, per_query, w_d) =
-            (host(self.per_point), host(self.per_query), host(self.w_d));
-        let distance = at.distances();
-        let neighbours = &at.index.neighbours_host.neighbours;
-        let out = par_chunks_filled(m * c1, c1, |i, best| {
-            let query = &per_query[i * c1..(i + 1) * c1];
-            for (j, &nb) in neighbours[i * k..(i + 1) * k].iter().enumerate() {
+        let h = self.on_host(at);
+        let c1 = h.c1;
+        let out = par_chunks_filled(h.m * c1, c1, |i, best| {
+            let query = &h.per_query[i * c1..(i + 1) * c1];
+            for (j, &nb) in at.neighbours()[i * k..(i + 1) * k].iter().enumerate() {
                 let nb = nb as usize;
-                let distance = distance[i * k + j];
-                let point = &per_point[nb * c1..(nb + 1) * c1];
-                for (((best, &pk), &pi), &wd) in best.iter_mut().zip(point).zip(query).zip(&w_d) {
+                let distance = h.distance[i * k + j];
+                let point = &h.per_point[nb * c1..(nb + 1) * c1];
+                let sums = point.iter().zip(query).zip(&h.w_d);
+                for (best, ((&pk, &pi), &wd)) in best.iter_mut().zip(sums) {
                     let y = (pk + pi) + distance * wd;
                     *best = if j == 0 {
                         y
@@ -394,7 +417,7 @@ impl FirstLayerTerms {
                 }
             }
         });
-        Tensor::from_data(TensorData::new(out, [m, c1]), &device)
+        Tensor::from_data(TensorData::new(out, [h.m, c1]), &h.device)
     }
 
     /// `y_ik = per_point_k + per_query_i + d_ik w_d`, [M·K, C₁], by burn's operations
@@ -429,27 +452,24 @@ impl FirstLayerTerms {
     /// time. The same operations in the same order, so the same bits.
     fn combine_on_host(self, at: &Neighbourhood) -> Tensor<2> {
         let k = at.k;
-        let [m, c1] = self.per_query.dims();
-        let device = self.per_query.device();
-        let (per_point, per_query, w_d) =
-            (host(self.per_point), host(self.per_query), host(self.w_d));
-        let distance = at.distances();
-        let neighbours = &at.index.neighbours_host.neighbours;
+        let h = self.on_host(at);
+        let c1 = h.c1;
         // Every value is written (a query's K rows of C₁), so the [M·K, C₁] buffer, the
         // largest of LFA's inference, is not zeroed first.
-        let y = par_chunks_written(m * k * c1, k * c1, |i, rows| {
-            let neighbours = &neighbours[i * k..(i + 1) * k];
-            let query = &per_query[i * c1..(i + 1) * c1];
+        let y = par_chunks_written(h.m * k * c1, k * c1, |i, rows| {
+            let neighbours = &at.neighbours()[i * k..(i + 1) * k];
+            let query = &h.per_query[i * c1..(i + 1) * c1];
             for (j, (row, &nb)) in rows.chunks_exact_mut(c1).zip(neighbours).enumerate() {
                 let nb = nb as usize;
-                let distance = distance[i * k + j];
-                let point = &per_point[nb * c1..(nb + 1) * c1];
-                for (((out, &pk), &pi), &wd) in row.iter_mut().zip(point).zip(query).zip(&w_d) {
+                let distance = h.distance[i * k + j];
+                let point = &h.per_point[nb * c1..(nb + 1) * c1];
+                let sums = point.iter().zip(query).zip(&h.w_d);
+                for (out, ((&pk, &pi), &wd)) in row.iter_mut().zip(sums) {
                     out.write((pk + pi) + distance * wd);
                 }
             }
         });
-        Tensor::from_data(TensorData::new(y, [m * k, c1]), &device)
+        Tensor::from_data(TensorData::new(y, [h.m * k, c1]), &h.device)
     }
 
     /// The same sum as one custom operation on the flex device with its own backward
@@ -478,6 +498,11 @@ fn host(t: Tensor<2>) -> Vec<f32> {
 }
 
 impl Neighbourhood<'_> {
+    /// The K neighbour rows of each query, [M·K].
+    fn neighbours(&self) -> &[u32] {
+        &self.index.neighbours_host.neighbours
+    }
+
     /// `‖b·(p_i − p_k)‖` per (query, neighbour), [M·K], by the tensor form's operations in
     /// its order (so its bits).
     fn distances(&self) -> Vec<f32> {
