@@ -25,12 +25,20 @@ fn configs() -> std::path::PathBuf {
     common::repo_root().join("configs")
 }
 
-/// `fusiondet train --config CONFIG --data DATA --out OUT EXTRA…`.
-fn train(config: &Path, data: &Path, out: &Path, extra: &[&str]) -> Output {
+/// `fusiondet SUBCOMMAND INPUT_FLAG INPUT --data DATA --out OUT EXTRA…`: what `train` and
+/// `detect` take.
+fn on_data(
+    subcommand: &str,
+    input_flag: &str,
+    input: &Path,
+    data: &Path,
+    out: &Path,
+    extra: &[&str],
+) -> Output {
     let mut args = vec![
-        "train",
-        "--config",
-        config.to_str().unwrap(),
+        subcommand,
+        input_flag,
+        input.to_str().unwrap(),
         "--data",
         data.to_str().unwrap(),
         "--out",
@@ -40,19 +48,14 @@ fn train(config: &Path, data: &Path, out: &Path, extra: &[&str]) -> Output {
     fusiondet(&args)
 }
 
+/// `fusiondet train --config CONFIG --data DATA --out OUT EXTRA…`.
+fn train(config: &Path, data: &Path, out: &Path, extra: &[&str]) -> Output {
+    on_data("train", "--config", config, data, out, extra)
+}
+
 /// `fusiondet detect --checkpoint CHECKPOINT --data DATA --out OUT EXTRA…`.
 fn detect(checkpoint: &Path, data: &Path, out: &Path, extra: &[&str]) -> Output {
-    let mut args = vec![
-        "detect",
-        "--checkpoint",
-        checkpoint.to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    fusiondet(&args)
+    on_data("detect", "--checkpoint", checkpoint, data, out, extra)
 }
 
 /// `fusiondet demo --out OUT --frames FRAMES EXTRA…`.

@@ -1066,13 +1066,17 @@ mod shipped_configs {
             assert_eq!(lfa(c).coordinate_init, CoordinateInit::Own);
             lfa(c).coordinate_init = CoordinateInit::Shared;
         };
-        let no_near_region = |c: &mut ExperimentConfig| {
-            let Slicing::DepthGuided(guided) = &mut c.frustum.slicing else {
-                panic!("{}: depth-guided slicing expected", c.name);
-            };
-            assert_eq!(guided.omega, 0.0);
-            guided.omega = 0.55;
+        // ω = 0 in the row, `parent_omega` in its parent.
+        let no_near_region_of = |parent_omega: f64| {
+            move |c: &mut ExperimentConfig| {
+                let Slicing::DepthGuided(guided) = &mut c.frustum.slicing else {
+                    panic!("{}: depth-guided slicing expected", c.name);
+                };
+                assert_eq!(guided.omega, 0.0);
+                guided.omega = parent_omega;
+            }
         };
+        let no_near_region = no_near_region_of(0.55);
         derived_from("saf-lfa-norm-car-sim.toml", "saf-lfa-car-sim.toml", &|c| {
             let l = lfa(c);
             assert_eq!((l.position_scale_m, l.offset_scale_m), (5.0, 1.0));
@@ -1110,11 +1114,7 @@ mod shipped_configs {
         derived_from("saf-gate-w0-people-sim.toml", "saf-people-sim.toml", &|c| {
             gate(c);
             own_init(c);
-            let Slicing::DepthGuided(guided) = &mut c.frustum.slicing else {
-                panic!("{}: depth-guided slicing expected", c.name);
-            };
-            assert_eq!(guided.omega, 0.0);
-            guided.omega = 0.85;
+            no_near_region_of(0.85)(c);
         });
         // The shipped SAF is the gated full row with omega 0, under the shipped name.
         let mut shipped = ExperimentConfig::from_file(
