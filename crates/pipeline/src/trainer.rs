@@ -217,20 +217,33 @@ fn bar(len: usize, enabled: bool) -> indicatif::ProgressBar {
     bar
 }
 
-/// Draws a network's initial weights from `seed` alone. burn's initialisers draw from one
-/// process-wide generator, so seeding and drawing happen under a lock: two runs in one
-/// process (tests, ablations) cannot interleave draws.
+/// Draws a network's initial weights from `seed` alone, on the CPU whatever `device` the
+/// network trains on (`init` builds it on the device it is given), then moves them there:
+/// each burn backend has its own generator, so weights drawn on a GPU would differ from the
+/// CPU's for the same seed, and a GPU training would not start where the CPU's does.
+/// burn's initialisers draw from one process-wide generator, so seeding and drawing happen
+/// under a lock: two runs in one process (tests, ablations) cannot interleave draws.
 /// Its parameter ids come from their paths, so the same seed writes the same checkpoint
-/// bytes ([`fusiondet_models::checkpoint::deterministic_param_ids`]).
+/// bytes ([`fusiondet_models::checkpoint::deterministic_param_ids`]), which also draws
+/// every parameter there and then (none is left to initialise lazily on the device).
 pub fn seeded<M: Module>(
     seed: u64,
     device: &Device,
-    init: impl FnOnce() -> Result<M>,
+    init: impl FnOnce(&Device) -> Result<M>,
 ) -> Result<M> {
     static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _guard = INIT.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-    device.seed(seed);
-    init().map(fusiondet_models::checkpoint::deterministic_param_ids)
+    let on_cpu = device.clone().without_autodiff() == Device::flex();
+    let host = match (on_cpu, device.is_autodiff()) {
+        (true, _) => device.clone(),
+        (false, true) => Device::flex().autodiff(),
+        (false, false) => Device::flex(),
+    };
+    let model = {
+        let _guard = INIT.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        host.seed(seed);
+        init(&host).map(fusiondet_models::checkpoint::deterministic_param_ids)?
+    };
+    Ok(if on_cpu { model } else { model.fork(device) })
 }
 
 /// A run directory opened for training: fresh, or resumed at its last finished epoch.
@@ -334,6 +347,7 @@ pub fn run_training<T: TrainingTask>(
         progress.set_prefix(format!("epoch {}/{}", epoch + 1, cfg.train.epochs));
         let mut sums: Vec<(&'static str, f64)> = Vec::new();
         let mut steps = 0usize;
+        let mut first_step_loss: Option<f64> = None;
         let mut time = StepTime::default();
         // The data thread prepares batch k+1 while the network trains on batch k.
         let mut slot = Some(model);
@@ -384,6 +398,9 @@ pub fn run_training<T: TrainingTask>(
                     }
                     slot = Some(optim.step(lr, net, grads));
                     time.backward_update += update.elapsed().as_secs_f64();
+                    if steps == 0 {
+                        first_step_loss = loss.components.first().map(|&(_, v)| v as f64);
+                    }
                     for (k, (name, value)) in loss.components.into_iter().enumerate() {
                         if sums.len() <= k {
                             sums.push((name, 0.0));
@@ -431,6 +448,9 @@ pub fn run_training<T: TrainingTask>(
             task.sample_noun(): steps * cfg.train.batch_size,
             "seconds": started.elapsed().as_secs_f64(),
             "step_seconds": time.to_json(),
+            // Before any update of this epoch: what a CPU and a GPU run of the same seed must
+            // agree on within float tolerance in their first epoch (scripts/gpu-check.sh).
+            "first_step_loss": first_step_loss,
         });
         for (name, sum) in &sums {
             record[format!("loss_{name}")] = json!(sum / steps.max(1) as f64);

@@ -156,6 +156,11 @@ pub fn anchor_loss(
 pub fn box_corners(centres: Tensor<2>, sizes: Tensor<2>, headings: Tensor<2>) -> Tensor<3> {
     let [n, _] = centres.dims();
     let device = centres.device();
+    if n == 0 {
+        // No box (a batch without foreground RoIs): no operation on empty tensors, which
+        // burn's GPU kernels do not all take (a debug build's overflow check in burn-cubecl).
+        return Tensor::zeros([0, 8, 3], &device);
+    }
     // Unit-box corner signs, as (x, y, z) ± 0.5.
     let signs: Vec<f32> = (0..8)
         .flat_map(|k| {

@@ -96,8 +96,8 @@ pub fn seeded_network(
     shape: &DasanetShape,
     device: &Device,
 ) -> Result<Dasanet> {
-    crate::trainer::seeded(config.train.seed, device, || {
-        Dasanet::new(&shape.network, shape.grid_z, device).map_err(PipelineError::Invalid)
+    crate::trainer::seeded(config.train.seed, device, |on| {
+        Dasanet::new(&shape.network, shape.grid_z, on).map_err(PipelineError::Invalid)
     })
 }
 

@@ -20,8 +20,8 @@ pub const FIRST_STAGE_FILE: &str = "first-stage.bpk";
 
 /// A freshly initialised F-ConvNet whose weights depend on the seed alone.
 pub fn seeded_network(cfg: &ExperimentConfig, device: &Device) -> Result<FConvNet> {
-    crate::trainer::seeded(cfg.train.seed, device, || {
-        Ok(FConvNet::new(&cfg.model, device)?)
+    crate::trainer::seeded(cfg.train.seed, device, |on| {
+        Ok(FConvNet::new(&cfg.model, on)?)
     })
 }
 

@@ -61,8 +61,8 @@ pub fn seeded_network(
     shape: &VoxelRcnnShape,
     device: &Device,
 ) -> Result<VoxelRcnn> {
-    crate::trainer::seeded(config.train.seed, device, || {
-        VoxelRcnn::new(&shape.network, shape.grid_z, device).map_err(PipelineError::Invalid)
+    crate::trainer::seeded(config.train.seed, device, |on| {
+        VoxelRcnn::new(&shape.network, shape.grid_z, on).map_err(PipelineError::Invalid)
     })
 }
 
