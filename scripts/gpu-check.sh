@@ -30,9 +30,9 @@
 #   FRAMES         simulated frames, half of them val (default: 48)
 #   REPEATS        bench repeats after the warm-up run (default: 3)
 #   STEPS_FRAMES   training frames per epoch for the step timing (default: 8)
-#   LAYOUT_AB      models also benched on the device with the per-offset sparse layout
-#                  (FUSIONDET_SPARSE_RULES=per-offset), beside the kernel map the device takes
-#                  by default (default: voxel-rcnn-car dasanet-car; empty to skip)
+#   QUERY_AB       models also benched on the device with the RoI grid query on the host
+#                  (FUSIONDET_ROI_QUERY=host), beside the device's own query kernels
+#                  (default: voxel-rcnn-car dasanet-car; empty to skip)
 #
 # What each figure is:
 #   parity     `fusiondet compare` of the CPU's and the device's result files of the val frames:
@@ -42,11 +42,12 @@
 #              without reading files (as `bench` always measures), on each device.
 #   frames/s   of a published configuration: `bench` on the device of the model its device
 #              training run wrote (two epochs: the weights are untrained, the work per frame is
-#              the configuration's), in both sparse layouts.
+#              the configuration's), with the RoI grid query on the device and on the host.
 #   s/step     a training run of two epochs of STEPS_FRAMES frames: the second epoch's seconds
 #              divided by its steps (the first holds kernel compilation and tuning), on each
-#              device; and the first epoch's mean training loss on both, which must agree
-#              within float tolerance (the same data, seed and initial weights).
+#              device; and the loss of the first step on both (`first_step_loss`), which must
+#              agree within float tolerance: the same data, seed and initial weights (drawn on
+#              the CPU for every device), before any update.
 #   start-up   seconds of a whole `detect` process on the CPU and on the device, for the
 #              first model, and of a second one on the device: what compiling and tuning
 #              kernels costs a process, and what the on-disk kernel cache gives back
@@ -77,7 +78,7 @@ out="${OUT:-$repo/gpu-check-out}"
 frames="${FRAMES:-48}"
 repeats="${REPEATS:-3}"
 steps_frames="${STEPS_FRAMES:-8}"
-layout_ab="${LAYOUT_AB-voxel-rcnn-car dasanet-car}"
+query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
 
 for m in $models; do
     [ -f "$models_dir/$m.bpk" ] || {
@@ -122,11 +123,12 @@ timed() {
     t1=$(date +%s%N)
     awk -v ns="$((t1 - t0))" 'BEGIN { printf "%.1f", ns / 1e9 }'
 }
-# `bench` of a checkpoint on a device into a log, in the sparse layout given (or the device's
-# own); a failed bench shows as a missing frames/s figure, never stops the script.
+# `bench` of a checkpoint on a device into a log, with the RoI grid query where given (`host`)
+# or where the device runs it; a failed bench shows as a missing frames/s figure, never stops
+# the script.
 bench_into() {
-    local log="$1" ckpt="$2" dev="$3" layout="${4:-}"
-    env ${layout:+FUSIONDET_SPARSE_RULES="$layout"} "$bin" bench --checkpoint "$ckpt" --data "$data" \
+    local log="$1" ckpt="$2" dev="$3" query="${4:-}"
+    env ${query:+FUSIONDET_ROI_QUERY="$query"} "$bin" bench --checkpoint "$ckpt" --data "$data" \
         --repeats "$repeats" --device "$dev" >"$log" 2>&1 || true
 }
 frames_per_second() { grep -o '[0-9.]* frames/s' "$1" | head -1 | cut -d' ' -f1; }
@@ -170,13 +172,13 @@ for m in $models; do
     fps_cpu=$(frames_per_second "$det/bench-cpu.log" || true)
     fps_dev=$(frames_per_second "$det/bench-dev.log" || true)
     [ -n "$fps_dev" ] || { echo "  $device bench failed:"; tail -5 "$det/bench-dev.log"; failures=$((failures + 1)); }
-    per_offset=""
-    if [[ " $layout_ab " == *" $m "* ]]; then
-        bench_into "$det/bench-dev-per-offset.log" "$ckpt" "$device" per-offset
-        per_offset=" (per-offset layout $(frames_per_second "$det/bench-dev-per-offset.log" || echo '?'))"
+    host_query=""
+    if [[ " $query_ab " == *" $m "* ]]; then
+        bench_into "$det/bench-dev-host-query.log" "$ckpt" "$device" host
+        host_query=" (RoI query on the host $(frames_per_second "$det/bench-dev-host-query.log" || echo '?'))"
     fi
     record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
-        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$per_offset")"
+        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$host_query")"
     record "$(printf '%-16s stages on %s, ms a frame: %s' "$m" "$device" "$(stage_ms "$det/bench-dev.log")")"
 done
 
@@ -200,7 +202,7 @@ forward_parts() { # metrics.jsonl → the second epoch's forward pass per step, 
     echo "$line" | grep -o '"forward_parts":{[^}]*}' | sed 's/^"forward_parts":{//; s/}$//' | tr ',' '\n' |
         awk -F: -v n="${batches:-0}" '{ gsub(/"/, "", $1); if (n > 0) printf "%s%s %.3f", (NR > 1 ? ", " : ""), $1, $2 / n }'
 }
-first_loss() { head -1 "$1" | grep -o '"loss_total":[0-9.e+-]*' | cut -d: -f2; }
+first_loss() { head -1 "$1" | grep -o '"first_step_loss":[0-9.e+-]*' | cut -d: -f2; }
 if [ "$train" = 1 ]; then
     for config in $train_configs; do
         name="$(basename "$config" .toml)"
@@ -216,12 +218,13 @@ if [ "$train" = 1 ]; then
                 row+=("$d $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
                 losses+=("$(first_loss "$run/metrics.jsonl")")
                 if [ "$d" != cpu ] && [ -f "$run/model.bpk" ]; then
-                    # The configuration's detection speed on the device, both sparse layouts.
+                    # The configuration's detection speed on the device, the RoI query there and
+                    # on the host.
                     bench_into "$run-bench.log" "$run/model.bpk" "$d"
-                    bench_into "$run-bench-per-offset.log" "$run/model.bpk" "$d" per-offset
-                    record "$(printf '%-26s bench on %s: %s frames/s (per-offset layout %s)' "$name" "$d" \
+                    bench_into "$run-bench-host-query.log" "$run/model.bpk" "$d" host
+                    record "$(printf '%-26s bench on %s: %s frames/s (RoI query on the host %s)' "$name" "$d" \
                         "$(frames_per_second "$run-bench.log" || echo '?')" \
-                        "$(frames_per_second "$run-bench-per-offset.log" || echo '?')")"
+                        "$(frames_per_second "$run-bench-host-query.log" || echo '?')")"
                     record "$(printf '%-26s stages on %s, ms a frame: %s' "$name" "$d" "$(stage_ms "$run-bench.log")")"
                 fi
             else
@@ -235,7 +238,7 @@ if [ "$train" = 1 ]; then
             agree=$(awk -v a="${losses[0]}" -v b="${losses[1]}" \
                 'BEGIN { d = a - b; if (d < 0) d = -d; r = d / (a > 0 ? a : 1); printf "%.2e", r }')
         fi
-        record "$(printf '%-26s %s; first-epoch loss %s, relative difference %s' \
+        record "$(printf '%-26s %s; first-step loss %s, relative difference %s' \
             "$name" "$(IFS=,; echo "${row[*]}")" "$(IFS=/; echo "${losses[*]:-?}")" "$agree")"
     done
 fi

@@ -15,6 +15,8 @@ pub mod config;
 pub mod loss;
 pub mod roi_head;
 pub mod roi_pool;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod roi_query_device;
 pub mod synthetic;
 
 pub use anchor_head::{AnchorHead, AnchorPredictions};

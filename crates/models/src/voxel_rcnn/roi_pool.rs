@@ -6,8 +6,10 @@
 //! features through a linear layer + BN, relative positions through another, summed,
 //! ReLU, max over the neighbours, a linear layer + BN + ReLU.
 //!
-//! The query is index work on the CPU ([`RoiGridIndex`]); the network part
-//! ([`RoiGridPool`]) gathers with the index, so gradients reach the backbone.
+//! The query is index work ([`RoiGridIndex`]): on the host for the CPU device, as CubeCL
+//! kernels on burn's GPU backends (`roi_query_device`, cargo features `wgpu` / `cuda`).
+//! The network part ([`RoiGridPool`]) gathers with the index, so gradients reach the
+//! backbone.
 
 use super::backbone3d::SparseMap;
 use super::config::{HEAD_NORM, PoolLevelConfig, RoiHeadConfig};
@@ -69,9 +71,38 @@ pub fn roi_grid_points(roi: &RoiBox, grid: usize) -> Vec<[f64; 3]> {
     points
 }
 
-/// The neighbour index of every grid point at one level.
+/// The neighbour index of every grid point at one level, where it was made.
 #[derive(Debug, Clone)]
-pub struct LevelIndex {
+pub enum LevelIndex {
+    /// By the host query (the CPU device, or `FUSIONDET_ROI_QUERY=host`).
+    Host(HostLevelIndex),
+    /// By the device's kernels, on the device.
+    Device(Box<DeviceLevelIndex>),
+}
+
+/// The device query's neighbour index of every grid point at one level, on the device.
+#[derive(Debug, Clone)]
+pub struct DeviceLevelIndex {
+    /// [grid points · samples] rows into the level's features; the level's row count (the
+    /// host's sentinel, a zero row appended by the network) for a grid point with none.
+    pub rows: Tensor<1, Int>,
+    /// [grid points · samples, 3] neighbour centre minus grid point (zero for none).
+    pub offsets: Tensor<2>,
+}
+
+impl LevelIndex {
+    /// The host query's index; `None` for one made on the device.
+    pub fn host(&self) -> Option<&HostLevelIndex> {
+        match self {
+            LevelIndex::Host(level) => Some(level),
+            LevelIndex::Device(_) => None,
+        }
+    }
+}
+
+/// The host query's neighbour index of every grid point at one level.
+#[derive(Debug, Clone)]
+pub struct HostLevelIndex {
     /// [grid points · samples] rows into the level's features; `sentinel` (= the row
     /// count, a zero row appended by the network) for a grid point with no neighbour.
     pub rows: Vec<i64>,
@@ -116,7 +147,7 @@ impl RoiGridIndex {
         let levels = levels
             .iter()
             .zip(sites)
-            .map(|(level, sites)| query_level(&points, sites, level, geometry))
+            .map(|(level, sites)| LevelIndex::Host(query_level(&points, sites, level, geometry)))
             .collect();
         RoiGridIndex {
             num_rois: rois.iter().map(Vec::len).sum(),
@@ -124,6 +155,58 @@ impl RoiGridIndex {
             levels,
         }
     }
+
+    /// The query where the network runs on `device`: the device's kernels on burn's GPU
+    /// backends (builds with the cargo feature `wgpu` or `cuda`; `FUSIONDET_ROI_QUERY=host`
+    /// keeps the host query there, for comparing both), the host query ([`Self::new`])
+    /// everywhere else.
+    pub fn on_device(
+        rois: &[Vec<RoiBox>],
+        sites: &[&SparseSites],
+        levels: &[PoolLevelConfig],
+        grid: usize,
+        geometry: &VoxelGeometry,
+        device: &Device,
+    ) -> RoiGridIndex {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if super::roi_query_device::applies(device) && !host_query_forced() {
+            let levels = levels
+                .iter()
+                .zip(sites)
+                .map(|(level, sites)| {
+                    let (rows, offsets) = super::roi_query_device::query_level(
+                        rois, sites, level, grid, geometry, device,
+                    );
+                    LevelIndex::Device(Box::new(DeviceLevelIndex { rows, offsets }))
+                })
+                .collect();
+            return RoiGridIndex {
+                num_rois: rois.iter().map(Vec::len).sum(),
+                points_per_roi: grid * grid * grid,
+                levels,
+            };
+        }
+        let _ = device;
+        Self::new(rois, sites, levels, grid, geometry)
+    }
+}
+
+/// `FUSIONDET_ROI_QUERY=host` in the environment: the RoI grid query stays on the host
+/// on every device; `device` (or no variable) lets a GPU backend run it.
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+fn host_query_forced() -> bool {
+    static FROM_ENV: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *FROM_ENV.get_or_init(|| match std::env::var("FUSIONDET_ROI_QUERY").as_deref() {
+        Err(_) | Ok("device") => false,
+        Ok("host") => true,
+        Ok(value) => {
+            eprintln!(
+                "warning: FUSIONDET_ROI_QUERY={value:?} is neither \"host\" nor \"device\"; \
+                 the query runs on the device"
+            );
+            false
+        }
+    })
 }
 
 /// The voxel query of every grid point at one level, over a dense lookup table of the
@@ -134,7 +217,7 @@ fn query_level(
     sites: &SparseSites,
     level: &PoolLevelConfig,
     geometry: &VoxelGeometry,
-) -> LevelIndex {
+) -> HostLevelIndex {
     let [nz, ny, nx] = sites.spatial_shape();
     let stride = stage_stride(level.stage);
     let size = geometry.level_voxel_size(stride);
@@ -228,7 +311,7 @@ fn query_level(
         rows.extend(r);
         offsets.extend(o);
     }
-    LevelIndex {
+    HostLevelIndex {
         rows,
         offsets,
         sentinel,
@@ -306,30 +389,44 @@ impl RoiGridPool {
             let [_, mid] = features.dims();
             // The appended zero row is what an empty neighbourhood gathers.
             let features = Tensor::cat(vec![features, Tensor::zeros([1, mid], &device)], 0);
-            let offsets = Tensor::<2>::from_data(
-                TensorData::new(level.offsets.clone(), [points * s, 3]),
-                &device,
-            );
-            let positions = layer.positions.forward(offsets);
-            let summed = if ragged::custom_path(&features) {
-                // One pass each way for the gather + add and for the max (the same values
-                // and gradients as burn's operations below, to the bit).
-                let rows = level.rows.iter().map(|&r| r as u32).collect();
-                let neighbours = Arc::new(Neighbours::new(rows, s, level.sentinel as usize + 1));
-                let runs = Arc::new(Runs::blocks(points, s));
-                ragged::runs_max(
-                    relu(ragged::gather_add(features, positions, &neighbours)),
-                    &runs,
-                )
-            } else {
-                let rows = Tensor::<1, Int>::from_data(
-                    TensorData::new(level.rows.clone(), [points * s]),
-                    &device,
-                );
-                relu(features.select(0, rows) + positions)
-                    .reshape([points, s, mid])
-                    .max_dim(1)
-                    .reshape([points, mid])
+            let summed = match level {
+                LevelIndex::Host(level) if ragged::custom_path(&features) => {
+                    // One pass each way for the gather + add and for the max (the same
+                    // values and gradients as burn's operations below, to the bit).
+                    let positions = layer.positions.forward(Tensor::<2>::from_data(
+                        TensorData::new(level.offsets.clone(), [points * s, 3]),
+                        &device,
+                    ));
+                    let rows = level.rows.iter().map(|&r| r as u32).collect();
+                    let neighbours =
+                        Arc::new(Neighbours::new(rows, s, level.sentinel as usize + 1));
+                    let runs = Arc::new(Runs::blocks(points, s));
+                    ragged::runs_max(
+                        relu(ragged::gather_add(features, positions, &neighbours)),
+                        &runs,
+                    )
+                }
+                _ => {
+                    let (rows, offsets) = match level {
+                        LevelIndex::Host(level) => (
+                            Tensor::<1, Int>::from_data(
+                                TensorData::new(level.rows.clone(), [points * s]),
+                                &device,
+                            ),
+                            Tensor::<2>::from_data(
+                                TensorData::new(level.offsets.clone(), [points * s, 3]),
+                                &device,
+                            ),
+                        ),
+                        // Made on the device without autodiff: a constant in the graph.
+                        LevelIndex::Device(level) => (level.rows.clone(), level.offsets.clone()),
+                    };
+                    let positions = layer.positions.forward(offsets);
+                    relu(features.select(0, rows) + positions)
+                        .reshape([points, s, mid])
+                        .max_dim(1)
+                        .reshape([points, mid])
+                }
             };
             pooled.push(layer.out.forward_relu(summed));
         }
@@ -517,7 +614,7 @@ mod tests {
                 }
             }
         }
-        assert_eq!(index.levels[0].empty, empties);
+        assert_eq!(index.levels[0].host().unwrap().empty, empties);
         assert!(
             empties > 0 && empties < 3 * 27,
             "the case has both empty and filled neighbourhoods: {empties}"

@@ -28,7 +28,7 @@ pub const STAGE_LIDAR_BACKBONE: &str = "LiDAR 3D backbone";
 pub const STAGE_PSEUDO_BACKBONE: &str = "pseudo 3D backbone";
 pub const STAGE_BEV: &str = "BEV backbone + anchor head";
 pub const STAGE_PROPOSALS: &str = "proposals (decode, NMS)";
-pub const STAGE_ROI_QUERY: &str = "RoI queries (host: both grids, STCA crops)";
+pub const STAGE_ROI_QUERY: &str = "RoI queries (both grids; STCA crops on the host)";
 pub const STAGE_TDIS: &str = "RoI grid pooling (both) + TDIS";
 pub const STAGE_STCA: &str = "STCA (encoder, attention)";
 pub const STAGE_HEAD: &str = "detection head";
@@ -41,16 +41,18 @@ fn grid_index(
     rois: &[Vec<RoiBox>],
 ) -> RoiGridIndex {
     let levels = &section.network.roi.levels;
-    let sites: Vec<&SparseSites> = pooled_maps(maps, levels)
-        .iter()
-        .map(|m| m.sites.as_ref())
-        .collect();
-    RoiGridIndex::new(
+    let maps = pooled_maps(maps, levels);
+    let device = maps
+        .first()
+        .map_or_else(Device::flex, |m| m.features.device());
+    let sites: Vec<&SparseSites> = maps.iter().map(|m| m.sites.as_ref()).collect();
+    RoiGridIndex::on_device(
         rois,
         &sites,
         levels,
         section.network.roi.grid_size,
         &voxel_geometry(section),
+        &device,
     )
 }
 

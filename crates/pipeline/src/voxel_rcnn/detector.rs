@@ -24,7 +24,7 @@ pub const STAGE_VOXELIZE: &str = "voxelize";
 pub const STAGE_BACKBONE: &str = "3D backbone (rulebooks, sparse convs)";
 pub const STAGE_BEV: &str = "BEV backbone + anchor head";
 pub const STAGE_PROPOSALS: &str = "proposals (decode, NMS)";
-pub const STAGE_ROI_QUERY: &str = "RoI grid query (host)";
+pub const STAGE_ROI_QUERY: &str = "RoI grid query";
 pub const STAGE_ROI_POOL: &str = "RoI grid pooling";
 pub const STAGE_HEAD: &str = "RoI head";
 pub const STAGE_NMS: &str = "boxes + NMS";
@@ -73,23 +73,27 @@ pub fn batch_proposals(
 }
 
 /// The grid points of `rois[b]` of each frame b and their neighbours at every pooling
-/// level: host work over the sites of the backbone's maps.
+/// level, over the sites of the backbone's maps: on the host, or on a GPU backend's device
+/// (`RoiGridIndex::on_device`).
 pub fn roi_grid_query(
     section: &VoxelRcnnSection,
     backbone: &BackboneOutput,
     rois: &[Vec<RoiBox>],
 ) -> RoiGridIndex {
     let levels = &section.network.roi.levels;
-    let sites: Vec<&fusiondet_nn::sparse::SparseSites> = pooled_maps(backbone, levels)
-        .iter()
-        .map(|m| m.sites.as_ref())
-        .collect();
-    RoiGridIndex::new(
+    let maps = pooled_maps(backbone, levels);
+    let device = maps
+        .first()
+        .map_or_else(Device::flex, |m| m.features.device());
+    let sites: Vec<&fusiondet_nn::sparse::SparseSites> =
+        maps.iter().map(|m| m.sites.as_ref()).collect();
+    RoiGridIndex::on_device(
         rois,
         &sites,
         levels,
         section.network.roi.grid_size,
         &voxel_geometry(section),
+        &device,
     )
 }
 
