@@ -450,6 +450,25 @@ impl RoiGridPool {
     }
 }
 
+/// The pooling level of the tests (here and in `roi_query_device`): stage 2 (stride 2),
+/// cells 0.2 × 0.2 × 0.4 m, a 0.45 m radius that reaches past the nearest cells.
+#[cfg(test)]
+pub(super) fn test_level() -> (VoxelGeometry, PoolLevelConfig) {
+    let geometry = VoxelGeometry {
+        origin: [0.0, -2.0, -1.0],
+        voxel_size: [0.1, 0.1, 0.2],
+    };
+    let level = PoolLevelConfig {
+        stage: 2,
+        mid_channels: 4,
+        out_channels: 3,
+        query_range: [2, 3, 3],
+        radius: 0.45,
+        samples: 5,
+    };
+    (geometry, level)
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::synthetic::unit;
@@ -486,18 +505,7 @@ mod tests {
     fn pooling_matches_a_brute_force_reference() {
         let device = Device::flex();
         let mut state = 7u64;
-        let geometry = VoxelGeometry {
-            origin: [0.0, -2.0, -1.0],
-            voxel_size: [0.1, 0.1, 0.2],
-        };
-        let level = PoolLevelConfig {
-            stage: 2,
-            mid_channels: 4,
-            out_channels: 3,
-            query_range: [2, 3, 3],
-            radius: 0.45,
-            samples: 5,
-        };
+        let (geometry, level) = test_level();
         // Stage 2 (stride 2): cells 0.2 × 0.2 × 0.4 m over a [6, 20, 20] grid, 2 items.
         let shape = [6, 20, 20];
         let mut coords = Vec::new();

@@ -362,18 +362,7 @@ mod tests {
         VoxelGeometry,
     ) {
         let mut state = 11u64;
-        let geometry = VoxelGeometry {
-            origin: [0.0, -2.0, -1.0],
-            voxel_size: [0.1, 0.1, 0.2],
-        };
-        let level = PoolLevelConfig {
-            stage: 2,
-            mid_channels: 4,
-            out_channels: 3,
-            query_range: [2, 3, 3],
-            radius: 0.45,
-            samples: 5,
-        };
+        let (geometry, level) = super::super::roi_pool::test_level();
         let shape = [6, 20, 20];
         let mut coords = std::collections::BTreeSet::new();
         while coords.len() < 600 {
