@@ -88,6 +88,17 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
     let out = all_output(&o);
     assert!(o.status.success(), "{out}");
     assert!(out.contains("fconvnet-car     parity same"), "{out}");
+    // Both runs' first-step losses were read (an unread one would also compare as 0).
+    let losses = out
+        .split("first-step loss ")
+        .nth(1)
+        .and_then(|rest| rest.split(',').next())
+        .unwrap_or("");
+    let pair: Vec<f64> = losses.split('/').filter_map(|v| v.parse().ok()).collect();
+    assert!(
+        pair.len() == 2 && pair[0] > 0.0 && pair[0] == pair[1],
+        "{out}"
+    );
     assert!(out.contains("relative difference 0.00e+00"), "{out}");
     assert!(out.contains("s/step"), "{out}");
     // Where the time goes: each bench's stages, and the voxel family's training step by part.
