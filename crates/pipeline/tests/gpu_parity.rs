@@ -34,6 +34,12 @@ fn the_voxel_family_trains_to_the_same_first_losses_on_wgpu_as_on_the_cpu() {
     training_parity(ComputeDevice::Wgpu, "wgpu");
 }
 
+#[cfg(feature = "cuda")]
+#[test]
+fn the_voxel_family_trains_to_the_same_first_losses_on_cuda_as_on_the_cpu() {
+    training_parity(ComputeDevice::Cuda(0), "CUDA");
+}
+
 /// The first training step (`first_step_loss` of an epoch of two batches of 2 frames) of the
 /// tiny Voxel R-CNN and DASANet on the CPU and on `gpu` from the same seed: the same initial
 /// weights and data, so the loss — both stages, RoIs from the device's own proposals and RoI
