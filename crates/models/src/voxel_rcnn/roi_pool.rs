@@ -209,6 +209,16 @@ fn host_query_forced() -> bool {
     })
 }
 
+/// Cells scanned on each side of a grid point's cell, (z, y, x), at a level of cell size
+/// `size` (x, y, z): the query range, less where cells farther than the radius along an axis
+/// cannot hold a neighbour (the host query and the device's scan the same cells).
+pub(super) fn scan_reach(level: &PoolLevelConfig, size: [f64; 3]) -> [usize; 3] {
+    std::array::from_fn(|a| {
+        let axis_size = [size[2], size[1], size[0]][a];
+        level.query_range[a].min((level.radius / axis_size).floor() as usize + 1)
+    })
+}
+
 /// The voxel query of every grid point at one level, over a dense lookup table of the
 /// level's active sites (a table read per visited cell is several times faster than a
 /// hash lookup, and a level's grid is at most tens of millions of cells).
@@ -234,10 +244,7 @@ fn query_level(
         .collect();
     let r2 = level.radius * level.radius;
     // Cells farther than the radius along an axis cannot hold a neighbour: skip them.
-    let reach: [i64; 3] = std::array::from_fn(|a| {
-        let axis_size = [size[2], size[1], size[0]][a];
-        (level.query_range[a] as i64).min((level.radius / axis_size).floor() as i64 + 1)
-    });
+    let reach = scan_reach(level, size).map(|r| r as i64);
     let sentinel = sites.len() as i64;
     let s = level.samples;
     let per_point: Vec<(Vec<i64>, Vec<f32>)> = points
