@@ -113,6 +113,14 @@ pub struct HostLevelIndex {
     pub empty: usize,
 }
 
+impl HostLevelIndex {
+    /// `offsets` as a [grid points · samples, 3] tensor on `device`.
+    fn offsets_tensor(&self, device: &Device) -> Tensor<2> {
+        let rows = self.offsets.len() / 3;
+        Tensor::from_data(TensorData::new(self.offsets.clone(), [rows, 3]), device)
+    }
+}
+
 /// Grid points of all RoIs of a batch and their neighbours at every pooling level.
 #[derive(Debug, Clone)]
 pub struct RoiGridIndex {
@@ -149,6 +157,11 @@ impl RoiGridIndex {
             .zip(sites)
             .map(|(level, sites)| LevelIndex::Host(query_level(&points, sites, level, geometry)))
             .collect();
+        Self::with_levels(rois, grid, levels)
+    }
+
+    /// The index of `rois` at `grid`³ points each, over the levels' neighbours.
+    fn with_levels(rois: &[Vec<RoiBox>], grid: usize, levels: Vec<LevelIndex>) -> RoiGridIndex {
         RoiGridIndex {
             num_rois: rois.iter().map(Vec::len).sum(),
             points_per_roi: grid * grid * grid,
@@ -180,11 +193,7 @@ impl RoiGridIndex {
                     LevelIndex::Device(Box::new(DeviceLevelIndex { rows, offsets }))
                 })
                 .collect();
-            return RoiGridIndex {
-                num_rois: rois.iter().map(Vec::len).sum(),
-                points_per_roi: grid * grid * grid,
-                levels,
-            };
+            return Self::with_levels(rois, grid, levels);
         }
         let _ = device;
         Self::new(rois, sites, levels, grid, geometry)
@@ -400,10 +409,7 @@ impl RoiGridPool {
                 LevelIndex::Host(level) if ragged::custom_path(&features) => {
                     // One pass each way for the gather + add and for the max (the same
                     // values and gradients as burn's operations below, to the bit).
-                    let positions = layer.positions.forward(Tensor::<2>::from_data(
-                        TensorData::new(level.offsets.clone(), [points * s, 3]),
-                        &device,
-                    ));
+                    let positions = layer.positions.forward(level.offsets_tensor(&device));
                     let rows = level.rows.iter().map(|&r| r as u32).collect();
                     let neighbours =
                         Arc::new(Neighbours::new(rows, s, level.sentinel as usize + 1));
@@ -420,10 +426,7 @@ impl RoiGridPool {
                                 TensorData::new(level.rows.clone(), [points * s]),
                                 &device,
                             ),
-                            Tensor::<2>::from_data(
-                                TensorData::new(level.offsets.clone(), [points * s, 3]),
-                                &device,
-                            ),
+                            level.offsets_tensor(&device),
                         ),
                         // Made on the device without autodiff: a constant in the graph.
                         LevelIndex::Device(level) => (level.rows.clone(), level.offsets.clone()),

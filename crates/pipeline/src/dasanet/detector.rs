@@ -9,7 +9,7 @@ use crate::detection::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use crate::voxel_rcnn::VoxelRcnnSection;
 use crate::voxel_rcnn::detector::{
-    batch_proposals, frame_objects, single_frame_rois, values, voxel_geometry,
+    batch_proposals, frame_objects, roi_grid_query, single_frame_rois, values,
 };
 use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
@@ -17,8 +17,7 @@ use fusiondet_models::dasanet::{
     Dasanet, DasanetNetConfig, DasanetRoiInputs, DasanetShape, DasanetStageOne, RoiPoints,
     load_dasanet_for_detection,
 };
-use fusiondet_models::voxel_rcnn::{BackboneOutput, RoiBox, RoiGridIndex, pooled_maps};
-use fusiondet_nn::sparse::SparseSites;
+use fusiondet_models::voxel_rcnn::RoiBox;
 use std::path::Path;
 use std::time::Instant;
 
@@ -34,28 +33,6 @@ pub const STAGE_STCA: &str = "STCA (encoder, attention)";
 pub const STAGE_HEAD: &str = "detection head";
 pub const STAGE_NMS: &str = "boxes + NMS";
 
-/// The RoI grid query of one branch's maps.
-fn grid_index(
-    section: &VoxelRcnnSection,
-    maps: &BackboneOutput,
-    rois: &[Vec<RoiBox>],
-) -> RoiGridIndex {
-    let levels = &section.network.roi.levels;
-    let maps = pooled_maps(maps, levels);
-    let device = maps
-        .first()
-        .map_or_else(Device::flex, |m| m.features.device());
-    let sites: Vec<&SparseSites> = maps.iter().map(|m| m.sites.as_ref()).collect();
-    RoiGridIndex::on_device(
-        rois,
-        &sites,
-        levels,
-        section.network.roi.grid_size,
-        &voxel_geometry(section),
-        &device,
-    )
-}
-
 /// What stage two reads for `rois[b]` of each frame b: both branches' grid queries (with
 /// TDIS) and each cloud's points in the RoIs (with STCA).
 pub fn roi_inputs(
@@ -68,8 +45,8 @@ pub fn roi_inputs(
     let m = &network.modules;
     let grids = m.tdis.then(|| {
         (
-            grid_index(section, &stage_one.lidar, rois),
-            grid_index(section, &stage_one.pseudo, rois),
+            roi_grid_query(section, &stage_one.lidar, rois),
+            roi_grid_query(section, &stage_one.pseudo, rois),
         )
     });
     let points = m.stca.then(|| {
