@@ -48,6 +48,9 @@
 #              device; and the loss of the first step on both (`first_step_loss`), which must
 #              agree within float tolerance: the same data, seed and initial weights (drawn on
 #              the CPU for every device), before any update.
+#   product    the largest relative error of one 512×512 f32 matrix product on each device
+#              (printed by `bench`): about 1e-7 where products run in f32, about 1e-4 where
+#              tensor cores round their inputs to TF32.
 #   start-up   seconds of a whole `detect` process on the CPU and on the device, for the
 #              first model, and of a second one on the device: what compiling and tuning
 #              kernels costs a process, and what the on-disk kernel cache gives back
@@ -132,6 +135,8 @@ bench_into() {
         --repeats "$repeats" --device "$dev" >"$log" 2>&1 || true
 }
 frames_per_second() { grep -o '[0-9.]* frames/s' "$1" | head -1 | cut -d' ' -f1; }
+# A bench log → its f32 matrix product's largest relative error (matmul_precision.rs).
+product_error() { grep -o 'largest error [0-9.e+-]*' "$1" | head -1 | cut -d' ' -f3; }
 stage_ms() { # a bench log → its stages in ms a frame: "voxelize 3.1, 3D backbone (…) 83.5, …"
     awk '/ ms +[0-9.]+%$/ { ms = $(NF - 2); $NF = ""; $(NF - 1) = ""; $(NF - 2) = "";
         sub(/^ +/, ""); sub(/ +$/, ""); printf "%s%s %s", (n++ ? ", " : ""), $0, ms }' "$1"
@@ -180,6 +185,10 @@ for m in $models; do
     record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
         "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$host_query")"
     record "$(printf '%-16s stages on %s, ms a frame: %s' "$m" "$device" "$(stage_ms "$det/bench-dev.log")")"
+    if [ -z "${precision_recorded:-}" ]; then
+        record "f32 matrix product, largest relative error: cpu $(product_error "$det/bench-cpu.log" || echo '?'), $device $(product_error "$det/bench-dev.log" || echo '?') (TF32 inputs: about 1e-4)"
+        precision_recorded=1
+    fi
 done
 
 # 3. Training steps of the published configurations, on both devices.

@@ -110,4 +110,19 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         out.contains("forward: ") && out.contains("roi_query "),
         "{out}"
     );
+    // The matrix-product probe was read from both benches: the same CPU figure twice.
+    let errors: Vec<f64> = out
+        .split("largest relative error: cpu ")
+        .nth(1)
+        .and_then(|rest| rest.split(" (").next())
+        .map(|pair| {
+            pair.split(", cpu ")
+                .filter_map(|v| v.parse().ok())
+                .collect()
+        })
+        .unwrap_or_default();
+    assert!(
+        errors.len() == 2 && errors[0] > 0.0 && errors[0] < 1e-5 && errors[0] == errors[1],
+        "{out}"
+    );
 }

@@ -578,6 +578,7 @@ fn train_then_detect_from_the_command_line() {
     assert!(o.status.success(), "{}", text(&o));
     let t = text(&o);
     assert!(t.contains("2 timed runs") && t.contains("frames/s"), "{t}");
+    assert!(t.contains("f32 matrix product on this device"), "{t}");
     let o = fusiondet(&[
         "bench",
         "--checkpoint",

@@ -14,6 +14,7 @@ pub mod error;
 pub mod frustum;
 pub mod grad_clip;
 pub mod kernel_cache;
+pub mod matmul_precision;
 pub mod metrics_log;
 pub mod result_dir;
 pub mod run_dir;
