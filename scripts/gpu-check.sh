@@ -30,8 +30,10 @@
 #   FRAMES         simulated frames, half of them val (default: 48)
 #   REPEATS        bench repeats after the warm-up run (default: 3)
 #   STEPS_FRAMES   training frames per epoch for the step timing (default: 8)
-#   QUERY_AB       models also benched on the device with the RoI grid query on the host
-#                  (FUSIONDET_ROI_QUERY=host), beside the device's own query kernels
+#   QUERY_AB       models also run on the device with the RoI grid query's kernels
+#                  (FUSIONDET_ROI_QUERY=device; CUDA's default is the host query, wgpu's the
+#                  kernels): a `detect` that compares the kernels' rows with the host query's
+#                  (FUSIONDET_ROI_QUERY=check) and a bench, beside the default
 #                  (default: voxel-rcnn-car dasanet-car; empty to skip)
 #
 # What each figure is:
@@ -42,7 +44,7 @@
 #              without reading files (as `bench` always measures), on each device.
 #   frames/s   of a published configuration: `bench` on the device of the model its device
 #              training run wrote (two epochs: the weights are untrained, the work per frame is
-#              the configuration's), with the RoI grid query on the device and on the host.
+#              the configuration's), with the default RoI grid query and with the kernels.
 #   s/step     a training run of two epochs of STEPS_FRAMES frames: the second epoch's seconds
 #              divided by its steps (the first holds kernel compilation and tuning), on each
 #              device; and the loss of the first step on both (`first_step_loss`), which must
@@ -126,7 +128,8 @@ timed() {
     t1=$(date +%s%N)
     awk -v ns="$((t1 - t0))" 'BEGIN { printf "%.1f", ns / 1e9 }'
 }
-# `bench` of a checkpoint on a device into a log, with the RoI grid query where given (`host`)
+# `bench` of a checkpoint on a device into a log, with the RoI grid query where given (`host`,
+# `device`)
 # or where the device runs it; a failed bench shows as a missing frames/s figure, never stops
 # the script.
 bench_into() {
@@ -177,13 +180,21 @@ for m in $models; do
     fps_cpu=$(frames_per_second "$det/bench-cpu.log" || true)
     fps_dev=$(frames_per_second "$det/bench-dev.log" || true)
     [ -n "$fps_dev" ] || { echo "  $device bench failed:"; tail -5 "$det/bench-dev.log"; failures=$((failures + 1)); }
-    host_query=""
+    kernels=""
     if [[ " $query_ab " == *" $m "* ]]; then
-        bench_into "$det/bench-dev-host-query.log" "$ckpt" "$device" host
-        host_query=" (RoI query on the host $(frames_per_second "$det/bench-dev-host-query.log" || echo '?'))"
+        # The kernels' rows against the host query's, level by level (roi_pool.rs, QueryPlace).
+        FUSIONDET_ROI_QUERY=check "$bin" detect --checkpoint "$ckpt" --data "$data" --split val \
+            --out "$det/dev-check" --device "$device" >"$det/dev-check.log" 2>&1 || true
+        checked=$(grep -c '^RoI query check' "$det/dev-check.log" || true)
+        differing=$(grep '^RoI query check' "$det/dev-check.log" | grep -vc ': 0 of ' || true)
+        record "$(printf '%-16s RoI query kernels on %s: %s of %s levels checked differ from the host query' \
+            "$m" "$device" "$differing" "$checked")"
+        grep '^RoI query check' "$det/dev-check.log" | grep -v ': 0 of ' | head -3 | sed 's/^/  /' || true
+        bench_into "$det/bench-dev-kernels.log" "$ckpt" "$device" device
+        kernels=" (RoI query kernels $(frames_per_second "$det/bench-dev-kernels.log" || echo '?'))"
     fi
     record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
-        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$host_query")"
+        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$kernels")"
     record "$(printf '%-16s stages on %s, ms a frame: %s' "$m" "$device" "$(stage_ms "$det/bench-dev.log")")"
     if [ -z "${precision_recorded:-}" ]; then
         record "f32 matrix product, largest relative error: cpu $(product_error "$det/bench-cpu.log" || echo '?'), $device $(product_error "$det/bench-dev.log" || echo '?') (TF32 inputs: about 1e-4)"
@@ -227,13 +238,13 @@ if [ "$train" = 1 ]; then
                 row+=("$d $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
                 losses+=("$(first_loss "$run/metrics.jsonl")")
                 if [ "$d" != cpu ] && [ -f "$run/model.bpk" ]; then
-                    # The configuration's detection speed on the device, the RoI query there and
+                    # The configuration's detection speed on the device, the default RoI query and
                     # on the host.
                     bench_into "$run-bench.log" "$run/model.bpk" "$d"
-                    bench_into "$run-bench-host-query.log" "$run/model.bpk" "$d" host
-                    record "$(printf '%-26s bench on %s: %s frames/s (RoI query on the host %s)' "$name" "$d" \
+                    bench_into "$run-bench-kernels.log" "$run/model.bpk" "$d" device
+                    record "$(printf '%-26s bench on %s: %s frames/s (RoI query kernels %s)' "$name" "$d" \
                         "$(frames_per_second "$run-bench.log" || echo '?')" \
-                        "$(frames_per_second "$run-bench-host-query.log" || echo '?')")"
+                        "$(frames_per_second "$run-bench-kernels.log" || echo '?')")"
                     record "$(printf '%-26s stages on %s, ms a frame: %s' "$name" "$d" "$(stage_ms "$run-bench.log")")"
                 fi
             else

@@ -56,19 +56,36 @@ pub struct Comparison {
     pub unpaired: Vec<(String, usize, usize)>,
 }
 
+/// What a difference may exceed its tolerance by and still count as within it. Result files
+/// hold metres and radians to two decimals, so a box one unit of the last digit away differs
+/// by exactly 0.01, which the difference of the two parsed numbers puts a few 1e-16 above or
+/// below 0.01; without this slack a 1 cm tolerance would pass or fail such a box by chance.
+pub const READ_SLACK: f64 = 1e-9;
+
+/// `value` within `tolerance` (up to [`READ_SLACK`]).
+fn within_tolerance(value: f64, tolerance: f64) -> bool {
+    value <= tolerance + READ_SLACK
+}
+
 impl Comparison {
     /// Whether every box has its partner and every difference is within `tol`.
     pub fn within(&self, tol: &Tolerance) -> bool {
         self.unpaired.is_empty()
-            && self.max_centre_m <= tol.metres
-            && self.max_size_m <= tol.metres
-            && self.max_heading_rad <= tol.radians
-            && self.max_score <= tol.score
+            && within_tolerance(self.max_centre_m, tol.metres)
+            && within_tolerance(self.max_size_m, tol.metres)
+            && within_tolerance(self.max_heading_rad, tol.radians)
+            && within_tolerance(self.max_score, tol.score)
     }
 
     /// The report `fusiondet compare` prints.
     pub fn summary(&self, tol: &Tolerance) -> String {
-        let mark = |v: f64, t: f64| if v <= t { "" } else { "  (over)" };
+        let mark = |v: f64, t: f64| {
+            if within_tolerance(v, t) {
+                ""
+            } else {
+                "  (over)"
+            }
+        };
         let mut s = format!(
             "frames {}, boxes {} / {}, paired {}\n\
              largest centre offset  {:.6} m{}\n\
@@ -237,6 +254,24 @@ mod tests {
         assert!(c.unpaired.is_empty());
         assert!(!c.within(&Tolerance::default()), "5 cm is over 1 cm");
         assert!(c.summary(&Tolerance::default()).contains("(over)"));
+    }
+
+    #[test]
+    fn one_unit_of_the_files_last_digit_is_within_a_tolerance_of_that_unit() {
+        // Centre x, length and heading each one unit of the second decimal apart: parsed,
+        // 1.01 − 1.00 and 3.91 − 3.90 land on either side of 0.01 by ~1e-16.
+        let b = "Car 0 0 0 10 10 50 50 1.5 1.6 3.91 1.01 1.6 20.0 0.11 0.90\n\
+                 Car 0 0 0 60 10 90 50 1.5 1.6 3.9 -4.0 1.6 30.0 3.10 0.50\n";
+        let mut c = Comparison::default();
+        c.add_frame("000000", &objects(A), &objects(b));
+        assert!((c.max_centre_m - 0.01).abs() < 1e-12, "{}", c.max_centre_m);
+        assert!(c.within(&Tolerance::default()));
+        assert!(!c.summary(&Tolerance::default()).contains("(over)"));
+        // Two units apart is over.
+        let b2 = b.replace("1.01 1.6 20.0", "1.02 1.6 20.0");
+        let mut c = Comparison::default();
+        c.add_frame("000000", &objects(A), &objects(&b2));
+        assert!(!c.within(&Tolerance::default()));
     }
 
     #[test]

@@ -74,7 +74,7 @@ pub fn roi_grid_points(roi: &RoiBox, grid: usize) -> Vec<[f64; 3]> {
 /// The neighbour index of every grid point at one level, where it was made.
 #[derive(Debug, Clone)]
 pub enum LevelIndex {
-    /// By the host query (the CPU device, or `FUSIONDET_ROI_QUERY=host`).
+    /// By the host query (the CPU, CUDA, or `FUSIONDET_ROI_QUERY=host`; [`QueryPlace`]).
     Host(HostLevelIndex),
     /// By the device's kernels, on the device.
     Device(Box<DeviceLevelIndex>),
@@ -169,10 +169,9 @@ impl RoiGridIndex {
         }
     }
 
-    /// The query where the network runs on `device`: the device's kernels on burn's GPU
-    /// backends (builds with the cargo feature `wgpu` or `cuda`; `FUSIONDET_ROI_QUERY=host`
-    /// keeps the host query there, for comparing both), the host query ([`Self::new`])
-    /// everywhere else.
+    /// The query where the network runs on `device`, as [`QueryPlace::for_device`] decides:
+    /// the device's kernels, the host query ([`Self::new`]), or both compared
+    /// (`FUSIONDET_ROI_QUERY=check`: the host's index is used, each difference reported).
     pub fn on_device(
         rois: &[Vec<RoiBox>],
         sites: &[&SparseSites],
@@ -182,40 +181,181 @@ impl RoiGridIndex {
         device: &Device,
     ) -> RoiGridIndex {
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        if super::roi_query_device::applies(device) && !host_query_forced() {
-            let levels = levels
-                .iter()
-                .zip(sites)
-                .map(|(level, sites)| {
-                    let (rows, offsets) = super::roi_query_device::query_level(
-                        rois, sites, level, grid, geometry, device,
-                    );
-                    LevelIndex::Device(Box::new(DeviceLevelIndex { rows, offsets }))
-                })
-                .collect();
-            return Self::with_levels(rois, grid, levels);
+        {
+            let place = QueryPlace::for_device(device);
+            if place != QueryPlace::Host {
+                let on_device = levels
+                    .iter()
+                    .zip(sites)
+                    .map(|(level, sites)| {
+                        let (rows, offsets) = super::roi_query_device::query_level(
+                            rois, sites, level, grid, geometry, device,
+                        );
+                        DeviceLevelIndex { rows, offsets }
+                    })
+                    .collect::<Vec<_>>();
+                if place == QueryPlace::Device {
+                    let levels = on_device
+                        .into_iter()
+                        .map(|level| LevelIndex::Device(Box::new(level)))
+                        .collect();
+                    return Self::with_levels(rois, grid, levels);
+                }
+                let host = Self::new(rois, sites, levels, grid, geometry);
+                for (l, (host_level, device_level)) in
+                    host.levels.iter().zip(&on_device).enumerate()
+                {
+                    if let Some(host_level) = host_level.host() {
+                        report_check(
+                            l,
+                            &compare_levels(host_level, device_level, levels[l].samples),
+                        );
+                    }
+                }
+                return host;
+            }
         }
         let _ = device;
         Self::new(rois, sites, levels, grid, geometry)
     }
 }
 
-/// `FUSIONDET_ROI_QUERY=host` in the environment: the RoI grid query stays on the host
-/// on every device; `device` (or no variable) lets a GPU backend run it.
-#[cfg(any(feature = "wgpu", feature = "cuda"))]
-fn host_query_forced() -> bool {
-    static FROM_ENV: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *FROM_ENV.get_or_init(|| match std::env::var("FUSIONDET_ROI_QUERY").as_deref() {
-        Err(_) | Ok("device") => false,
-        Ok("host") => true,
-        Ok(value) => {
-            eprintln!(
-                "warning: FUSIONDET_ROI_QUERY={value:?} is neither \"host\" nor \"device\"; \
-                 the query runs on the device"
-            );
-            false
+/// Where the RoI grid query runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum QueryPlace {
+    /// The host query, its index uploaded.
+    Host,
+    /// The device's kernels ([`super::roi_query_device`]).
+    Device,
+    /// Both, the host's index used and the device's compared with it.
+    Check,
+}
+
+impl QueryPlace {
+    /// The host on the CPU; on a CubeCL device, `FUSIONDET_ROI_QUERY` (`host`, `device` or
+    /// `check`) where set, else the device's kernels on wgpu and the host query on CUDA.
+    ///
+    /// Why not the kernels on CUDA: on an NVIDIA H200 (2026-11-28) they gave rows that made
+    /// the shipped Voxel R-CNN find no box at all (175 on the CPU and with the host query on
+    /// the same GPU), and training NaN at its first step, while on wgpu (lavapipe) they
+    /// agree with the host query row for row. The cause is not found yet; `check` reports
+    /// the rows that differ on the next GPU.
+    pub fn for_device(device: &Device) -> QueryPlace {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if let Some(runtime) = super::roi_query_device::cube_runtime(device) {
+            return Self::from_env().unwrap_or(if runtime == cubecl::RuntimeId::Wgpu {
+                QueryPlace::Device
+            } else {
+                QueryPlace::Host
+            });
         }
-    })
+        let _ = device;
+        QueryPlace::Host
+    }
+
+    /// `FUSIONDET_ROI_QUERY`, read once; `None` where unset (or not understood, with a
+    /// warning).
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    fn from_env() -> Option<QueryPlace> {
+        static FROM_ENV: std::sync::OnceLock<Option<QueryPlace>> = std::sync::OnceLock::new();
+        *FROM_ENV.get_or_init(|| match std::env::var("FUSIONDET_ROI_QUERY").as_deref() {
+            Err(_) => None,
+            Ok("host") => Some(QueryPlace::Host),
+            Ok("device") => Some(QueryPlace::Device),
+            Ok("check") => Some(QueryPlace::Check),
+            Ok(value) => {
+                eprintln!(
+                    "warning: FUSIONDET_ROI_QUERY={value:?} is not \"host\", \"device\" or \
+                     \"check\"; the query runs where this device's default puts it"
+                );
+                None
+            }
+        })
+    }
+}
+
+/// How the device's index of one level compares with the host's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LevelComparison {
+    pub grid_points: usize,
+    /// Grid points whose neighbour rows differ (the same rows in the same order agree).
+    pub differing: usize,
+    /// The first of them: (grid point, host rows, device rows).
+    pub first: Option<(usize, Vec<i64>, Vec<i64>)>,
+    /// The largest offset difference where the rows agree, metres.
+    pub max_offset_difference: f32,
+}
+
+/// Compares the device's index of a level with the host's, grid point by grid point
+/// (`samples` rows each). Reads the device's index back: for diagnostics only.
+pub fn compare_levels(
+    host: &HostLevelIndex,
+    device: &DeviceLevelIndex,
+    samples: usize,
+) -> LevelComparison {
+    let rows: Vec<i64> = device
+        .rows
+        .clone()
+        .into_data()
+        .try_into_vec_as::<i64>()
+        .expect("integer rows");
+    let offsets: Vec<f32> = device
+        .offsets
+        .clone()
+        .into_data()
+        .try_into_vec_as::<f32>()
+        .expect("f32 offsets");
+    let grid_points = host.rows.len() / samples.max(1);
+    let mut comparison = LevelComparison {
+        grid_points,
+        differing: 0,
+        first: None,
+        max_offset_difference: 0.0,
+    };
+    if rows.len() != host.rows.len() || offsets.len() != host.offsets.len() {
+        comparison.differing = grid_points;
+        comparison.first = Some((0, host.rows.clone(), rows));
+        return comparison;
+    }
+    for p in 0..grid_points {
+        let slots = p * samples..(p + 1) * samples;
+        if host.rows[slots.clone()] != rows[slots.clone()] {
+            comparison.differing += 1;
+            if comparison.first.is_none() {
+                comparison.first =
+                    Some((p, host.rows[slots.clone()].to_vec(), rows[slots].to_vec()));
+            }
+            continue;
+        }
+        for i in slots.start * 3..slots.end * 3 {
+            let d = (host.offsets[i] - offsets[i]).abs();
+            comparison.max_offset_difference = comparison.max_offset_difference.max(d);
+        }
+    }
+    comparison
+}
+
+/// One line on stderr per level checked (`FUSIONDET_ROI_QUERY=check`), the first 20 of a
+/// process in full, then only levels that differ.
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+fn report_check(level: usize, c: &LevelComparison) {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    static REPORTED: AtomicUsize = AtomicUsize::new(0);
+    let n = REPORTED.fetch_add(1, Ordering::Relaxed);
+    if n >= 20 && c.differing == 0 {
+        return;
+    }
+    let first = match &c.first {
+        Some((p, host, device)) => {
+            format!("; first at grid point {p}: host rows {host:?}, device rows {device:?}")
+        }
+        None => String::new(),
+    };
+    eprintln!(
+        "RoI query check, level {level}: {} of {} grid points with other rows on the device, \
+         offsets within {:.1e} m where the rows agree{first}",
+        c.differing, c.grid_points, c.max_offset_difference
+    );
 }
 
 /// Cells scanned on each side of a grid point's cell, (z, y, x), at a level of cell size
@@ -484,6 +624,46 @@ mod tests {
     use super::super::synthetic::unit;
     use super::*;
     use std::sync::Arc;
+
+    #[test]
+    fn the_query_check_finds_the_grid_points_whose_rows_differ() {
+        // Two grid points of 2 samples; the second's rows differ on the "device".
+        let host = HostLevelIndex {
+            rows: vec![3, 1, 7, 7],
+            offsets: vec![0.1, 0.2, 0.3, 0.0, 0.1, 0.0, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5],
+            sentinel: 9,
+            empty: 0,
+        };
+        let device = Device::flex();
+        let on_device = |rows: Vec<i64>, offsets: Vec<f32>| DeviceLevelIndex {
+            rows: Tensor::from_data(TensorData::new(rows, [4]), &device),
+            offsets: Tensor::from_data(TensorData::new(offsets, [4, 3]), &device),
+        };
+        let mut offsets = host.offsets.clone();
+        offsets[1] += 1e-3;
+        let c = compare_levels(&host, &on_device(vec![3, 1, 7, 2], offsets.clone()), 2);
+        assert_eq!(c.grid_points, 2);
+        assert_eq!(c.differing, 1);
+        assert_eq!(c.first, Some((1, vec![7, 7], vec![7, 2])));
+        assert!((c.max_offset_difference - 1e-3).abs() < 1e-6);
+        let same = compare_levels(
+            &host,
+            &on_device(host.rows.clone(), host.offsets.clone()),
+            2,
+        );
+        assert_eq!((same.differing, same.max_offset_difference), (0, 0.0));
+        // An index of another length differs everywhere.
+        let short = DeviceLevelIndex {
+            rows: Tensor::from_data(TensorData::new(vec![3i64, 1], [2]), &device),
+            offsets: Tensor::from_data(TensorData::new(vec![0f32; 6], [2, 3]), &device),
+        };
+        assert_eq!(compare_levels(&host, &short, 2).differing, 2);
+    }
+
+    #[test]
+    fn the_query_runs_on_the_host_for_the_cpu() {
+        assert_eq!(QueryPlace::for_device(&Device::flex()), QueryPlace::Host);
+    }
 
     fn matrix(t: Tensor<2>) -> Vec<Vec<f32>> {
         let [_, c] = t.dims();

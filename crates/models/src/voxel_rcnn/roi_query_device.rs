@@ -258,13 +258,14 @@ impl VoxelQueryOps for CubeBackend {
     }
 }
 
-/// Whether `device` runs burn's CubeCL backend (a GPU, or wgpu over a CPU adapter), where
-/// the query runs as the kernels above.
-pub fn applies(device: &Device) -> bool {
-    matches!(
-        device.clone().without_autodiff().as_dispatch(),
-        burn::backend::DispatchDevice::Cube(_)
-    )
+/// The CubeCL runtime `device` runs on (wgpu, CUDA, …), or `None` for another backend
+/// (the CPU's flex), where the kernels above do not apply.
+pub fn cube_runtime(device: &Device) -> Option<cubecl::RuntimeId> {
+    match device.clone().without_autodiff().as_dispatch() {
+        burn::backend::DispatchDevice::Cube(cube) => Some(cube.runtime()),
+        #[allow(unreachable_patterns)]
+        _ => None,
+    }
 }
 
 /// The query of every grid point of `rois` (batch item b's RoIs in `rois[b]`, the grid
@@ -435,6 +436,12 @@ mod tests {
         );
         let host = host.levels[0].host().unwrap();
         let (rows, offsets) = query_level(&rois, &sites, &level, grid, &geometry, &device);
+        // `FUSIONDET_ROI_QUERY=check`'s comparison sees only the points near a tie differ.
+        let index = super::super::roi_pool::DeviceLevelIndex {
+            rows: rows.clone(),
+            offsets: offsets.clone(),
+        };
+        let comparison = super::super::roi_pool::compare_levels(host, &index, level.samples);
         let rows: Vec<i64> = rows.into_data().convert::<i64>().try_to_vec().unwrap();
         let offsets: Vec<f32> = offsets.into_data().convert::<f32>().try_to_vec().unwrap();
         assert_eq!(rows.len(), host.rows.len());
@@ -458,6 +465,9 @@ mod tests {
             }
         }
         let total = host.rows.len() / s;
+        assert_eq!(comparison.grid_points, total);
+        assert!(comparison.differing <= total - checked, "{comparison:?}");
+        assert!(comparison.max_offset_difference < 1e-5, "{comparison:?}");
         assert!(
             checked * 10 >= total * 9,
             "{checked} of {total} points far from a tie"
