@@ -22,11 +22,12 @@
 #                  (EMBED_MODELS=0 scripts/build-cuda.sh; this script reads the models from
 #                  disk), send the tree without models/ and data/, and split the models over
 #                  calls with MODELS and
-#                  MODELS_DIR (a git-ignored folder carried with the call); OUT is kept
+#                  MODELS_DIR (a git-ignored folder carried with the call); CHECK_OUT is kept
 #                  between calls on a warm machine, so later calls reuse the simulated frames.
 #   TRAIN          1 (default) to time training steps, 0 to skip them
 #   TRAIN_CONFIGS  configurations to time (default: the published Voxel R-CNN and DASANet)
-#   OUT            work directory (default: gpu-check-out in the repository, which git ignores)
+#   CHECK_OUT      work directory (default: gpu-check-out in the repository, which git ignores;
+#                  not OUT, which a remote runner may set to a fresh folder per call)
 #   FRAMES         simulated frames, half of them val (default: 48)
 #   REPEATS        bench repeats after the warm-up run (default: 3)
 #   STEPS_FRAMES   training frames per epoch for the step timing (default: 8)
@@ -79,7 +80,7 @@ models="${MODELS:-fconvnet-car saf-car fcam-car voxel-rcnn-car dasanet-car}"
 models_dir="${MODELS_DIR:-$repo/models}"
 train="${TRAIN:-1}"
 train_configs="${TRAIN_CONFIGS:-configs/voxel-rcnn-car.toml configs/dasanet-car.toml}"
-out="${OUT:-$repo/gpu-check-out}"
+out="${CHECK_OUT:-$repo/gpu-check-out}"
 frames="${FRAMES:-48}"
 repeats="${REPEATS:-3}"
 steps_frames="${STEPS_FRAMES:-8}"

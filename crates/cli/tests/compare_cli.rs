@@ -82,7 +82,7 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         .env("FRAMES", "6")
         .env("REPEATS", "1")
         .env("STEPS_FRAMES", "2")
-        .env("OUT", dir.path())
+        .env("CHECK_OUT", dir.path())
         .output()
         .unwrap();
     let out = all_output(&o);
