@@ -284,6 +284,9 @@ pub struct LevelComparison {
     pub first: Option<(usize, Vec<i64>, Vec<i64>)>,
     /// The largest offset difference where the rows agree, metres.
     pub max_offset_difference: f32,
+    /// Device rows outside 0..=sentinel (what no query writes: a kernel that did not run,
+    /// or wrote elsewhere, leaves such values).
+    pub out_of_range: usize,
 }
 
 /// Compares the device's index of a level with the host's, grid point by grid point
@@ -311,6 +314,10 @@ pub fn compare_levels(
         differing: 0,
         first: None,
         max_offset_difference: 0.0,
+        out_of_range: rows
+            .iter()
+            .filter(|&&r| !(0..=host.sentinel).contains(&r))
+            .count(),
     };
     if rows.len() != host.rows.len() || offsets.len() != host.offsets.len() {
         comparison.differing = grid_points;
@@ -353,8 +360,8 @@ fn report_check(level: usize, c: &LevelComparison) {
     };
     eprintln!(
         "RoI query check, level {level}: {} of {} grid points with other rows on the device, \
-         offsets within {:.1e} m where the rows agree{first}",
-        c.differing, c.grid_points, c.max_offset_difference
+         offsets within {:.1e} m where the rows agree, {} rows out of range{first}",
+        c.differing, c.grid_points, c.max_offset_difference, c.out_of_range
     );
 }
 
@@ -658,6 +665,10 @@ mod tests {
             offsets: Tensor::from_data(TensorData::new(vec![0f32; 6], [2, 3]), &device),
         };
         assert_eq!(compare_levels(&host, &short, 2).differing, 2);
+        // Rows no query writes are counted.
+        let wild = compare_levels(&host, &on_device(vec![3, -5, 7, 10], offsets), 2);
+        assert_eq!((wild.differing, wild.out_of_range), (2, 2));
+        assert_eq!(same.out_of_range, 0);
     }
 
     #[test]

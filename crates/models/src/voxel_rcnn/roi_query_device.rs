@@ -468,6 +468,7 @@ mod tests {
         assert_eq!(comparison.grid_points, total);
         assert!(comparison.differing <= total - checked, "{comparison:?}");
         assert!(comparison.max_offset_difference < 1e-5, "{comparison:?}");
+        assert_eq!(comparison.out_of_range, 0, "{comparison:?}");
         assert!(
             checked * 10 >= total * 9,
             "{checked} of {total} points far from a tie"
