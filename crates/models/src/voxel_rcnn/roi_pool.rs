@@ -334,9 +334,9 @@ pub fn compare_levels(
             }
             continue;
         }
-        for i in slots.start * 3..slots.end * 3 {
-            let d = (host.offsets[i] - offsets[i]).abs();
-            comparison.max_offset_difference = comparison.max_offset_difference.max(d);
+        let values = slots.start * 3..slots.end * 3;
+        for (h, d) in host.offsets[values.clone()].iter().zip(&offsets[values]) {
+            comparison.max_offset_difference = comparison.max_offset_difference.max((h - d).abs());
         }
     }
     comparison
