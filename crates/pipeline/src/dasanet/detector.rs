@@ -23,6 +23,8 @@ use std::time::Instant;
 
 pub const STAGE_PSEUDO: &str = "depth completion + pseudo points";
 pub const STAGE_VOXELIZE: &str = "augment-free scene + voxelize (both clouds)";
+/// Both clouds' sparse-convolution rulebooks, built on the host (and uploaded to a GPU).
+pub const STAGE_RULEBOOKS: &str = "rulebooks, both clouds (host)";
 pub const STAGE_LIDAR_BACKBONE: &str = "LiDAR 3D backbone";
 pub const STAGE_PSEUDO_BACKBONE: &str = "pseudo 3D backbone";
 pub const STAGE_BEV: &str = "BEV backbone + anchor head";
@@ -122,7 +124,9 @@ impl DasanetDetector {
             if !sample.has_voxels() {
                 continue;
             }
+            let t = Instant::now();
             let batch = collate(&self.data, vec![sample], false, device)?;
+            timing.add(STAGE_RULEBOOKS, t.elapsed());
             let t = Instant::now();
             let lidar = self
                 .model

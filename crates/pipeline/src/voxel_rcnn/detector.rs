@@ -21,7 +21,10 @@ use std::path::Path;
 use std::time::Instant;
 
 pub const STAGE_VOXELIZE: &str = "voxelize";
-pub const STAGE_BACKBONE: &str = "3D backbone (rulebooks, sparse convs)";
+/// The sparse convolutions' rulebooks, built on the host (and uploaded to a GPU), apart
+/// from the convolutions so that a GPU's share of each shows.
+pub const STAGE_RULEBOOKS: &str = "rulebooks (host)";
+pub const STAGE_BACKBONE: &str = "3D backbone (sparse convs)";
 pub const STAGE_BEV: &str = "BEV backbone + anchor head";
 pub const STAGE_PROPOSALS: &str = "proposals (decode, NMS)";
 pub const STAGE_ROI_QUERY: &str = "RoI grid query";
@@ -251,6 +254,8 @@ impl VoxelRcnnDetector {
                 section.voxels.sparse_shape(),
                 device,
             )?;
+            timing.add(STAGE_RULEBOOKS, t.elapsed());
+            let t = Instant::now();
             let backbone = self.model.backbone.forward(features, &plan);
             let _ = values(&backbone.output.features.clone().slice([0..1, 0..1]));
             timing.add(STAGE_BACKBONE, t.elapsed());

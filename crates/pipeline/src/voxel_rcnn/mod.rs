@@ -12,7 +12,7 @@ pub(crate) mod task;
 pub use config::{NmsConfig, PostConfig, ProposalConfig, VoxelRcnnSection};
 pub use detector::{
     STAGE_BACKBONE, STAGE_BEV, STAGE_HEAD, STAGE_NMS, STAGE_PROPOSALS, STAGE_ROI_POOL,
-    STAGE_ROI_QUERY, STAGE_VOXELIZE, VoxelRcnnDetector,
+    STAGE_ROI_QUERY, STAGE_RULEBOOKS, STAGE_VOXELIZE, VoxelRcnnDetector,
 };
 pub use task::{
     GT_DATABASE_DIR, VoxelRcnnTask, build_gt_database, data_gt_database_dir, seeded_network, train,
