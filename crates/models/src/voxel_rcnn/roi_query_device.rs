@@ -9,6 +9,12 @@
 //! frame. Here two kernels replace them: one writes each active site's row into a dense
 //! table of the level's cells (the host query's table), one scans per grid point.
 //!
+//! Launched unchecked, as burn launches its own kernels: a checked launch bounds every
+//! access by lengths the runtime passes in, and on CUDA (an H200, 2026-11-28) these kernels,
+//! then launched checked, left rows that were not the host query's, where on wgpu they
+//! matched it; whether the launch mode was the cause is not confirmed on a GPU yet
+//! (`FUSIONDET_ROI_QUERY=check` will say), and CUDA keeps the host query by default.
+//!
 //! Precision: the host query works in f64; the kernels in f32, on grid points and cell
 //! centres measured from the grid's origin (so no 40 m offset eats the mantissa). A
 //! neighbour whose squared distance lies within f32 rounding of the squared radius, or a
@@ -67,7 +73,7 @@ mod kernels {
     use cubecl::prelude::*;
 
     /// Writes each site's row at its cell of the dense table ([batch · cells], −1 elsewhere).
-    #[cube(launch)]
+    #[cube(launch_unchecked)]
     pub fn fill_table(coords: &Tensor<i32>, table: &mut Tensor<i32>, ny: u32, nx: u32, cells: u32) {
         let row = ABSOLUTE_POS;
         if row >= coords.shape(0) {
@@ -82,7 +88,7 @@ mod kernels {
     }
 
     /// One grid point a thread: the raster scan of the host query over the dense table.
-    #[cube(launch)]
+    #[cube(launch_unchecked)]
     #[allow(clippy::too_many_arguments)]
     pub fn scan_neighbours(
         points: &Tensor<f32>,
@@ -202,16 +208,21 @@ impl VoxelQueryOps for CubeBackend {
         let sites = coords.meta.shape()[0];
         if sites > 0 {
             let (count, dim) = launch_shape(&client, sites);
-            fill_table::launch(
-                &client,
-                count,
-                dim,
-                coords.clone().into_tensor_arg(),
-                table.clone().into_tensor_arg(),
-                ny,
-                nx,
-                nz * ny * nx,
-            );
+            // SAFETY: every index the kernel forms is in bounds: threads past the last site
+            // return first, and a site's (b, z, y, x) lies within the batch and the level's
+            // grid (`SparseSites` refuses others), so its cell lies within the table.
+            unsafe {
+                fill_table::launch_unchecked(
+                    &client,
+                    count,
+                    dim,
+                    coords.clone().into_tensor_arg(),
+                    table.clone().into_tensor_arg(),
+                    ny,
+                    nx,
+                    nz * ny * nx,
+                );
+            }
         }
         let num_points = points.meta.shape()[0];
         let slots = num_points * query.samples as usize;
@@ -229,30 +240,37 @@ impl VoxelQueryOps for CubeBackend {
         );
         if num_points > 0 {
             let (count, dim) = launch_shape(&client, num_points);
-            scan_neighbours::launch(
-                &client,
-                count,
-                dim,
-                points.into_tensor_arg(),
-                roi_batch.into_tensor_arg(),
-                table.into_tensor_arg(),
-                coords.into_tensor_arg(),
-                rows.clone().into_tensor_arg(),
-                offsets.clone().into_tensor_arg(),
-                query.cell[0],
-                query.cell[1],
-                query.cell[2],
-                nz,
-                ny,
-                nx,
-                query.reach[0],
-                query.reach[1],
-                query.reach[2],
-                query.radius_squared,
-                query.samples,
-                query.points_per_roi,
-                query.sentinel,
-            );
+            // SAFETY: threads past the last grid point return first; a point's RoI is in
+            // `roi_batch` (points_per_roi points each) and its batch item within the table
+            // (`query_level` asserts it); the scanned cells are range-checked against the
+            // grid before the table is read; a table entry is −1 or a row of `coords`; the
+            // point's `samples` slots are its own.
+            unsafe {
+                scan_neighbours::launch_unchecked(
+                    &client,
+                    count,
+                    dim,
+                    points.into_tensor_arg(),
+                    roi_batch.into_tensor_arg(),
+                    table.into_tensor_arg(),
+                    coords.into_tensor_arg(),
+                    rows.clone().into_tensor_arg(),
+                    offsets.clone().into_tensor_arg(),
+                    query.cell[0],
+                    query.cell[1],
+                    query.cell[2],
+                    nz,
+                    ny,
+                    nx,
+                    query.reach[0],
+                    query.reach[1],
+                    query.reach[2],
+                    query.radius_squared,
+                    query.samples,
+                    query.points_per_roi,
+                    query.sentinel,
+                );
+            }
         }
         (rows, offsets)
     }
