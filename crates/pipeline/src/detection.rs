@@ -79,6 +79,9 @@ pub struct DetectSummary {
 pub struct StageTimes {
     pub load: Duration,
     stages: Vec<(&'static str, Duration)>,
+    /// Time stages ran side by side (a frame prepared while the network ran on the one
+    /// before, see [`crate::prefetch`]): counted in both stages, once in the wall time.
+    overlap: Duration,
 }
 
 impl StageTimes {
@@ -103,9 +106,34 @@ impl StageTimes {
         &self.stages
     }
 
-    /// Everything but loading from disk: what frames/s is measured over.
+    /// Everything but loading from disk, in wall time: what frames/s is measured over.
     pub fn compute(&self) -> Duration {
+        self.busy().saturating_sub(self.overlap)
+    }
+
+    /// The stages' times added up, overlapping ones each in full.
+    pub fn busy(&self) -> Duration {
         self.stages.iter().map(|(_, d)| *d).sum()
+    }
+
+    /// How much of [`Self::busy`] ran beside other stages.
+    pub fn overlap(&self) -> Duration {
+        self.overlap
+    }
+
+    /// Adds another pass's (or thread's) stages, overlap and load time.
+    pub fn absorb(&mut self, other: &StageTimes) {
+        for &(stage, d) in &other.stages {
+            self.add(stage, d);
+        }
+        self.overlap += other.overlap;
+        self.load += other.load;
+    }
+
+    /// Records that the stages added so far (and the overlap already recorded) took `wall`
+    /// in all: what they add up to beyond it ran side by side.
+    pub fn set_wall(&mut self, wall: Duration) {
+        self.overlap = self.busy().saturating_sub(wall);
     }
 }
 

@@ -140,5 +140,13 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         t.load.as_secs_f64(),
         stages.join(", ")
     );
+    if t.overlap() > std::time::Duration::ZERO {
+        outln!(
+            "      {:.3} s in all: frames were prepared on a second thread while the network \
+             ran, {:.3} s of the stages side by side",
+            t.compute().as_secs_f64(),
+            t.overlap().as_secs_f64()
+        );
+    }
     Ok(())
 }

@@ -102,7 +102,9 @@ impl DasanetDetector {
     }
 
     /// Detects on every frame; a frame without LiDAR or pseudo points in range gets no
-    /// boxes. `depth_dir` holds completed maps to use instead of completing.
+    /// boxes. `depth_dir` holds completed maps to use instead of completing. Each frame's
+    /// pseudo cloud, voxels and rulebooks are prepared on a second thread while the network
+    /// runs on the frame before ([`crate::prefetch`]).
     pub fn detect_frames(
         &self,
         device: &Device,
@@ -111,59 +113,71 @@ impl DasanetDetector {
         timing: &mut StageTimes,
     ) -> Result<FrameResults> {
         let section = &self.data.voxel.section;
+        let data = &self.data;
         let mut results = FrameResults::default();
-        for index in 0..frames.len() {
-            let frame = frames.frame(index)?;
-            let t = Instant::now();
-            let pseudo = self.data.pseudo.cloud(&frame, depth_dir)?;
-            timing.add(STAGE_PSEUDO, t.elapsed());
-            let t = Instant::now();
-            let sample = self.data.sample_with_cloud(&frame, pseudo, None)?;
-            timing.add(STAGE_VOXELIZE, t.elapsed());
-            let objects = results.objects.entry(frame.id.clone()).or_default();
-            if !sample.has_voxels() {
-                continue;
-            }
-            let t = Instant::now();
-            let batch = collate(&self.data, vec![sample], false, device)?;
-            timing.add(STAGE_RULEBOOKS, t.elapsed());
-            let t = Instant::now();
-            let lidar = self
-                .model
-                .lidar_backbone
-                .forward(batch.lidar_features, &batch.lidar_plan);
-            let _ = values(&lidar.output.features.clone().slice([0..1, 0..1]));
-            timing.add(STAGE_LIDAR_BACKBONE, t.elapsed());
-            let t = Instant::now();
-            let pseudo = self
-                .model
-                .pseudo_backbone
-                .forward(batch.pseudo_features, &batch.pseudo_plan);
-            let _ = values(&pseudo.output.features.clone().slice([0..1, 0..1]));
-            timing.add(STAGE_PSEUDO_BACKBONE, t.elapsed());
-            let t = Instant::now();
-            let anchors = self.model.bev_and_anchors(&lidar, &pseudo);
-            let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
-            timing.add(STAGE_BEV, t.elapsed());
-            let t = Instant::now();
-            let proposals =
-                batch_proposals(&self.data.voxel, &anchors, &section.proposals.test).remove(0);
-            timing.add(STAGE_PROPOSALS, t.elapsed());
-            if proposals.is_empty() {
-                continue;
-            }
-            let rois = single_frame_rois(&proposals);
-            let stage_one = DasanetStageOne {
-                lidar,
-                pseudo,
-                anchors,
-            };
-            let pred = self.refine_timed(&stage_one, &rois, &batch.clouds, timing);
-            let t = Instant::now();
-            objects.extend(frame_objects(section, &proposals, &pred, &frame));
-            results.samples += 1;
-            timing.add(STAGE_NMS, t.elapsed());
-        }
+        crate::prefetch::prepared_in_order::<_, PipelineError>(
+            frames.len(),
+            timing,
+            |index, timing| {
+                let frame = frames.frame(index)?;
+                let t = Instant::now();
+                let pseudo = data.pseudo.cloud(&frame, depth_dir)?;
+                timing.add(STAGE_PSEUDO, t.elapsed());
+                let t = Instant::now();
+                let sample = data.sample_with_cloud(&frame, pseudo, None)?;
+                timing.add(STAGE_VOXELIZE, t.elapsed());
+                if !sample.has_voxels() {
+                    return Ok((frame, None));
+                }
+                let t = Instant::now();
+                let batch = collate(data, vec![sample], false, device)?;
+                timing.add(STAGE_RULEBOOKS, t.elapsed());
+                Ok((frame, Some(batch)))
+            },
+            |_, (frame, batch), timing| {
+                let objects = results.objects.entry(frame.id.clone()).or_default();
+                let Some(batch) = batch else {
+                    return Ok(());
+                };
+                let t = Instant::now();
+                let lidar = self
+                    .model
+                    .lidar_backbone
+                    .forward(batch.lidar_features, &batch.lidar_plan);
+                let _ = values(&lidar.output.features.clone().slice([0..1, 0..1]));
+                timing.add(STAGE_LIDAR_BACKBONE, t.elapsed());
+                let t = Instant::now();
+                let pseudo = self
+                    .model
+                    .pseudo_backbone
+                    .forward(batch.pseudo_features, &batch.pseudo_plan);
+                let _ = values(&pseudo.output.features.clone().slice([0..1, 0..1]));
+                timing.add(STAGE_PSEUDO_BACKBONE, t.elapsed());
+                let t = Instant::now();
+                let anchors = self.model.bev_and_anchors(&lidar, &pseudo);
+                let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
+                timing.add(STAGE_BEV, t.elapsed());
+                let t = Instant::now();
+                let proposals =
+                    batch_proposals(&self.data.voxel, &anchors, &section.proposals.test).remove(0);
+                timing.add(STAGE_PROPOSALS, t.elapsed());
+                if proposals.is_empty() {
+                    return Ok(());
+                }
+                let rois = single_frame_rois(&proposals);
+                let stage_one = DasanetStageOne {
+                    lidar,
+                    pseudo,
+                    anchors,
+                };
+                let pred = self.refine_timed(&stage_one, &rois, &batch.clouds, timing);
+                let t = Instant::now();
+                objects.extend(frame_objects(section, &proposals, &pred, &frame));
+                results.samples += 1;
+                timing.add(STAGE_NMS, t.elapsed());
+                Ok(())
+            },
+        )?;
         Ok(results)
     }
 

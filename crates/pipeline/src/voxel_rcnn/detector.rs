@@ -230,7 +230,9 @@ impl VoxelRcnnDetector {
         })
     }
 
-    /// Detects on every frame; a frame without a LiDAR point in range gets no boxes.
+    /// Detects on every frame; a frame without a LiDAR point in range gets no boxes. Each
+    /// frame's voxels and rulebooks are prepared on a second thread while the network runs
+    /// on the frame before ([`crate::prefetch`]).
     pub fn detect_frames(
         &self,
         device: &Device,
@@ -238,51 +240,63 @@ impl VoxelRcnnDetector {
         timing: &mut StageTimes,
     ) -> Result<FrameResults> {
         let section = &self.data.section;
+        let data = &self.data;
         let mut results = FrameResults::default();
-        for index in 0..frames.len() {
-            let frame = frames.frame(index)?;
-            let t = Instant::now();
-            let sample = self.data.sample(&frame, None)?;
-            timing.add(STAGE_VOXELIZE, t.elapsed());
-            let objects = results.objects.entry(frame.id.clone()).or_default();
-            if sample.voxels.is_empty() {
-                continue;
-            }
-            let t = Instant::now();
-            let (features, plan) = batch_inputs(
-                std::slice::from_ref(&sample),
-                section.voxels.sparse_shape(),
-                device,
-            )?;
-            timing.add(STAGE_RULEBOOKS, t.elapsed());
-            let t = Instant::now();
-            let backbone = self.model.backbone.forward(features, &plan);
-            let _ = values(&backbone.output.features.clone().slice([0..1, 0..1]));
-            timing.add(STAGE_BACKBONE, t.elapsed());
-            let t = Instant::now();
-            let bev = self
-                .model
-                .bev
-                .forward(fusiondet_models::voxel_rcnn::height_compression(
-                    &backbone.output,
-                ));
-            let anchors = self.model.anchor_head.forward(bev);
-            let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
-            timing.add(STAGE_BEV, t.elapsed());
-            let t = Instant::now();
-            let proposals =
-                batch_proposals(&self.data, &anchors, &section.proposals.test).remove(0);
-            timing.add(STAGE_PROPOSALS, t.elapsed());
-            if proposals.is_empty() {
-                continue;
-            }
-            let rois = single_frame_rois(&proposals);
-            let pred = refine(&self.model, section, &backbone, &rois, Some(timing));
-            let t = Instant::now();
-            objects.extend(frame_objects(section, &proposals, &pred, &frame));
-            results.samples += 1;
-            timing.add(STAGE_NMS, t.elapsed());
-        }
+        crate::prefetch::prepared_in_order::<_, PipelineError>(
+            frames.len(),
+            timing,
+            |index, timing| {
+                let frame = frames.frame(index)?;
+                let t = Instant::now();
+                let sample = data.sample(&frame, None)?;
+                timing.add(STAGE_VOXELIZE, t.elapsed());
+                if sample.voxels.is_empty() {
+                    return Ok((frame, None));
+                }
+                let t = Instant::now();
+                let inputs = batch_inputs(
+                    std::slice::from_ref(&sample),
+                    section.voxels.sparse_shape(),
+                    device,
+                )?;
+                timing.add(STAGE_RULEBOOKS, t.elapsed());
+                Ok((frame, Some(inputs)))
+            },
+            |_, (frame, inputs), timing| {
+                let objects = results.objects.entry(frame.id.clone()).or_default();
+                let Some((features, plan)) = inputs else {
+                    return Ok(());
+                };
+                let t = Instant::now();
+                let backbone = self.model.backbone.forward(features, &plan);
+                let _ = values(&backbone.output.features.clone().slice([0..1, 0..1]));
+                timing.add(STAGE_BACKBONE, t.elapsed());
+                let t = Instant::now();
+                let bev = self
+                    .model
+                    .bev
+                    .forward(fusiondet_models::voxel_rcnn::height_compression(
+                        &backbone.output,
+                    ));
+                let anchors = self.model.anchor_head.forward(bev);
+                let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
+                timing.add(STAGE_BEV, t.elapsed());
+                let t = Instant::now();
+                let proposals =
+                    batch_proposals(&self.data, &anchors, &section.proposals.test).remove(0);
+                timing.add(STAGE_PROPOSALS, t.elapsed());
+                if proposals.is_empty() {
+                    return Ok(());
+                }
+                let rois = single_frame_rois(&proposals);
+                let pred = refine(&self.model, section, &backbone, &rois, Some(timing));
+                let t = Instant::now();
+                objects.extend(frame_objects(section, &proposals, &pred, &frame));
+                results.samples += 1;
+                timing.add(STAGE_NMS, t.elapsed());
+                Ok(())
+            },
+        )?;
         Ok(results)
     }
 }
