@@ -13,6 +13,7 @@
 //! +STCA row's F^A alone (no RoI grid pooling; see [`config`] for why). The baseline row
 //! is Voxel R-CNN itself.
 
+mod bev_buckets;
 pub mod checkpoint;
 pub mod config;
 pub mod giou;

@@ -18,11 +18,13 @@
 //! The cropping and voxel assignment are index work on the CPU ([`RoiPoints`]); the
 //! network part ([`Stca`]) runs on the index, so gradients reach the MLP and encoder.
 
+use super::bev_buckets::BevBuckets;
 use super::tca::CoordinateAttention3d;
 use crate::voxel_rcnn::roi_pool::RoiBox;
 use burn::prelude::*;
 use fusiondet_nn::sparse::{ConvGeometry, Rulebook, SparseConv3d, SparseConvBlock, SparseSites};
 use fusiondet_nn::{MlpLayer, NormConfig, SegmentPool, mlp_stack};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -141,48 +143,20 @@ impl RoiPoints {
         config: &StcaConfig,
     ) -> RoiPoints {
         let g = config.grid;
-        // (voxel key, features) of every kept point.
-        let mut kept: Vec<(u64, [f32; POINT_FEATURES])> = Vec::new();
-        for (r, roi) in rois.iter().enumerate() {
-            let (points, stride) = clouds[batch_of_roi[r]];
-            let [cx, cy, cz, dx, dy, dz, heading] = *roi;
-            let size = [
-                dx + 2.0 * config.margin,
-                dy + 2.0 * config.margin,
-                dz + 2.0 * config.margin,
-            ];
-            let (sin, cos) = heading.sin_cos();
-            let mut inside: Vec<(u64, [f32; POINT_FEATURES])> = points
-                .chunks_exact(stride)
-                .filter_map(|p| {
-                    let (x, y, z) = (p[0] as f64 - cx, p[1] as f64 - cy, p[2] as f64 - cz);
-                    // Into the RoI's frame: rotate by −heading.
-                    let local = [x * cos + y * sin, -x * sin + y * cos, z];
-                    let unit: [f64; 3] = std::array::from_fn(|a| local[a] / size[a] + 0.5);
-                    if unit.iter().any(|u| !(0.0..1.0).contains(u)) {
-                        return None;
-                    }
-                    let cell = unit.map(|u| ((u * g as f64) as usize).min(g - 1));
-                    let key = (((r * g + cell[2]) * g + cell[1]) * g + cell[0]) as u64;
-                    let f = [
-                        local[0] as f32,
-                        local[1] as f32,
-                        local[2] as f32,
-                        (unit[0] - 0.5) as f32,
-                        (unit[1] - 0.5) as f32,
-                        (unit[2] - 0.5) as f32,
-                    ];
-                    Some((key, f))
-                })
-                .collect();
-            if inside.len() > config.max_points {
-                let n = inside.len();
-                inside = (0..config.max_points)
-                    .map(|k| inside[k * n / config.max_points])
-                    .collect();
-            }
-            kept.extend(inside);
-        }
+        let buckets: Vec<BevBuckets> = clouds
+            .iter()
+            .map(|&(points, stride)| BevBuckets::new(points, stride))
+            .collect();
+        // (voxel key, features) of every kept point, RoI by RoI (in parallel, joined in order).
+        let per_roi: Vec<Vec<(u64, [f32; POINT_FEATURES])>> = rois
+            .par_iter()
+            .enumerate()
+            .map(|(r, roi)| {
+                let (points, stride) = clouds[batch_of_roi[r]];
+                crop(points, stride, &buckets[batch_of_roi[r]], r, roi, config)
+            })
+            .collect();
+        let mut kept: Vec<(u64, [f32; POINT_FEATURES])> = per_roi.into_iter().flatten().collect();
         // Stable: points keep their cloud order within a voxel.
         kept.sort_by_key(|(key, _)| *key);
         let mut counts = Vec::new();
@@ -215,6 +189,64 @@ impl RoiPoints {
     pub fn num_points(&self) -> usize {
         self.features.len() / POINT_FEATURES
     }
+}
+
+/// The points of one cloud inside RoI `r` (enlarged by the margin), as (voxel key,
+/// features) in cloud order, thinned evenly to `max_points`. Only the points of the cells
+/// the enlarged box's footprint touches are tested; each test is exact.
+fn crop(
+    points: &[f32],
+    stride: usize,
+    buckets: &BevBuckets,
+    r: usize,
+    roi: &RoiBox,
+    config: &StcaConfig,
+) -> Vec<(u64, [f32; POINT_FEATURES])> {
+    let g = config.grid;
+    let [cx, cy, cz, dx, dy, dz, heading] = *roi;
+    let size = [
+        dx + 2.0 * config.margin,
+        dy + 2.0 * config.margin,
+        dz + 2.0 * config.margin,
+    ];
+    let (sin, cos) = heading.sin_cos();
+    // The turned box's axis-aligned footprint, widened by far more than the test's rounding.
+    let half = [
+        0.5 * (size[0] * cos.abs() + size[1] * sin.abs()) + 1e-6,
+        0.5 * (size[0] * sin.abs() + size[1] * cos.abs()) + 1e-6,
+    ];
+    let candidates = buckets.candidates([cx - half[0], cy - half[1]], [cx + half[0], cy + half[1]]);
+    let mut inside: Vec<(u64, [f32; POINT_FEATURES])> = candidates
+        .into_iter()
+        .filter_map(|i| {
+            let p = &points[i as usize * stride..];
+            let (x, y, z) = (p[0] as f64 - cx, p[1] as f64 - cy, p[2] as f64 - cz);
+            // Into the RoI's frame: rotate by −heading.
+            let local = [x * cos + y * sin, -x * sin + y * cos, z];
+            let unit: [f64; 3] = std::array::from_fn(|a| local[a] / size[a] + 0.5);
+            if unit.iter().any(|u| !(0.0..1.0).contains(u)) {
+                return None;
+            }
+            let cell = unit.map(|u| ((u * g as f64) as usize).min(g - 1));
+            let key = (((r * g + cell[2]) * g + cell[1]) * g + cell[0]) as u64;
+            let f = [
+                local[0] as f32,
+                local[1] as f32,
+                local[2] as f32,
+                (unit[0] - 0.5) as f32,
+                (unit[1] - 0.5) as f32,
+                (unit[2] - 0.5) as f32,
+            ];
+            Some((key, f))
+        })
+        .collect();
+    if inside.len() > config.max_points {
+        let n = inside.len();
+        inside = (0..config.max_points)
+            .map(|k| inside[k * n / config.max_points])
+            .collect();
+    }
+    inside
 }
 
 /// The weight-shared encoder of both clouds.
@@ -411,6 +443,51 @@ mod tests {
         assert!(values.iter().all(|v| v.is_finite()));
         let both_empty = stca.forward(&nothing, &nothing, &d);
         assert_eq!(both_empty.abs().max().into_scalar::<f32>(), 0.0);
+    }
+
+    /// The bucketed crop keeps exactly what testing every point keeps, in the same order,
+    /// for turned, enlarged, thinned and off-cloud RoIs.
+    #[test]
+    fn the_bucketed_crop_is_the_crop_of_every_point() {
+        let mut state = 17u64;
+        let mut unit = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let cloud: Vec<f32> = (0..20_000)
+            .flat_map(|_| {
+                [
+                    (unit() * 40.0) as f32,
+                    (unit() * 30.0 - 15.0) as f32,
+                    (unit() * 3.0 - 2.0) as f32,
+                    0.5,
+                ]
+            })
+            .collect();
+        let buckets = BevBuckets::new(&cloud, 4);
+        let every_point = BevBuckets::one_cell(cloud.len() / 4);
+        let mut config = small();
+        let mut total = 0;
+        for r in 0..60 {
+            config.margin = [0.0, 0.2, 1.0][r % 3];
+            config.max_points = [64, 5000][r % 2];
+            let roi = [
+                unit() * 50.0 - 5.0,
+                unit() * 40.0 - 20.0,
+                unit() * 2.0 - 1.0,
+                1.0 + unit() * 4.0,
+                1.0 + unit() * 2.0,
+                1.0 + unit() * 2.0,
+                unit() * 7.0 - 3.5,
+            ];
+            let fast = crop(&cloud, 4, &buckets, r, &roi, &config);
+            let slow = crop(&cloud, 4, &every_point, r, &roi, &config);
+            assert_eq!(fast, slow, "RoI {r}: {roi:?}");
+            total += fast.len();
+        }
+        assert!(total > 1000, "the RoIs held points: {total}");
     }
 
     #[test]
