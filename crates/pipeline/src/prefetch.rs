@@ -16,15 +16,15 @@ use std::time::Instant;
 pub const FRAMES_AHEAD: usize = 2;
 
 /// Runs `prepare(i)` for `i` in `0..count` on a second thread, in order and at most
-/// [`FRAMES_AHEAD`] frames ahead, and `consume(i, prepared)` on this thread in the same
-/// order. Both add their stages' times to `timing`; the time the two threads ran side by
+/// [`FRAMES_AHEAD`] frames ahead, and `consume` on each prepared frame on this thread in
+/// the same order. Both add their stages' times to `timing`; the time the two threads ran side by
 /// side is recorded as overlap, so `timing.compute()` is the wall time of the pass. Stops
 /// at the first error of either side and returns it.
 pub fn prepared_in_order<T: Send, E: Send>(
     count: usize,
     timing: &mut StageTimes,
     prepare: impl Fn(usize, &mut StageTimes) -> Result<T, E> + Sync,
-    mut consume: impl FnMut(usize, T, &mut StageTimes) -> Result<(), E>,
+    mut consume: impl FnMut(T, &mut StageTimes) -> Result<(), E>,
 ) -> Result<(), E> {
     let started = Instant::now();
     let mut pass = StageTimes::default();
@@ -42,14 +42,14 @@ pub fn prepared_in_order<T: Send, E: Send>(
                 }
             }
         });
-        for index in 0..count {
+        for _ in 0..count {
             // The sender only goes away early after sending an error, which returns below;
             // a panic on its side reaches the caller when the scope joins it.
             let Ok((prepared, times)) = rx.recv() else {
                 break;
             };
             pass.absorb(&times);
-            consume(index, prepared?, &mut pass)?;
+            consume(prepared?, &mut pass)?;
         }
         Ok(())
     });
@@ -70,18 +70,18 @@ mod tests {
         let mut timing = StageTimes::default();
         let mut seen = Vec::new();
         let pause = Duration::from_millis(20);
-        prepared_in_order::<usize, String>(
+        prepared_in_order::<(usize, usize), String>(
             6,
             &mut timing,
             |i, t| {
                 std::thread::sleep(pause);
                 t.add("prepare", pause);
-                Ok(i * 10)
+                Ok((i, i * 10))
             },
-            |i, v, t| {
+            |v, t| {
                 std::thread::sleep(pause);
                 t.add("network", pause);
-                seen.push((i, v));
+                seen.push(v);
                 Ok(())
             },
         )
@@ -113,7 +113,7 @@ mod tests {
                     Ok(i)
                 }
             },
-            |_, _, _| {
+            |_, _| {
                 consumed += 1;
                 Ok(())
             },
@@ -126,7 +126,7 @@ mod tests {
             10,
             &mut timing,
             |i, _| Ok::<usize, String>(i),
-            |i, _, _| {
+            |i, _| {
                 consumed += 1;
                 if i == 1 {
                     Err("network failed".to_string())
@@ -147,7 +147,7 @@ mod tests {
             0,
             &mut timing,
             |_, _| panic!("no frame to prepare"),
-            |_, _, _| panic!("no frame to consume"),
+            |_, _| panic!("no frame to consume"),
         )
         .unwrap();
         assert!(timing.stages().is_empty());

@@ -30,10 +30,9 @@ impl BevBuckets {
             .chunks_exact(stride)
             .map(|p| [p[0] as f64, p[1] as f64])
             .collect();
-        let finite = || xy.iter().filter(|p| p.iter().all(|v| v.is_finite()));
         let mut lo = [f64::INFINITY; 2];
         let mut hi = [f64::NEG_INFINITY; 2];
-        for p in finite() {
+        for p in xy.iter().filter(|p| p.iter().all(|v| v.is_finite())) {
             for a in 0..2 {
                 lo[a] = lo[a].min(p[a]);
                 hi[a] = hi[a].max(p[a]);

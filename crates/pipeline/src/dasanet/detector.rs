@@ -8,8 +8,10 @@ use crate::config::ExperimentConfig;
 use crate::detection::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use crate::voxel_rcnn::VoxelRcnnSection;
+// Proposals and the final boxes are Voxel R-CNN's steps, timed under its stage names.
+pub use crate::voxel_rcnn::detector::{STAGE_NMS, STAGE_PROPOSALS};
 use crate::voxel_rcnn::detector::{
-    batch_proposals, frame_objects, roi_grid_query, single_frame_rois, values,
+    roi_grid_query, single_frame_rois, timed_frame_objects, timed_frame_proposals, values,
 };
 use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
@@ -28,12 +30,10 @@ pub const STAGE_RULEBOOKS: &str = "rulebooks, both clouds (host)";
 pub const STAGE_LIDAR_BACKBONE: &str = "LiDAR 3D backbone";
 pub const STAGE_PSEUDO_BACKBONE: &str = "pseudo 3D backbone";
 pub const STAGE_BEV: &str = "BEV backbone + anchor head";
-pub const STAGE_PROPOSALS: &str = "proposals (decode, NMS)";
 pub const STAGE_ROI_QUERY: &str = "RoI queries (both grids; STCA crops on the host)";
 pub const STAGE_TDIS: &str = "RoI grid pooling (both) + TDIS";
 pub const STAGE_STCA: &str = "STCA (encoder, attention)";
 pub const STAGE_HEAD: &str = "detection head";
-pub const STAGE_NMS: &str = "boxes + NMS";
 
 /// What stage two reads for `rois[b]` of each frame b: both branches' grid queries (with
 /// TDIS) and each cloud's points in the RoIs (with STCA).
@@ -134,7 +134,7 @@ impl DasanetDetector {
                 timing.add(STAGE_RULEBOOKS, t.elapsed());
                 Ok((frame, Some(batch)))
             },
-            |_, (frame, batch), timing| {
+            |(frame, batch), timing| {
                 let objects = results.objects.entry(frame.id.clone()).or_default();
                 let Some(batch) = batch else {
                     return Ok(());
@@ -157,10 +157,7 @@ impl DasanetDetector {
                 let anchors = self.model.bev_and_anchors(&lidar, &pseudo);
                 let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
                 timing.add(STAGE_BEV, t.elapsed());
-                let t = Instant::now();
-                let proposals =
-                    batch_proposals(&self.data.voxel, &anchors, &section.proposals.test).remove(0);
-                timing.add(STAGE_PROPOSALS, t.elapsed());
+                let proposals = timed_frame_proposals(&self.data.voxel, &anchors, section, timing);
                 if proposals.is_empty() {
                     return Ok(());
                 }
@@ -171,10 +168,10 @@ impl DasanetDetector {
                     anchors,
                 };
                 let pred = self.refine_timed(&stage_one, &rois, &batch.clouds, timing);
-                let t = Instant::now();
-                objects.extend(frame_objects(section, &proposals, &pred, &frame));
+                objects.extend(timed_frame_objects(
+                    section, &proposals, &pred, &frame, timing,
+                ));
                 results.samples += 1;
-                timing.add(STAGE_NMS, t.elapsed());
                 Ok(())
             },
         )?;

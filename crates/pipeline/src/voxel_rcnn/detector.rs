@@ -13,8 +13,8 @@ use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
 use fusiondet_geometry::{alpha_from_ry, normalize_angle, project_to_image};
 use fusiondet_kitti::Object;
 use fusiondet_models::voxel_rcnn::{
-    BackboneOutput, RoiBox, RoiGridIndex, RoiPredictions, VoxelGeometry, VoxelRcnn,
-    load_voxel_rcnn, pooled_maps,
+    AnchorPredictions, BackboneOutput, RoiBox, RoiGridIndex, RoiPredictions, VoxelGeometry,
+    VoxelRcnn, load_voxel_rcnn, pooled_maps,
 };
 use fusiondet_voxel::{LidarBox, Proposal, decode_roi};
 use std::path::Path;
@@ -49,7 +49,7 @@ pub fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
 /// Stage one's proposals of every frame of a batch.
 pub fn batch_proposals(
     data: &VoxelData,
-    anchors: &fusiondet_models::voxel_rcnn::AnchorPredictions,
+    anchors: &AnchorPredictions,
     nms: &super::config::NmsConfig,
 ) -> Vec<Vec<Proposal>> {
     let [b, a, k] = anchors.cls.dims();
@@ -202,6 +202,33 @@ pub fn frame_objects(
         .collect()
 }
 
+/// Stage one's proposals of a single frame (detection runs batch 1), timed as their stage.
+pub fn timed_frame_proposals(
+    data: &VoxelData,
+    anchors: &AnchorPredictions,
+    section: &VoxelRcnnSection,
+    timing: &mut StageTimes,
+) -> Vec<Proposal> {
+    let t = Instant::now();
+    let proposals = batch_proposals(data, anchors, &section.proposals.test).remove(0);
+    timing.add(STAGE_PROPOSALS, t.elapsed());
+    proposals
+}
+
+/// A frame's result objects from stage two's predictions (boxes and NMS), timed.
+pub fn timed_frame_objects(
+    section: &VoxelRcnnSection,
+    proposals: &[Proposal],
+    pred: &RoiPredictions,
+    frame: &SensorFrame,
+    timing: &mut StageTimes,
+) -> Vec<Object> {
+    let t = Instant::now();
+    let objects = frame_objects(section, proposals, pred, frame);
+    timing.add(STAGE_NMS, t.elapsed());
+    objects
+}
+
 /// Each frame's proposals as the RoI boxes of a batch of one.
 pub fn single_frame_rois(proposals: &[Proposal]) -> Vec<Vec<RoiBox>> {
     vec![proposals.iter().map(|p| p.bbox.to_array()).collect()]
@@ -262,7 +289,7 @@ impl VoxelRcnnDetector {
                 timing.add(STAGE_RULEBOOKS, t.elapsed());
                 Ok((frame, Some(inputs)))
             },
-            |_, (frame, inputs), timing| {
+            |(frame, inputs), timing| {
                 let objects = results.objects.entry(frame.id.clone()).or_default();
                 let Some((features, plan)) = inputs else {
                     return Ok(());
@@ -281,19 +308,16 @@ impl VoxelRcnnDetector {
                 let anchors = self.model.anchor_head.forward(bev);
                 let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
                 timing.add(STAGE_BEV, t.elapsed());
-                let t = Instant::now();
-                let proposals =
-                    batch_proposals(&self.data, &anchors, &section.proposals.test).remove(0);
-                timing.add(STAGE_PROPOSALS, t.elapsed());
+                let proposals = timed_frame_proposals(&self.data, &anchors, section, timing);
                 if proposals.is_empty() {
                     return Ok(());
                 }
                 let rois = single_frame_rois(&proposals);
                 let pred = refine(&self.model, section, &backbone, &rois, Some(timing));
-                let t = Instant::now();
-                objects.extend(frame_objects(section, &proposals, &pred, &frame));
+                objects.extend(timed_frame_objects(
+                    section, &proposals, &pred, &frame, timing,
+                ));
                 results.samples += 1;
-                timing.add(STAGE_NMS, t.elapsed());
                 Ok(())
             },
         )?;
