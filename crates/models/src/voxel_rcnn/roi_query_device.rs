@@ -9,11 +9,16 @@
 //! frame. Here two kernels replace them: one writes each active site's row into a dense
 //! table of the level's cells (the host query's table), one scans per grid point.
 //!
-//! Launched unchecked, as burn launches its own kernels: a checked launch bounds every
-//! access by lengths the runtime passes in, and on CUDA (an H200, 2026-11-28) these kernels,
-//! then launched checked, left rows that were not the host query's, where on wgpu they
-//! matched it; whether the launch mode was the cause is not confirmed on a GPU yet
-//! (`FUSIONDET_ROI_QUERY=check` will say), and CUDA keeps the host query by default.
+//! Layout: the kernels index every input by the strides it comes with. CUDA's allocator
+//! pads each row of a 2-D tensor to a power of two of at least 16 bytes ("pitched"), so the
+//! grid points [P, 3] arrive four floats a row; wgpu packs them. Kernels that assumed packed
+//! rows read other points on CUDA and left rows that were not the host query's (an H200,
+//! 2026-11-28: no boxes), where wgpu matched it. The offsets are written to a
+//! one-dimensional buffer (which no runtime pads) and relabelled [P · samples, 3]. The
+//! kernels are launched unchecked, as burn launches its own: every index is in bounds by
+//! construction (the `SAFETY` notes below), so the runtime's bound checks are not needed.
+//! Whether CUDA now matches the host query awaits a GPU (`FUSIONDET_ROI_QUERY=check` says);
+//! until then CUDA keeps the host query by default.
 //!
 //! Precision: the host query works in f64; the kernels in f32, on grid points and cell
 //! centres measured from the grid's origin (so no 40 m offset eats the mantissa). A
@@ -79,10 +84,12 @@ mod kernels {
         if row >= coords.shape(0) {
             terminate!();
         }
-        let b = u32::cast_from(coords[row * 4]);
-        let z = u32::cast_from(coords[row * 4 + 1]);
-        let y = u32::cast_from(coords[row * 4 + 2]);
-        let x = u32::cast_from(coords[row * 4 + 3]);
+        let at = row * coords.stride(0);
+        let step = coords.stride(1);
+        let b = u32::cast_from(coords[at]);
+        let z = u32::cast_from(coords[at + step]);
+        let y = u32::cast_from(coords[at + 2 * step]);
+        let x = u32::cast_from(coords[at + 3 * step]);
         let cell = b * cells + (z * ny + y) * nx + x;
         table[cell as usize] = i32::cast_from(row);
     }
@@ -116,10 +123,13 @@ mod kernels {
             terminate!();
         }
         let cells = nz * ny * nx;
-        let b = u32::cast_from(roi_batch[p / points_per_roi as usize]);
-        let px = points[p * 3];
-        let py = points[p * 3 + 1];
-        let pz = points[p * 3 + 2];
+        let b = u32::cast_from(roi_batch[(p / points_per_roi as usize) * roi_batch.stride(0)]);
+        let point = p * points.stride(0);
+        let px = points[point];
+        let py = points[point + points.stride(1)];
+        let pz = points[point + 2 * points.stride(1)];
+        let site_stride = coords.stride(0);
+        let coord_stride = coords.stride(1);
         let first_z = i32::cast_from((pz / cell_z).floor()) - i32::cast_from(reach_z);
         let first_y = i32::cast_from((py / cell_y).floor()) - i32::cast_from(reach_y);
         let first_x = i32::cast_from((px / cell_x).floor()) - i32::cast_from(reach_x);
@@ -137,10 +147,18 @@ mod kernels {
                             if found < samples && x >= 0 && x < i32::cast_from(nx) {
                                 let row = table[(base + u32::cast_from(x)) as usize];
                                 if row >= 0 {
-                                    let site = usize::cast_from(row) * 4;
-                                    let ox = (f32::cast_from(coords[site + 3]) + 0.5) * cell_x - px;
-                                    let oy = (f32::cast_from(coords[site + 2]) + 0.5) * cell_y - py;
-                                    let oz = (f32::cast_from(coords[site + 1]) + 0.5) * cell_z - pz;
+                                    let site = usize::cast_from(row) * site_stride;
+                                    let ox = (f32::cast_from(coords[site + 3 * coord_stride])
+                                        + 0.5)
+                                        * cell_x
+                                        - px;
+                                    let oy = (f32::cast_from(coords[site + 2 * coord_stride])
+                                        + 0.5)
+                                        * cell_y
+                                        - py;
+                                    let oz = (f32::cast_from(coords[site + coord_stride]) + 0.5)
+                                        * cell_z
+                                        - pz;
                                     if ox * ox + oy * oy + oz * oz <= radius_squared {
                                         let slot = first_slot + found as usize;
                                         rows[slot] = row;
@@ -232,10 +250,12 @@ impl VoxelQueryOps for CubeBackend {
             [slots].into(),
             burn::tensor::DType::I32,
         );
+        // One dimension, so no runtime pads its rows (see the module's documentation); the
+        // reshape below only relabels it.
         let offsets = empty_device_dtype(
             client.clone(),
             device,
-            [slots, 3].into(),
+            [slots * 3].into(),
             burn::tensor::DType::F32,
         );
         if num_points > 0 {
@@ -272,7 +292,7 @@ impl VoxelQueryOps for CubeBackend {
                 );
             }
         }
-        (rows, offsets)
+        (rows, Self::float_reshape(offsets, [slots, 3].into()))
     }
 }
 
@@ -297,48 +317,91 @@ pub fn query_level(
     geometry: &VoxelGeometry,
     device: &Device,
 ) -> (Tensor<1, Int>, Tensor<2>) {
-    // The kernel reads batch item b's table for every RoI of rois[b]: none may lie beyond it.
-    assert!(
-        rois.len() <= sites.batch_size(),
-        "RoIs of {} batch items over sites of {}",
-        rois.len(),
-        sites.batch_size()
-    );
     let device = device.clone().without_autodiff();
-    let stride = stage_stride(level.stage);
-    let size = geometry.level_voxel_size(stride);
-    let mut points = Vec::new();
-    let mut roi_batch = Vec::new();
-    for (b, list) in rois.iter().enumerate() {
-        for roi in list {
-            roi_batch.push(b as i32);
-            for p in roi_grid_points(roi, grid) {
-                points.extend((0..3).map(|a| (p[a] - geometry.origin[a]) as f32));
+    let inputs = LevelInputs::new(rois, sites, level, grid, geometry);
+    let num_points = inputs.roi_batch.len() * inputs.points_per_roi();
+    let points = Tensor::<2>::from_data(TensorData::new(inputs.points, [num_points, 3]), &device);
+    let num_rois = inputs.roi_batch.len();
+    let roi_batch =
+        Tensor::<1, Int>::from_data(TensorData::new(inputs.roi_batch, [num_rois]), &device);
+    let coords =
+        Tensor::<2, Int>::from_data(TensorData::new(inputs.coords, [sites.len(), 4]), &device);
+    run_query(points, roi_batch, coords, sites.batch_size(), inputs.query)
+}
+
+/// The kernels' inputs of one level, packed on the host.
+struct LevelInputs {
+    /// Grid points minus the grid's origin, [P · 3].
+    points: Vec<f32>,
+    /// Each RoI's batch item, [R].
+    roi_batch: Vec<i32>,
+    /// The level's active sites (b, z, y, x), [N · 4].
+    coords: Vec<i32>,
+    query: LevelQuery,
+}
+
+impl LevelInputs {
+    fn new(
+        rois: &[Vec<RoiBox>],
+        sites: &SparseSites,
+        level: &PoolLevelConfig,
+        grid: usize,
+        geometry: &VoxelGeometry,
+    ) -> Self {
+        // The kernel reads batch item b's table for every RoI of rois[b]: none may lie beyond it.
+        assert!(
+            rois.len() <= sites.batch_size(),
+            "RoIs of {} batch items over sites of {}",
+            rois.len(),
+            sites.batch_size()
+        );
+        let size = geometry.level_voxel_size(stage_stride(level.stage));
+        let mut points = Vec::new();
+        let mut roi_batch = Vec::new();
+        for (b, list) in rois.iter().enumerate() {
+            for roi in list {
+                roi_batch.push(b as i32);
+                for p in roi_grid_points(roi, grid) {
+                    points.extend((0..3).map(|a| (p[a] - geometry.origin[a]) as f32));
+                }
             }
         }
+        let [nz, ny, nx] = sites.spatial_shape();
+        let query = LevelQuery {
+            cell: size.map(|v| v as f32),
+            shape: [nz as u32, ny as u32, nx as u32],
+            reach: scan_reach(level, size).map(|r| r as u32),
+            radius_squared: (level.radius * level.radius) as f32,
+            samples: level.samples as u32,
+            points_per_roi: (grid * grid * grid) as u32,
+            sentinel: sites.len() as u32,
+        };
+        LevelInputs {
+            points,
+            roi_batch,
+            coords: sites.coords().iter().flatten().copied().collect(),
+            query,
+        }
     }
-    let num_points = points.len() / 3;
-    let coords: Vec<i32> = sites.coords().iter().flatten().copied().collect();
-    let [nz, ny, nx] = sites.spatial_shape();
-    let reach = scan_reach(level, size).map(|r| r as u32);
-    let query = LevelQuery {
-        cell: size.map(|v| v as f32),
-        shape: [nz as u32, ny as u32, nx as u32],
-        reach,
-        radius_squared: (level.radius * level.radius) as f32,
-        samples: level.samples as u32,
-        points_per_roi: (grid * grid * grid) as u32,
-        sentinel: sites.len() as u32,
-    };
-    let points = Tensor::<2>::from_data(TensorData::new(points, [num_points, 3]), &device);
-    let num_rois = roi_batch.len();
-    let roi_batch = Tensor::<1, Int>::from_data(TensorData::new(roi_batch, [num_rois]), &device);
-    let coords = Tensor::<2, Int>::from_data(TensorData::new(coords, [sites.len(), 4]), &device);
+
+    fn points_per_roi(&self) -> usize {
+        self.query.points_per_roi as usize
+    }
+}
+
+/// The kernels on tensors already on the device, whatever their strides.
+fn run_query(
+    points: Tensor<2>,
+    roi_batch: Tensor<1, Int>,
+    coords: Tensor<2, Int>,
+    batch_size: usize,
+    query: LevelQuery,
+) -> (Tensor<1, Int>, Tensor<2>) {
     let (rows, offsets) = <Dispatch as VoxelQueryOps>::voxel_query(
         points.into_dispatch(),
         roi_batch.into_dispatch(),
         coords.into_dispatch(),
-        sites.batch_size(),
+        batch_size,
         query,
     );
     (Tensor::from_dispatch(rows), Tensor::from_dispatch(offsets))
@@ -494,6 +557,64 @@ mod tests {
         assert!(
             empty > 0 && empty < checked,
             "empty and filled neighbourhoods: {empty}"
+        );
+    }
+
+    /// A row-major [rows, columns] matrix's values in column-major order.
+    fn column_major<T: Copy>(values: &[T], columns: usize) -> Vec<T> {
+        let rows = values.len() / columns;
+        (0..columns)
+            .flat_map(|c| (0..rows).map(move |r| values[r * columns + c]))
+            .collect()
+    }
+
+    /// The kernels index their inputs by the strides they are given: CUDA hands a [P, 3]
+    /// tensor over with rows padded to 16 bytes, where wgpu packs them, and kernels that
+    /// assumed packed rows read other points there. Inputs laid out column-major here give
+    /// the packed upload's rows and offsets bit for bit.
+    #[test]
+    fn the_kernels_read_inputs_by_their_strides() {
+        let Some(device) = wgpu_device() else { return };
+        let (sites, rois, level, geometry) = scene();
+        let packed = query_level(&rois, &sites, &level, 3, &geometry, &device);
+        let inputs = LevelInputs::new(&rois, &sites, &level, 3, &geometry);
+        // Transposed views of column-major uploads: the matrices [P, 3] and [N, 4] with
+        // strides [1, P] and [1, N].
+        let (p, n) = (inputs.points.len() / 3, inputs.coords.len() / 4);
+        let points = Tensor::<2>::from_data(
+            TensorData::new(column_major(&inputs.points, 3), [3, p]),
+            &device,
+        )
+        .transpose();
+        let coords = Tensor::<2, Int>::from_data(
+            TensorData::new(column_major(&inputs.coords, 4), [4, n]),
+            &device,
+        )
+        .transpose();
+        let roi_batch = Tensor::<1, Int>::from_data(
+            TensorData::new(inputs.roi_batch.clone(), [inputs.roi_batch.len()]),
+            &device,
+        );
+        let strided = run_query(points, roi_batch, coords, sites.batch_size(), inputs.query);
+        let ints = |t: Tensor<1, Int>| t.into_data().convert::<i64>().try_to_vec::<i64>().unwrap();
+        let floats = |t: Tensor<2>| t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
+        let (rows, offsets) = (ints(packed.0), floats(packed.1));
+        assert!(rows.iter().any(|&r| r != i64::from(inputs.query.sentinel)));
+        let (strided_rows, strided_offsets) = (ints(strided.0), floats(strided.1));
+        let differing = |a: &[i64], b: &[i64]| a.iter().zip(b).filter(|(x, y)| x != y).count();
+        assert_eq!(strided_rows.len(), rows.len());
+        assert_eq!(
+            differing(&strided_rows, &rows),
+            0,
+            "rows of {} slots differ",
+            rows.len()
+        );
+        assert!(
+            strided_offsets
+                .iter()
+                .map(|v| v.to_bits())
+                .eq(offsets.iter().map(|v| v.to_bits())),
+            "offsets differ"
         );
     }
 
