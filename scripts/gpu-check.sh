@@ -34,7 +34,8 @@
 #   QUERY_AB       models also run on the device with the RoI grid query's kernels
 #                  (FUSIONDET_ROI_QUERY=device; CUDA's default is the host query, wgpu's the
 #                  kernels): a `detect` that compares the kernels' rows with the host query's
-#                  (FUSIONDET_ROI_QUERY=check) and a bench, beside the default
+#                  (FUSIONDET_ROI_QUERY=check), a `detect` with the kernels compared box by
+#                  box with the host query's on the same device, and a bench, beside the default
 #                  (default: voxel-rcnn-car dasanet-car; empty to skip)
 #
 # What each figure is:
@@ -191,6 +192,18 @@ for m in $models; do
         record "$(printf '%-16s RoI query kernels on %s: %s of %s levels checked differ from the host query' \
             "$m" "$device" "$differing" "$checked")"
         grep '^RoI query check' "$det/dev-check.log" | grep -v ': 0 of ' | head -3 | sed 's/^/  /' || true
+        # The boxes the kernels give against the host query's on the same device (the same
+        # TF32 products, so only the query differs): whether CUDA can take the kernels.
+        if FUSIONDET_ROI_QUERY=device "$bin" detect --checkpoint "$ckpt" --data "$data" --split val \
+            --out "$det/dev-kernels" --device "$device" >"$det/dev-kernels.log" 2>&1; then
+            "$bin" compare "$det/dev" "$det/dev-kernels" >"$det/compare-kernels.log" 2>&1 &&
+                kparity="same" || kparity="DIFFERENT"
+            record "$(printf '%-16s boxes with the RoI query kernels against the host query on %s: %s (%s)' \
+                "$m" "$device" "$kparity" "$(grep -o 'boxes [0-9]* / [0-9]*, paired [0-9]*' "$det/compare-kernels.log" | head -1), largest centre offset $(grep -o 'largest centre offset *[0-9.]*' "$det/compare-kernels.log" | grep -o '[0-9.]*$' || echo '?') m")"
+        else
+            record "$m: detect with the RoI query kernels failed: $(tail -1 "$det/dev-kernels.log")"
+            failures=$((failures + 1))
+        fi
         bench_into "$det/bench-dev-kernels.log" "$ckpt" "$device" device
         kernels=" (RoI query kernels $(frames_per_second "$det/bench-dev-kernels.log" || echo '?'))"
     fi

@@ -77,7 +77,7 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         .arg(repo_root().join("scripts/gpu-check.sh"))
         .env("FUSIONDET", env!("CARGO_BIN_EXE_fusiondet"))
         .env("DEVICE", "cpu")
-        .env("MODELS", "fconvnet-car")
+        .env("MODELS", "fconvnet-car voxel-rcnn-car")
         .env("TRAIN_CONFIGS", "configs/tiny-voxel-rcnn.toml")
         .env("FRAMES", "6")
         .env("REPEATS", "1")
@@ -88,6 +88,17 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
     let out = all_output(&o);
     assert!(o.status.success(), "{out}");
     assert!(out.contains("fconvnet-car     parity same"), "{out}");
+    assert!(out.contains("voxel-rcnn-car   parity same"), "{out}");
+    // The RoI query's A/B ran for the voxel model: its check, and its boxes with the kernels
+    // against the host query's (on the CPU both are the host query).
+    assert!(
+        out.contains("voxel-rcnn-car   RoI query kernels on cpu: 0 of "),
+        "{out}"
+    );
+    assert!(
+        out.contains("boxes with the RoI query kernels against the host query on cpu: same"),
+        "{out}"
+    );
     // Both runs' first-step losses were read (an unread one would also compare as 0).
     let losses = out
         .split("first-step loss ")
