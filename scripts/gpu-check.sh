@@ -148,6 +148,10 @@ stage_ms() { # a bench log → its stages in ms a frame: "voxelize 3.1, 3D backb
 }
 
 # 2. Per shipped model: detect on both devices, compare, bench on both.
+# One figure of a `fusiondet compare` report: largest LOG 'centre offset' → its value, or ?.
+largest() {
+    grep -o "largest $2 *[0-9.]*" "$1" | grep -o '[0-9.]*$' || echo "?"
+}
 first=1
 for m in $models; do
     ckpt="$models_dir/$m.bpk"
@@ -166,8 +170,8 @@ for m in $models; do
         failures=$((failures + 1))
     fi
     sed 's/^/  /' "$det/compare.log"
-    offset=$(grep -o 'largest centre offset *[0-9.]*' "$det/compare.log" | grep -o '[0-9.]*$' || echo "?")
-    score=$(grep -o 'largest score change *[0-9.]*' "$det/compare.log" | grep -o '[0-9.]*$' || echo "?")
+    offset=$(largest "$det/compare.log" 'centre offset')
+    score=$(largest "$det/compare.log" 'score change')
     boxes=$(grep -o 'paired [0-9]*' "$det/compare.log" | grep -o '[0-9]*' || echo "?")
     if [ "$first" = 1 ]; then
         # A second process on the device: what the kernel cache (kernel_cache.rs) saves.
@@ -199,7 +203,7 @@ for m in $models; do
             "$bin" compare "$det/dev" "$det/dev-kernels" >"$det/compare-kernels.log" 2>&1 &&
                 kparity="same" || kparity="DIFFERENT"
             record "$(printf '%-16s boxes with the RoI query kernels against the host query on %s: %s (%s)' \
-                "$m" "$device" "$kparity" "$(grep -o 'boxes [0-9]* / [0-9]*, paired [0-9]*' "$det/compare-kernels.log" | head -1), largest centre offset $(grep -o 'largest centre offset *[0-9.]*' "$det/compare-kernels.log" | grep -o '[0-9.]*$' || echo '?') m")"
+                "$m" "$device" "$kparity" "$(grep -o 'boxes [0-9]* / [0-9]*, paired [0-9]*' "$det/compare-kernels.log" | head -1), largest centre offset $(largest "$det/compare-kernels.log" 'centre offset') m")"
         else
             record "$m: detect with the RoI query kernels failed: $(tail -1 "$det/dev-kernels.log")"
             failures=$((failures + 1))

@@ -319,7 +319,7 @@ pub fn query_level(
 ) -> (Tensor<1, Int>, Tensor<2>) {
     let device = device.clone().without_autodiff();
     let inputs = LevelInputs::new(rois, sites, level, grid, geometry);
-    let num_points = inputs.roi_batch.len() * inputs.points_per_roi();
+    let num_points = inputs.points.len() / 3;
     let points = Tensor::<2>::from_data(TensorData::new(inputs.points, [num_points, 3]), &device);
     let num_rois = inputs.roi_batch.len();
     let roi_batch =
@@ -382,10 +382,6 @@ impl LevelInputs {
             coords: sites.coords().iter().flatten().copied().collect(),
             query,
         }
-    }
-
-    fn points_per_roi(&self) -> usize {
-        self.query.points_per_roi as usize
     }
 }
 
