@@ -4,7 +4,7 @@
 //! stage share one). The pairs reach the device in one of two layouts ([`RuleLayout`]):
 //! a list per offset for the CPU, one kernel map for GPUs.
 
-use super::sites::SparseSites;
+use super::sites::{SparseSites, decode_key, linear_key};
 use crate::row_pairs::RowPairs;
 use burn::prelude::*;
 use rayon::prelude::*;
@@ -53,6 +53,40 @@ impl ConvGeometry {
         std::array::from_fn(|a| {
             (input[a] + 2 * self.padding[a]).saturating_sub(self.kernel[a]) / self.stride[a] + 1
         })
+    }
+
+    /// Calls `f(k, o)` for every offset `k` by which input site `c` feeds an output site `o`
+    /// inside `out_shape` (`o·s − p + d_k = c`), offsets ascending. Per axis only the offsets
+    /// of the right residue modulo the stride are visited, one division each: testing all
+    /// of a 3×3×3 kernel's 27 offsets with a division per axis was a strided rulebook's
+    /// largest cost.
+    pub(crate) fn for_each_target(
+        &self,
+        c: &[i32; 4],
+        out_shape: [usize; 3],
+        mut f: impl FnMut(usize, [i32; 4]),
+    ) {
+        let [kz, ky, kx] = self.kernel.map(|k| k as i32);
+        let s = self.stride.map(|s| s as i32);
+        let p = self.padding.map(|p| p as i32);
+        // The first offset along axis `a` with (c + p − d) divisible by the stride.
+        let first = |a: usize| (c[a + 1] + p[a]).rem_euclid(s[a]);
+        // The output coordinate offset `d` reaches along axis `a`, if inside.
+        let out = |a: usize, d: i32| {
+            let n = c[a + 1] + p[a] - d;
+            (n >= 0 && ((n / s[a]) as usize) < out_shape[a]).then_some(n / s[a])
+        };
+        for dz in (first(0)..kz).step_by(s[0] as usize) {
+            let Some(oz) = out(0, dz) else { continue };
+            for dy in (first(1)..ky).step_by(s[1] as usize) {
+                let Some(oy) = out(1, dy) else { continue };
+                for dx in (first(2)..kx).step_by(s[2] as usize) {
+                    let Some(ox) = out(2, dx) else { continue };
+                    let k = ((dz * ky + dy) * kx + dx) as usize;
+                    f(k, [c[0], oz, oy, ox]);
+                }
+            }
+        }
     }
 
     /// (dz, dy, dx) of offset index `k`.
@@ -214,21 +248,17 @@ impl Rulebook {
         let centre = volume / 2;
         // Offset k and its mirror `volume − 1 − k` pair the same sites the other way round
         // (o reads i at +d exactly when i reads o at −d), so only the offsets before the
-        // centre are looked up: half the hash lookups.
+        // centre are searched.
         let half: Vec<(usize, Vec<i64>, Vec<i64>)> = (0..centre)
             .into_par_iter()
             .map(|k| {
-                let d = geometry.offset(k);
-                let p = geometry.padding.map(|p| p as i32);
+                let shift = geometry.offset(k);
+                let shift: [i32; 3] =
+                    std::array::from_fn(|a| shift[a] - geometry.padding[a] as i32);
+                let read = neighbours_at(sites, shift);
                 let (mut input, mut output) = (Vec::new(), Vec::new());
-                for (o, c) in sites.coords().iter().enumerate() {
-                    let at = [
-                        c[0],
-                        c[1] + d[0] - p[0],
-                        c[2] + d[1] - p[1],
-                        c[3] + d[2] - p[2],
-                    ];
-                    if let Some(i) = sites.row(at) {
+                for (o, &i) in read.iter().enumerate() {
+                    if i != NONE {
                         input.push(i as i64);
                         output.push(o as i64);
                     }
@@ -277,39 +307,51 @@ impl Rulebook {
     ) -> Rulebook {
         let out_shape = geometry.output_shape(sites.spatial_shape());
         let volume = geometry.volume();
-        // The output site offset `k` of input site `c` feeds, if any.
-        let target = |c: &[i32; 4], k: usize| -> Option<[i32; 4]> {
-            let d = geometry.offset(k);
-            let mut o = [c[0], 0, 0, 0];
-            for a in 0..3 {
-                let n = c[a + 1] + geometry.padding[a] as i32 - d[a];
-                let s = geometry.stride[a] as i32;
-                if n < 0 || n % s != 0 || (n / s) as usize >= out_shape[a] {
-                    return None;
-                }
-                o[a + 1] = n / s;
-            }
-            Some(o)
-        };
-        let mut outputs: Vec<[i32; 4]> = sites
+        let n = sites.len();
+        // Every (output index, input row, offset) an input feeds, sorted by output index: the
+        // distinct indices in order are the output sites (batch-major), and each entry's
+        // rank among them its output row, written to `row_of[offset · n + input]`.
+        let mut feeds: Vec<(u64, u32, u32)> = sites
             .coords()
             .par_iter()
-            .flat_map_iter(|c| (0..volume).filter_map(move |k| target(c, k)))
-            .collect();
-        outputs.par_sort_unstable();
-        outputs.dedup();
-        let output = Arc::new(
-            SparseSites::new(outputs, out_shape, sites.batch_size())
-                .expect("output sites are in bounds and distinct by construction"),
-        );
-        let pairs: Vec<(usize, Vec<i64>, Vec<i64>)> = (0..volume)
-            .into_par_iter()
-            .map(|k| {
+            .enumerate()
+            .fold(Vec::new, |mut feeds, (i, c)| {
+                geometry.for_each_target(c, out_shape, |k, o| {
+                    feeds.push((linear_key(o, out_shape), i as u32, k as u32));
+                });
+                feeds
+            })
+            .reduce(Vec::new, |mut a, mut b| {
+                a.append(&mut b);
+                a
+            });
+        feeds.par_sort_unstable_by_key(|&(key, _, _)| key);
+        let mut row_of = vec![NONE; volume * n];
+        let mut outputs: Vec<[i32; 4]> = Vec::new();
+        let mut last_key = None;
+        for &(key, i, k) in &feeds {
+            if last_key != Some(key) {
+                last_key = Some(key);
+                outputs.push(decode_key(key, out_shape));
+            }
+            row_of[k as usize * n + i as usize] = (outputs.len() - 1) as u32;
+        }
+        drop(feeds);
+        let output = Arc::new(SparseSites::from_sorted(
+            outputs,
+            out_shape,
+            sites.batch_size(),
+        ));
+        // Per offset, the pairs in input row order.
+        let pairs: Vec<(usize, Vec<i64>, Vec<i64>)> = row_of
+            .par_chunks(n.max(1))
+            .enumerate()
+            .map(|(k, rows)| {
                 let (mut input, mut out_rows) = (Vec::new(), Vec::new());
-                for (i, c) in sites.coords().iter().enumerate() {
-                    if let Some(o) = target(c, k) {
+                for (i, &o) in rows.iter().enumerate() {
+                    if o != NONE {
                         input.push(i as i64);
-                        out_rows.push(output.row(o).expect("every target is an output") as i64);
+                        out_rows.push(o as i64);
                     }
                 }
                 (k, input, out_rows)
@@ -343,6 +385,42 @@ impl Rulebook {
     pub fn total_pairs(&self) -> usize {
         self.pairs
     }
+}
+
+/// A row that is not there.
+const NONE: u32 = u32::MAX;
+
+/// For every site o (by row), the row of the active site at o + `shift` (z, y, x), or
+/// [`NONE`]. A shift adds one constant to every in-bounds site's linear index, and the
+/// shifted indices ascend with the originals, so one walk through the sites by index,
+/// a second cursor advancing alongside, finds them all: sequential reads, no hashing.
+fn neighbours_at(sites: &SparseSites, shift: [i32; 3]) -> Vec<u32> {
+    let shape = sites.spatial_shape();
+    let delta =
+        (shift[0] as i64 * shape[1] as i64 + shift[1] as i64) * shape[2] as i64 + shift[2] as i64;
+    let by_key = sites.by_key();
+    let coords = sites.coords();
+    let mut read = vec![NONE; sites.len()];
+    let mut cursor = 0;
+    for &(key, o) in by_key {
+        let c = coords[o as usize];
+        let inside = (0..3).all(|a| {
+            let v = c[a + 1] + shift[a];
+            v >= 0 && (v as usize) < shape[a]
+        });
+        if !inside {
+            // Its index shifted would wrap into another row of the grid.
+            continue;
+        }
+        let wanted = (key as i64 + delta) as u64;
+        while cursor < by_key.len() && by_key[cursor].0 < wanted {
+            cursor += 1;
+        }
+        if cursor < by_key.len() && by_key[cursor].0 == wanted {
+            read[o as usize] = by_key[cursor].1;
+        }
+    }
+    read
 }
 
 /// (offset, input rows, output rows) of every offset but a submanifold kernel's centre.
@@ -529,5 +607,158 @@ mod tests {
         let book = Rulebook::strided_in(&sites, geometry, RuleLayout::KernelMap, &device);
         assert_eq!(kernel_map(&book), vec![2, 1, 2, 2, 2, 0]);
         assert_eq!(book.total_pairs(), 2);
+    }
+
+    /// The pairs of every offset as a direct search finds them (a hash map of the sites,
+    /// each output's receptive field looked up): what the rulebooks must list, in order.
+    fn reference_pairs(
+        sites: &SparseSites,
+        geometry: ConvGeometry,
+        submanifold: bool,
+    ) -> OffsetPairs {
+        let index: std::collections::HashMap<[i32; 4], usize> = sites
+            .coords()
+            .iter()
+            .enumerate()
+            .map(|(r, &c)| (c, r))
+            .collect();
+        let out_shape = geometry.output_shape(sites.spatial_shape());
+        let outputs: Vec<[i32; 4]> = if submanifold {
+            sites.coords().to_vec()
+        } else {
+            let mut all: Vec<[i32; 4]> = Vec::new();
+            for c in sites.coords() {
+                for k in 0..geometry.volume() {
+                    let d = geometry.offset(k);
+                    let n: [i32; 3] =
+                        std::array::from_fn(|a| c[a + 1] + geometry.padding[a] as i32 - d[a]);
+                    let s = geometry.stride.map(|s| s as i32);
+                    if (0..3).all(|a| {
+                        n[a] >= 0 && n[a] % s[a] == 0 && ((n[a] / s[a]) as usize) < out_shape[a]
+                    }) {
+                        all.push([c[0], n[0] / s[0], n[1] / s[1], n[2] / s[2]]);
+                    }
+                }
+            }
+            all.sort();
+            all.dedup();
+            all
+        };
+        let out_index: std::collections::HashMap<[i32; 4], usize> =
+            outputs.iter().enumerate().map(|(r, &c)| (c, r)).collect();
+        let centre = submanifold.then_some(geometry.volume() / 2);
+        (0..geometry.volume())
+            .filter(|&k| Some(k) != centre)
+            .map(|k| {
+                let d = geometry.offset(k);
+                let (mut input, mut output) = (Vec::new(), Vec::new());
+                if submanifold {
+                    for (o, c) in outputs.iter().enumerate() {
+                        let at = [0, 1, 2].map(|a| c[a + 1] + d[a] - geometry.padding[a] as i32);
+                        if let Some(&i) = index.get(&[c[0], at[0], at[1], at[2]]) {
+                            input.push(i as i64);
+                            output.push(o as i64);
+                        }
+                    }
+                } else {
+                    for (i, c) in sites.coords().iter().enumerate() {
+                        let n: [i32; 3] =
+                            std::array::from_fn(|a| c[a + 1] + geometry.padding[a] as i32 - d[a]);
+                        let s = geometry.stride.map(|s| s as i32);
+                        if (0..3).all(|a| n[a] >= 0 && n[a] % s[a] == 0) {
+                            let o = [c[0], n[0] / s[0], n[1] / s[1], n[2] / s[2]];
+                            if let Some(&o) = out_index.get(&o) {
+                                input.push(i as i64);
+                                output.push(o as i64);
+                            }
+                        }
+                    }
+                }
+                // A submanifold kernel's offsets after the centre list their pairs as their
+                // mirrors before it found them: by input row (the build's order since the
+                // first CPU results).
+                if submanifold && Some(k) > centre {
+                    let mut by_input: Vec<(i64, i64)> = input.into_iter().zip(output).collect();
+                    by_input.sort();
+                    (input, output) = by_input.into_iter().unzip();
+                }
+                (k, input, output)
+            })
+            .filter(|(_, input, _)| !input.is_empty())
+            .collect()
+    }
+
+    /// Random clustered sites in random row order (a pseudo-random walk, seeded): grids
+    /// whose edges the clusters touch, two batch items.
+    fn random_sites(seed: u64, shape: [usize; 3], count: usize) -> SparseSites {
+        let mut state = seed;
+        let mut next = move |n: usize| {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 33) as usize) % n
+        };
+        let mut seen = std::collections::HashSet::new();
+        let mut coords = Vec::new();
+        let mut at = [0i32; 4];
+        while coords.len() < count {
+            if next(8) == 0 {
+                at = [
+                    next(2) as i32,
+                    next(shape[0]) as i32,
+                    next(shape[1]) as i32,
+                    next(shape[2]) as i32,
+                ];
+            } else {
+                let a = 1 + next(3);
+                at[a] = (at[a] + next(3) as i32 - 1).clamp(0, shape[a - 1] as i32 - 1);
+            }
+            if seen.insert(at) {
+                coords.push(at);
+            }
+        }
+        SparseSites::new(coords, shape, 2).unwrap()
+    }
+
+    /// The index walk finds exactly the pairs a direct search finds, in the same order,
+    /// for submanifold and strided geometries, with sites in random row order and at the
+    /// grid's edges (where a shifted index would wrap into another row).
+    #[test]
+    fn rulebooks_list_the_pairs_a_direct_search_finds() {
+        let device = Device::flex();
+        let strided = [
+            ConvGeometry::strided([3; 3], [2; 3], [1; 3]),
+            ConvGeometry::strided([3; 3], [2; 3], [0, 1, 1]),
+            ConvGeometry::strided([3, 1, 1], [2, 1, 1], [0; 3]),
+            ConvGeometry::strided([2, 3, 3], [1, 2, 2], [0, 1, 1]),
+        ];
+        for (seed, shape) in [(1, [5, 9, 7]), (2, [1, 4, 30]), (3, [11, 6, 6])] {
+            let count = shape.iter().product::<usize>() / 3;
+            let sites = Arc::new(random_sites(seed, shape, count));
+            for kernel in [[3; 3], [1, 3, 5], [5, 1, 3]] {
+                let book = Rulebook::submanifold_in(&sites, kernel, RuleLayout::PerOffset, &device);
+                let (_, rules) = per_offset(&book);
+                assert_eq!(
+                    rules,
+                    reference_pairs(&sites, ConvGeometry::same(kernel), true),
+                    "submanifold {kernel:?} on {shape:?}"
+                );
+            }
+            for geometry in strided {
+                let book = Rulebook::strided_in(&sites, geometry, RuleLayout::PerOffset, &device);
+                let (_, rules) = per_offset(&book);
+                assert_eq!(
+                    rules,
+                    reference_pairs(&sites, geometry, false),
+                    "strided {geometry:?} on {shape:?}"
+                );
+                let mut sorted = book.output.coords().to_vec();
+                sorted.sort();
+                assert_eq!(sorted, book.output.coords(), "outputs in batch-major order");
+                for (row, &c) in book.output.coords().iter().enumerate() {
+                    assert_eq!(book.output.row(c), Some(row));
+                }
+            }
+        }
     }
 }
