@@ -1,5 +1,5 @@
 //! Sparse 3D convolution over voxel grids (Graham & van der Maaten's submanifold and
-//! regular sparse convolutions, as spconv runs them): active sites with a hashed lookup,
+//! regular sparse convolutions, as spconv runs them): active sites indexed by linear index,
 //! a rulebook of (input row, output row) pairs per kernel offset, and each convolution as
 //! gather → matrix multiply → scatter-add through burn's autodiff (per offset on the CPU,
 //! through one kernel map on GPUs); on the flex CPU device the per-offset form runs as one
