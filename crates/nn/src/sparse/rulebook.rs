@@ -4,7 +4,7 @@
 //! stage share one). The pairs reach the device in one of two layouts ([`RuleLayout`]):
 //! a list per offset for the CPU, one kernel map for GPUs.
 
-use super::sites::{SparseSites, decode_key, linear_key};
+use super::sites::{SparseSites, decode_key, in_shape, linear_key};
 use crate::row_pairs::RowPairs;
 use burn::prelude::*;
 use rayon::prelude::*;
@@ -404,11 +404,7 @@ fn neighbours_at(sites: &SparseSites, shift: [i32; 3]) -> Vec<u32> {
     let mut cursor = 0;
     for &(key, o) in by_key {
         let c = coords[o as usize];
-        let inside = (0..3).all(|a| {
-            let v = c[a + 1] + shift[a];
-            v >= 0 && (v as usize) < shape[a]
-        });
-        if !inside {
+        if !in_shape(std::array::from_fn(|a| c[a + 1] + shift[a]), shape) {
             // Its index shifted would wrap into another row of the grid.
             continue;
         }

@@ -57,9 +57,7 @@ impl SparseSites {
         }
         let mut by_key = Vec::with_capacity(coords.len());
         for (row, &coord) in coords.iter().enumerate() {
-            let inside = (coord[0] >= 0 && (coord[0] as usize) < batch_size)
-                && (0..3).all(|a| coord[a + 1] >= 0 && (coord[a + 1] as usize) < spatial_shape[a]);
-            if !inside {
+            if !in_grid(coord, spatial_shape, batch_size) {
                 return Err(SitesError::OutOfBounds {
                     row,
                     coord,
@@ -109,10 +107,11 @@ impl SparseSites {
             .map(|(row, &c)| (linear_key(c, spatial_shape), row as u32))
             .collect();
         debug_assert!(by_key.windows(2).all(|w| w[0].0 < w[1].0));
-        debug_assert!(coords.iter().all(|c| {
-            (c[0] >= 0 && (c[0] as usize) < batch_size)
-                && (0..3).all(|a| c[a + 1] >= 0 && (c[a + 1] as usize) < spatial_shape[a])
-        }));
+        debug_assert!(
+            coords
+                .iter()
+                .all(|&c| in_grid(c, spatial_shape, batch_size))
+        );
         SparseSites {
             coords,
             spatial_shape,
@@ -149,9 +148,7 @@ impl SparseSites {
 
     /// The row of the site at (batch, z, y, x), if it is active; `None` outside the grid.
     pub fn row(&self, coord: [i32; 4]) -> Option<usize> {
-        let inside =
-            (0..3).all(|a| coord[a + 1] >= 0 && (coord[a + 1] as usize) < self.spatial_shape[a]);
-        if !inside || coord[0] < 0 {
+        if !in_grid(coord, self.spatial_shape, self.batch_size) {
             return None;
         }
         let key = linear_key(coord, self.spatial_shape);
@@ -160,6 +157,18 @@ impl SparseSites {
             .ok()
             .map(|at| self.by_key[at].1 as usize)
     }
+}
+
+/// Whether (z, y, x) lies inside `shape` = [z, y, x].
+pub(crate) fn in_shape(zyx: [i32; 3], shape: [usize; 3]) -> bool {
+    (0..3).all(|a| zyx[a] >= 0 && (zyx[a] as usize) < shape[a])
+}
+
+/// Whether (batch, z, y, x) lies inside `batch_size` × `shape`.
+fn in_grid(coord: [i32; 4], shape: [usize; 3], batch_size: usize) -> bool {
+    coord[0] >= 0
+        && (coord[0] as usize) < batch_size
+        && in_shape([coord[1], coord[2], coord[3]], shape)
 }
 
 /// Batch-major linear index of an in-bounds site.
