@@ -37,6 +37,11 @@
 #                  (FUSIONDET_ROI_QUERY=check), a `detect` with the kernels compared box by
 #                  box with the host query's on the same device, and a bench, beside the default
 #                  (default: voxel-rcnn-car dasanet-car; empty to skip)
+#   SPARSE_AB      models also run on the device with the sparse convolution's CubeCL kernels
+#                  (FUSIONDET_SPARSE_RULES=kernels; every GPU's default is the kernel map
+#                  from burn's operations): a `detect` compared box by box with
+#                  the CPU's, and a bench; the training configurations are also timed with
+#                  them (default: voxel-rcnn-car dasanet-car; empty to skip)
 #
 # What each figure is:
 #   parity     `fusiondet compare` of the CPU's and the device's result files of the val frames:
@@ -49,7 +54,7 @@
 #              the configuration's), with the default RoI grid query and with the kernels.
 #   s/step     a training run of two epochs of STEPS_FRAMES frames: the second epoch's seconds
 #              divided by its steps (the first holds kernel compilation and tuning), on each
-#              device; and the loss of the first step on both (`first_step_loss`), which must
+#              device (and on the device with the sparse kernels, SPARSE_AB); and the loss of the first step on both (`first_step_loss`), which must
 #              agree within float tolerance: the same data, seed and initial weights (drawn on
 #              the CPU for every device), before any update.
 #   product    the largest relative error of one 512×512 f32 matrix product on each device
@@ -86,6 +91,7 @@ frames="${FRAMES:-48}"
 repeats="${REPEATS:-3}"
 steps_frames="${STEPS_FRAMES:-8}"
 query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
+sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
 
 for m in $models; do
     [ -f "$models_dir/$m.bpk" ] || {
@@ -131,12 +137,13 @@ timed() {
     awk -v ns="$((t1 - t0))" 'BEGIN { printf "%.1f", ns / 1e9 }'
 }
 # `bench` of a checkpoint on a device into a log, with the RoI grid query where given (`host`,
-# `device`)
-# or where the device runs it; a failed bench shows as a missing frames/s figure, never stops
+# `device`) or where the device runs it, and the sparse convolution's layout where given
+# (`kernels`, `kernel-map`); a failed bench shows as a missing frames/s figure, never stops
 # the script.
 bench_into() {
-    local log="$1" ckpt="$2" dev="$3" query="${4:-}"
-    env ${query:+FUSIONDET_ROI_QUERY="$query"} "$bin" bench --checkpoint "$ckpt" --data "$data" \
+    local log="$1" ckpt="$2" dev="$3" query="${4:-}" sparse="${5:-}"
+    env ${query:+FUSIONDET_ROI_QUERY="$query"} ${sparse:+FUSIONDET_SPARSE_RULES="$sparse"} \
+        "$bin" bench --checkpoint "$ckpt" --data "$data" \
         --repeats "$repeats" --device "$dev" >"$log" 2>&1 || true
 }
 frames_per_second() { grep -o '[0-9.]* frames/s' "$1" | head -1 | cut -d' ' -f1; }
@@ -211,6 +218,23 @@ for m in $models; do
         bench_into "$det/bench-dev-kernels.log" "$ckpt" "$device" device
         kernels=" (RoI query kernels $(frames_per_second "$det/bench-dev-kernels.log" || echo '?'))"
     fi
+    if [[ " $sparse_ab " == *" $m "* ]]; then
+        # The sparse convolution's CubeCL kernels (sparse/device_kernels.rs in the nn crate):
+        # their boxes against the CPU's, and their speed, beside the device's default layout.
+        if FUSIONDET_SPARSE_RULES=kernels "$bin" detect --checkpoint "$ckpt" --data "$data" \
+            --split val --out "$det/dev-sparse" --device "$device" >"$det/dev-sparse.log" 2>&1; then
+            "$bin" compare "$det/cpu" "$det/dev-sparse" >"$det/compare-sparse.log" 2>&1 &&
+                sparity="same" || sparity="DIFFERENT"
+            bench_into "$det/bench-dev-sparse.log" "$ckpt" "$device" "" kernels
+            record "$(printf '%-16s sparse convolution kernels on %s: parity with the cpu %s (%s, centre %s m, score %s), frames/s %s; stages: %s' \
+                "$m" "$device" "$sparity" "$(grep -o 'boxes [0-9]* / [0-9]*, paired [0-9]*' "$det/compare-sparse.log" | head -1)" \
+                "$(largest "$det/compare-sparse.log" 'centre offset')" "$(largest "$det/compare-sparse.log" 'score change')" \
+                "$(frames_per_second "$det/bench-dev-sparse.log" || echo '?')" "$(stage_ms "$det/bench-dev-sparse.log")")"
+        else
+            record "$m: detect with the sparse convolution kernels failed: $(tail -1 "$det/dev-sparse.log")"
+            failures=$((failures + 1))
+        fi
+    fi
     record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
         "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$kernels")"
     record "$(printf '%-16s stages on %s, ms a frame: %s' "$m" "$device" "$(stage_ms "$det/bench-dev.log")")"
@@ -246,16 +270,22 @@ if [ "$train" = 1 ]; then
         name="$(basename "$config" .toml)"
         row=()
         losses=()
-        for d in cpu "$device"; do
-            run="$out/train/$name-${d//:/-}"
+        runs=(cpu "$device")
+        [ -n "$sparse_ab" ] && runs+=("$device+kernels")
+        for r in "${runs[@]}"; do
+            d="${r%+kernels}"
+            sparse=""
+            [ "$r" != "$d" ] && sparse=kernels
+            run="$out/train/$name-${r//:/-}"
             rm -rf "$run"
             mkdir -p "$out/train"
-            stamp "$name: two epochs of $steps_frames frames on $d"
-            if "$bin" train --config "$config" --data "$data" --out "$run" --epochs 2 \
+            stamp "$name: two epochs of $steps_frames frames on $r"
+            if env ${sparse:+FUSIONDET_SPARSE_RULES="$sparse"} "$bin" train --config "$config" \
+                --data "$data" --out "$run" --epochs 2 \
                 --max-frames "$steps_frames" --device "$d" >"$run.log" 2>&1; then
-                row+=("$d $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
+                row+=("$r $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
                 losses+=("$(first_loss "$run/metrics.jsonl")")
-                if [ "$d" != cpu ] && [ -f "$run/model.bpk" ]; then
+                if [ "$d" != cpu ] && [ -z "$sparse" ] && [ -f "$run/model.bpk" ]; then
                     # The configuration's detection speed on the device, the default RoI query and
                     # on the host.
                     bench_into "$run-bench.log" "$run/model.bpk" "$d"
@@ -264,17 +294,25 @@ if [ "$train" = 1 ]; then
                         "$(frames_per_second "$run-bench.log" || echo '?')" \
                         "$(frames_per_second "$run-bench-kernels.log" || echo '?')")"
                     record "$(printf '%-26s stages on %s, ms a frame: %s' "$name" "$d" "$(stage_ms "$run-bench.log")")"
+                    if [ -n "$sparse_ab" ]; then
+                        bench_into "$run-bench-sparse.log" "$run/model.bpk" "$d" "" kernels
+                        record "$(printf '%-26s bench on %s with the sparse convolution kernels: %s frames/s; stages: %s' \
+                            "$name" "$d" "$(frames_per_second "$run-bench-sparse.log" || echo '?')" "$(stage_ms "$run-bench-sparse.log")")"
+                    fi
                 fi
             else
-                echo "  training on $d failed:"; tail -5 "$run.log" || true
+                echo "  training on $r failed:"; tail -5 "$run.log" || true
                 failures=$((failures + 1))
-                row+=("$d failed")
+                row+=("$r failed")
             fi
         done
         agree="?"
-        if [ "${#losses[@]}" = 2 ]; then
-            agree=$(awk -v a="${losses[0]}" -v b="${losses[1]}" \
-                'BEGIN { d = a - b; if (d < 0) d = -d; r = d / (a > 0 ? a : 1); printf "%.2e", r }')
+        if [ "${#losses[@]}" -ge 2 ]; then
+            # Each device run's first-step loss against the CPU's.
+            agree=$(for l in "${losses[@]:1}"; do
+                awk -v a="${losses[0]}" -v b="$l" \
+                    'BEGIN { d = a - b; if (d < 0) d = -d; r = d / (a > 0 ? a : 1); printf "%.2e\n", r }'
+            done | paste -sd/)
         fi
         record "$(printf '%-26s %s; first-step loss %s, relative difference %s' \
             "$name" "$(IFS=,; echo "${row[*]}")" "$(IFS=/; echo "${losses[*]:-?}")" "$agree")"

@@ -99,18 +99,31 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         out.contains("boxes with the RoI query kernels against the host query on cpu: same"),
         "{out}"
     );
-    // Both runs' first-step losses were read (an unread one would also compare as 0).
+    // The sparse convolution's kernels A/B ran for the voxel model (on the CPU the layout
+    // falls back to the kernel map, whose boxes match the per-offset layout's).
+    assert!(
+        out.contains(
+            "voxel-rcnn-car   sparse convolution kernels on cpu: parity with the cpu same"
+        ),
+        "{out}"
+    );
+    // The three runs' first-step losses were read (an unread one would also compare as 0):
+    // the CPU's, the device's (the CPU again), and the device's with the sparse kernels
+    // (here the kernel map: the same sums in another order).
     let losses = out
         .split("first-step loss ")
         .nth(1)
         .and_then(|rest| rest.split(',').next())
         .unwrap_or("");
-    let pair: Vec<f64> = losses.split('/').filter_map(|v| v.parse().ok()).collect();
+    let runs: Vec<f64> = losses.split('/').filter_map(|v| v.parse().ok()).collect();
     assert!(
-        pair.len() == 2 && pair[0] > 0.0 && pair[0] == pair[1],
+        runs.len() == 3
+            && runs[0] > 0.0
+            && runs[0] == runs[1]
+            && (runs[2] - runs[0]).abs() <= 1e-5 * runs[0],
         "{out}"
     );
-    assert!(out.contains("relative difference 0.00e+00"), "{out}");
+    assert!(out.contains("relative difference 0.00e+00/"), "{out}");
     assert!(out.contains("s/step"), "{out}");
     // Where the time goes: each bench's stages, and the voxel family's training step by part.
     assert!(

@@ -11,6 +11,8 @@
 pub mod batch_norm_ops;
 pub mod buffers;
 pub mod conv2d;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod cube;
 pub mod deconv;
 pub mod host_max;
 pub mod linear;

@@ -238,8 +238,9 @@ impl QueryPlace {
     /// Why not the kernels on CUDA: on an NVIDIA H200 (2026-11-28) they gave rows that made
     /// the shipped Voxel R-CNN find no box at all (175 on the CPU and with the host query on
     /// the same GPU), and training NaN at its first step, while on wgpu (lavapipe) they
-    /// agree with the host query row for row. The cause is not found yet; `check` reports
-    /// the rows that differ on the next GPU.
+    /// agree with the host query row for row. The likely cause, CUDA's padded rows, is fixed
+    /// ([`super::roi_query_device`]) but not yet rerun on a GPU; `check` reports the rows
+    /// that differ there.
     pub fn for_device(device: &Device) -> QueryPlace {
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
         if let Some(runtime) = super::roi_query_device::cube_runtime(device) {

@@ -36,8 +36,10 @@ use burn::tensor::{FloatDType, IntDType};
 use burn_cubecl::CubeBackend;
 use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
+pub use fusiondet_nn::cube::cube_runtime;
+use fusiondet_nn::cube::launch_shape;
 use fusiondet_nn::sparse::SparseSites;
-use kernels::{fill_table, launch_shape, scan_neighbours};
+use kernels::{fill_table, scan_neighbours};
 
 /// What the scan of one level needs besides its tensors (all host values).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -191,15 +193,6 @@ mod kernels {
             }
         }
     }
-
-    /// A one-dimensional launch over `units` threads.
-    pub fn launch_shape(client: &cubecl::client::Client, units: usize) -> (CubeCount, CubeDim) {
-        let dim = CubeDim::new(client, units);
-        (
-            cubecl::calculate_cube_count_elemwise(client, units, dim),
-            dim,
-        )
-    }
 }
 
 impl VoxelQueryOps for CubeBackend {
@@ -293,16 +286,6 @@ impl VoxelQueryOps for CubeBackend {
             }
         }
         (rows, Self::float_reshape(offsets, [slots, 3].into()))
-    }
-}
-
-/// The CubeCL runtime `device` runs on (wgpu, CUDA, …), or `None` for another backend
-/// (the CPU's flex), where the kernels above do not apply.
-pub fn cube_runtime(device: &Device) -> Option<cubecl::RuntimeId> {
-    match device.clone().without_autodiff().as_dispatch() {
-        burn::backend::DispatchDevice::Cube(cube) => Some(cube.runtime()),
-        #[allow(unreachable_patterns)]
-        _ => None,
     }
 }
 
@@ -412,25 +395,8 @@ mod tests {
     use crate::voxel_rcnn::config::RoiHeadConfig;
     use std::sync::Arc;
 
-    /// burn's wgpu device, or `None` (the test then says so and passes) where no adapter
-    /// runs a kernel: lavapipe (Debian's `mesa-vulkan-drivers`) is enough.
     fn wgpu_device() -> Option<Device> {
-        let device = Device::wgpu(burn::tensor::DeviceKind::DefaultDevice);
-        let probe = device.clone();
-        let sum = std::panic::catch_unwind(move || {
-            Tensor::<1>::from_floats([1.0, 2.0], &probe)
-                .sum()
-                .into_scalar::<f32>()
-        });
-        match sum {
-            Ok(3.0) => Some(device),
-            _ => {
-                eprintln!(
-                    "skipped: no wgpu adapter ran a kernel; the device query was not checked"
-                );
-                None
-            }
-        }
+        fusiondet_nn::cube::working_wgpu_device("the device query")
     }
 
     /// A random three-item level with RoIs at random headings, some partly off the grid.

@@ -1,7 +1,8 @@
 //! Sparse 3D convolution, and the conv → batch norm → ReLU block every layer of a sparse
 //! backbone is. Per the rulebook's layout: gather → matrix multiply → scatter-add one kernel
 //! offset at a time (the CPU), or one gather through a kernel map and one matrix multiply
-//! (GPUs, where launches cost more than the zeros it multiplies).
+//! (GPUs, where launches cost more than the zeros it multiplies), or the kernel map's
+//! CubeCL kernels ([`super::rulebook::RuleLayout::DeviceKernels`]).
 
 use super::rulebook::{ConvGeometry, OffsetRule, RuleGather, Rulebook};
 use crate::norm::{NormConfig, batch_norm};
@@ -91,11 +92,16 @@ impl SparseConv3d {
                 rules,
                 ..
             } => per_offset_with_burns_ops(features, weight, *identity_offset, rules, out_rows),
-            RuleGather::KernelMap { table } => {
+            RuleGather::KernelMap { table, inverse } => {
                 let device = features.device();
                 if out_rows == 0 {
                     return Tensor::zeros([0, c_out], &device);
                 }
+                #[cfg(any(feature = "wgpu", feature = "cuda"))]
+                if let Some(inverse) = inverse {
+                    return super::device_kernels::sparse_conv(features, weight, table, inverse);
+                }
+                let _ = inverse;
                 // Row `rows` is the zero row absent neighbours read; its gradient is dropped
                 // with it.
                 let padded = Tensor::cat(vec![features, Tensor::zeros([1, c_in], &device)], 0);

@@ -272,32 +272,11 @@ mod tests {
     use super::super::conv::per_offset_with_burns_ops;
     use super::super::rulebook::{ConvGeometry, RuleGather, RuleLayout, Rulebook};
     use super::super::sites::SparseSites;
+    use super::super::test_data::{sites, values};
     use super::*;
 
-    /// Distinct sites in a [2 frames, z, y, x] grid from a fixed sequence.
-    fn sites(shape: [usize; 3], count: usize, seed: u64) -> Arc<SparseSites> {
-        let mut state = seed;
-        let mut next = |n: usize| {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((state >> 33) % n as u64) as i32
-        };
-        let mut coords = Vec::new();
-        while coords.len() < count {
-            let c = [next(2), next(shape[0]), next(shape[1]), next(shape[2])];
-            if !coords.contains(&c) {
-                coords.push(c);
-            }
-        }
-        Arc::new(SparseSites::new(coords, shape, 2).unwrap())
-    }
-
     fn tensor<const D: usize>(shape: [usize; D], salt: usize, device: &Device) -> Tensor<D> {
-        let n: usize = shape.iter().product();
-        let v: Vec<f32> = (0..n)
-            .map(|i| (((i * 7919 + salt * 104729) % 2003) as f32 / 1001.5) - 1.0)
-            .collect();
+        let v = values(shape.iter().product(), salt);
         Tensor::from_data(TensorData::new(v, shape), device)
     }
 

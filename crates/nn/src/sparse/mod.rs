@@ -3,7 +3,9 @@
 //! a rulebook of (input row, output row) pairs per kernel offset, and each convolution as
 //! gather → matrix multiply → scatter-add through burn's autodiff (per offset on the CPU,
 //! through one kernel map on GPUs); on the flex CPU device the per-offset form runs as one
-//! custom operation with its own backward pass ([`fused`]).
+//! custom operation with its own backward pass ([`fused`]), and on a CubeCL device the
+//! kernel map can run as CubeCL kernels with theirs (`device_kernels`, features `wgpu` /
+//! `cuda`).
 //!
 //! Written here because no Rust crate does sparse convolution; the operations it is made
 //! of (select, matmul, select_assign with add) are burn's, so gradients and every backend
@@ -11,9 +13,13 @@
 
 pub mod conv;
 pub mod dense;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod device_kernels;
 pub mod fused;
 pub mod rulebook;
 pub mod sites;
+#[cfg(test)]
+mod test_data;
 
 pub use crate::row_pairs::RowPairs;
 pub use conv::{SparseConv3d, SparseConvBlock};

@@ -114,12 +114,20 @@ pub enum RuleLayout {
     /// third of its 27 offsets), which a GPU does faster than it launches the 80-odd
     /// kernels a per-offset layer takes.
     KernelMap,
+    /// The kernel map and its inverse (which output row reads each input row at each
+    /// offset), run by the CubeCL kernels of `device_kernels`: no gathered copy, no zeros
+    /// multiplied, no atomic additions in the backward pass. Only on a CubeCL device of a
+    /// build with the `wgpu` or `cuda` feature; elsewhere it is [`RuleLayout::KernelMap`].
+    /// No device's default yet (`FUSIONDET_SPARSE_RULES=kernels`).
+    DeviceKernels,
 }
 
 impl RuleLayout {
     /// Per offset on burn's flex CPU backend (where sums keep the order of every pinned CPU
-    /// result), a kernel map on every other backend. `FUSIONDET_SPARSE_RULES=per-offset` or
-    /// `kernel-map` overrides this for the whole process, so that both layouts can be timed
+    /// result), the kernel map from burn's operations on every other backend (measured on an
+    /// H100 and an H200; the CubeCL kernels wait for a GPU run, and on wgpu over lavapipe
+    /// they take twice its time). `FUSIONDET_SPARSE_RULES=per-offset`, `kernel-map` or
+    /// `kernels` overrides this for the whole process, so that the layouts can be timed
     /// side by side on one device.
     pub fn for_device(device: &Device) -> RuleLayout {
         static FORCED: OnceLock<Option<RuleLayout>> = OnceLock::new();
@@ -128,12 +136,13 @@ impl RuleLayout {
             let layout = match value.as_str() {
                 "per-offset" => Some(RuleLayout::PerOffset),
                 "kernel-map" => Some(RuleLayout::KernelMap),
+                "kernels" => Some(RuleLayout::DeviceKernels),
                 _ => None,
             };
             if layout.is_none() {
                 eprintln!(
-                    "warning: FUSIONDET_SPARSE_RULES={value:?} is neither \"per-offset\" nor \
-                     \"kernel-map\"; each device takes its default layout"
+                    "warning: FUSIONDET_SPARSE_RULES={value:?} is neither \"per-offset\", \
+                     \"kernel-map\" nor \"kernels\"; each device takes its default layout"
                 );
             }
             layout
@@ -143,6 +152,21 @@ impl RuleLayout {
         } else {
             RuleLayout::KernelMap
         })
+    }
+
+    /// What this layout is on `device`: [`RuleLayout::DeviceKernels`] only where the
+    /// kernels run (a CubeCL device, a GPU build), else [`RuleLayout::KernelMap`].
+    fn on(self, device: &Device) -> RuleLayout {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if self == RuleLayout::DeviceKernels && crate::cube::cube_runtime(device).is_some() {
+            return self;
+        }
+        let _ = device;
+        if self == RuleLayout::DeviceKernels {
+            RuleLayout::KernelMap
+        } else {
+            self
+        }
     }
 }
 
@@ -213,6 +237,9 @@ pub enum RuleGather {
         /// where it reads none. Boxed: a tensor handle is several times the size of the
         /// per-offset variant.
         table: Box<Tensor<1, Int>>,
+        /// [input rows · kernel volume]: the output row that reads input `n` at offset `k`,
+        /// or −1; only in [`RuleLayout::DeviceKernels`], whose kernels it selects.
+        inverse: Option<Box<Tensor<1, Int>>>,
     },
 }
 
@@ -437,7 +464,7 @@ fn gather(
     layout: RuleLayout,
     device: &Device,
 ) -> RuleGather {
-    match layout {
+    match layout.on(device) {
         RuleLayout::PerOffset => {
             let pairs: OffsetPairs = pairs
                 .into_iter()
@@ -470,7 +497,7 @@ fn gather(
                 host: Arc::new(host),
             }
         }
-        RuleLayout::KernelMap => {
+        layout @ (RuleLayout::KernelMap | RuleLayout::DeviceKernels) => {
             let mut table = vec![input_rows as i64; output_rows * volume];
             if let Some(k) = identity {
                 for o in 0..output_rows {
@@ -482,9 +509,23 @@ fn gather(
                     table[o as usize * volume + k] = i;
                 }
             }
+            // Within one offset no input row repeats, so each entry is written once.
+            let inverse = (layout == RuleLayout::DeviceKernels).then(|| {
+                let mut inverse = vec![-1i32; input_rows * volume];
+                for (o, row) in table.chunks_exact(volume.max(1)).enumerate() {
+                    for (k, &n) in row.iter().enumerate() {
+                        if n < input_rows as i64 {
+                            inverse[n as usize * volume + k] = o as i32;
+                        }
+                    }
+                }
+                let n = inverse.len();
+                Box::new(Tensor::from_data(TensorData::new(inverse, [n]), device))
+            });
             let n = table.len();
             RuleGather::KernelMap {
                 table: Box::new(Tensor::from_data(TensorData::new(table, [n]), device)),
+                inverse,
             }
         }
     }
@@ -522,7 +563,7 @@ mod tests {
 
     fn kernel_map(book: &Rulebook) -> Vec<i64> {
         match &book.gather {
-            RuleGather::KernelMap { table } => rows(table),
+            RuleGather::KernelMap { table, .. } => rows(table),
             RuleGather::PerOffset { .. } => panic!("a kernel-map rulebook"),
         }
     }

@@ -1,0 +1,45 @@
+//! What every CubeCL kernel of the project shares (cargo features `wgpu` and `cuda`): which
+//! runtime a device is, and the launch shape of one thread per unit of work.
+
+use burn::prelude::*;
+use cubecl::prelude::{CubeCount, CubeDim};
+
+/// The CubeCL runtime `device` runs on (wgpu, CUDA, …), or `None` for another backend (the
+/// CPU's flex), where no CubeCL kernel applies.
+pub fn cube_runtime(device: &Device) -> Option<cubecl::RuntimeId> {
+    match device.clone().without_autodiff().as_dispatch() {
+        burn::backend::DispatchDevice::Cube(cube) => Some(cube.runtime()),
+        #[allow(unreachable_patterns)]
+        _ => None,
+    }
+}
+
+/// A one-dimensional launch over `units` threads.
+pub fn launch_shape(client: &cubecl::client::Client, units: usize) -> (CubeCount, CubeDim) {
+    let dim = CubeDim::new(client, units);
+    (
+        cubecl::calculate_cube_count_elemwise(client, units, dim),
+        dim,
+    )
+}
+
+/// burn's wgpu device, or `None` (with a line saying what was not checked) where no adapter
+/// runs a kernel: for tests of GPU code on the CPU, where Mesa's lavapipe (Debian's
+/// `mesa-vulkan-drivers`) is enough.
+#[cfg(feature = "wgpu")]
+pub fn working_wgpu_device(unchecked: &str) -> Option<Device> {
+    let device = Device::wgpu(burn::tensor::DeviceKind::DefaultDevice);
+    let probe = device.clone();
+    let sum = std::panic::catch_unwind(move || {
+        Tensor::<1>::from_floats([1.0, 2.0], &probe)
+            .sum()
+            .into_scalar::<f32>()
+    });
+    match sum {
+        Ok(3.0) => Some(device),
+        _ => {
+            eprintln!("skipped: no wgpu adapter ran a kernel; {unchecked} was not checked");
+            None
+        }
+    }
+}

@@ -1,0 +1,539 @@
+//! The kernel-map sparse convolution as CubeCL kernels with their own backward pass, for
+//! burn's GPU backends (cargo features `wgpu` and `cuda`; [`super::rulebook::RuleLayout::DeviceKernels`]).
+//!
+//! Why: from burn's operations a kernel-map layer appends a zero row to its input, gathers
+//! [output rows, volume · C_in] (every absent neighbour's zeros included: a submanifold layer
+//! over LiDAR voxels fills about a third of its 27 offsets), multiplies, and in the backward
+//! pass scatters the gathered gradient back with atomic additions (whose order, and so whose
+//! rounding, changes from run to run). Here three kernels read the features where they lie:
+//!
+//! - forward: one thread an output value, `y[o, c] = Σ_k Σ_i x[table[o, k], i] · W[k, i, c]`
+//!   over the offsets whose neighbour is present;
+//! - input gradient: one thread an input value, `dx[n, i] = Σ_k Σ_c dy[inverse[n, k], c] ·
+//!   W[k, i, c]`, through the inverse map (which output reads input n at offset k), so no
+//!   two threads write one value: no atomics;
+//! - weight gradient: one thread a weight and a block of output rows, `Σ_o x[table[o, k], i]
+//!   · dy[o, c]`, the blocks' partial sums then added by burn's `sum_dim`.
+//!
+//! Every sum runs in a fixed order, so a layer's outputs and gradients are the same bits in
+//! every run on one device. They are not the CPU's bits (another order of the same sums):
+//! tests on wgpu over lavapipe compare them with the flex path within rounding.
+//!
+//! Layout: every input is indexed by the strides it comes with (CUDA's allocator pads the
+//! rows of a 2-D tensor; wgpu packs them), and outputs are written to one-dimensional
+//! buffers, which no runtime pads, then relabelled. Storage-tiled inputs (a matrix product's
+//! output may be) are un-tiled first. The kernels are launched unchecked, as burn launches
+//! its own: every index is in bounds by construction (the `SAFETY` notes below).
+
+use crate::cube::launch_shape;
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::ops::{FloatTensorOps, IntTensorOps};
+use burn::backend::tensor::{FloatTensor, IntTensor};
+use burn::backend::{Autodiff, Backend, Dispatch, backend_extension};
+use burn::prelude::*;
+use burn::tensor::{DType, FloatDType, IntDType};
+use burn_cubecl::CubeBackend;
+use burn_cubecl::kernel::untile;
+use burn_cubecl::ops::numeric::empty_device_dtype;
+use burn_cubecl::tensor::CubeTensor;
+
+/// The convolution (see the module's documentation).
+#[backend_extension(Cube, Autodiff)]
+pub trait SparseConvKernelOps: Backend {
+    /// `features` [input rows, C_in] convolved with `weight` [volume, C_in, C_out] through
+    /// `table` [output rows · volume] (the input row output o reads at offset k, at
+    /// `o · volume + k`; any value outside `0..input rows` for none) → [output rows, C_out].
+    /// `inverse` [input rows · volume] holds the output row that reads input n at offset k
+    /// (−1 for none): the backward pass's map.
+    fn sparse_conv_kernel_map(
+        features: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        table: IntTensor<Self>,
+        inverse: IntTensor<Self>,
+    ) -> FloatTensor<Self>;
+}
+
+/// [`SparseConvKernelOps::sparse_conv_kernel_map`] on burn tensors of a CubeCL device.
+pub fn sparse_conv(
+    features: Tensor<2>,
+    weight: Tensor<3>,
+    table: &Tensor<1, Int>,
+    inverse: &Tensor<1, Int>,
+) -> Tensor<2> {
+    Tensor::from_dispatch(<Dispatch as SparseConvKernelOps>::sparse_conv_kernel_map(
+        features.into_dispatch(),
+        weight.into_dispatch(),
+        table.clone().into_dispatch(),
+        inverse.clone().into_dispatch(),
+    ))
+}
+
+/// The kernels, in CubeCL's language (its prelude names `Tensor` and friends apart from
+/// burn's).
+mod kernels {
+    use cubecl::prelude::*;
+
+    /// Whether `row` names one of `rows` rows (a kernel map's "none" is anything else).
+    #[cube]
+    fn present(row: i32, rows: u32) -> bool {
+        row >= 0 && row < i32::cast_from(rows)
+    }
+
+    /// One output value a thread: `out[o · C_out + c]`.
+    #[cube(launch_unchecked)]
+    pub fn forward(
+        x: &Tensor<f32>,
+        w: &Tensor<f32>,
+        table: &Tensor<i32>,
+        out: &mut Tensor<f32>,
+        input_rows: u32,
+        volume: u32,
+        c_in: u32,
+    ) {
+        let unit = ABSOLUTE_POS;
+        if unit >= out.shape(0) {
+            terminate!();
+        }
+        let c_out = w.shape(2);
+        let (o, c) = (unit / c_out, unit % c_out);
+        let mut sum = 0f32;
+        for k in 0..volume {
+            let n = table[(o * volume as usize + k as usize) * table.stride(0)];
+            if present(n, input_rows) {
+                let x_row = usize::cast_from(n) * x.stride(0);
+                let w_at = k as usize * w.stride(0) + c * w.stride(2);
+                for i in 0..c_in {
+                    sum += x[x_row + i as usize * x.stride(1)] * w[w_at + i as usize * w.stride(1)];
+                }
+            }
+        }
+        out[unit] = sum;
+    }
+
+    /// One input gradient value a thread: `dx[n · C_in + i]`.
+    #[cube(launch_unchecked)]
+    pub fn input_gradient(
+        dy: &Tensor<f32>,
+        w: &Tensor<f32>,
+        inverse: &Tensor<i32>,
+        dx: &mut Tensor<f32>,
+        output_rows: u32,
+        volume: u32,
+        c_out: u32,
+    ) {
+        let unit = ABSOLUTE_POS;
+        if unit >= dx.shape(0) {
+            terminate!();
+        }
+        let c_in = w.shape(1);
+        let (n, i) = (unit / c_in, unit % c_in);
+        let mut sum = 0f32;
+        for k in 0..volume {
+            let o = inverse[(n * volume as usize + k as usize) * inverse.stride(0)];
+            if present(o, output_rows) {
+                let dy_row = usize::cast_from(o) * dy.stride(0);
+                let w_at = k as usize * w.stride(0) + i * w.stride(1);
+                for c in 0..c_out {
+                    sum +=
+                        dy[dy_row + c as usize * dy.stride(1)] * w[w_at + c as usize * w.stride(2)];
+                }
+            }
+        }
+        dx[unit] = sum;
+    }
+
+    /// One weight and one block of output rows a thread: `partial[b · weights + (k · C_in
+    /// + i) · C_out + c]`, the block's share of that weight's gradient.
+    #[cube(launch_unchecked)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn weight_gradient(
+        x: &Tensor<f32>,
+        dy: &Tensor<f32>,
+        table: &Tensor<i32>,
+        partial: &mut Tensor<f32>,
+        input_rows: u32,
+        output_rows: u32,
+        volume: u32,
+        c_in: u32,
+        c_out: u32,
+        block_rows: u32,
+    ) {
+        let unit = ABSOLUTE_POS;
+        if unit >= partial.shape(0) {
+            terminate!();
+        }
+        let weights = volume as usize * c_in as usize * c_out as usize;
+        let (block, weight) = (unit / weights, unit % weights);
+        let (k, rest) = (
+            weight / (c_in as usize * c_out as usize),
+            weight % (c_in as usize * c_out as usize),
+        );
+        let (i, c) = (rest / c_out as usize, rest % c_out as usize);
+        let first = block * block_rows as usize;
+        let mut end = first + block_rows as usize;
+        if end > output_rows as usize {
+            end = output_rows as usize;
+        }
+        let mut sum = 0f32;
+        for o in first..end {
+            let n = table[(o * volume as usize + k) * table.stride(0)];
+            if present(n, input_rows) {
+                sum += x[usize::cast_from(n) * x.stride(0) + i * x.stride(1)]
+                    * dy[o * dy.stride(0) + c * dy.stride(1)];
+            }
+        }
+        partial[unit] = sum;
+    }
+}
+
+/// Threads the weight gradient aims for: blocks of output rows are sized so that a layer's
+/// weights times its blocks come to about this many (enough to fill a GPU; the partial
+/// sums stay a few megabytes).
+const WEIGHT_GRADIENT_THREADS: usize = 1 << 20;
+
+/// Inputs as the kernels read them: f32 / i32, rows (not storage tiles).
+fn float_rows(t: CubeTensor) -> CubeTensor {
+    untile(CubeBackend::float_cast(t, FloatDType::F32))
+}
+
+fn int_rows(t: CubeTensor) -> CubeTensor {
+    CubeBackend::int_cast(t, IntDType::I32)
+}
+
+fn dims<const D: usize>(t: &CubeTensor) -> [usize; D] {
+    let shape = t.meta.shape();
+    assert_eq!(shape.num_dims(), D, "a {D}-dimensional tensor");
+    std::array::from_fn(|d| shape[d])
+}
+
+/// A one-dimensional f32 buffer of `len` values on `like`'s device.
+fn buffer(like: &CubeTensor, len: usize) -> CubeTensor {
+    empty_device_dtype(
+        like.client.clone(),
+        like.device.clone(),
+        [len].into(),
+        DType::F32,
+    )
+}
+
+fn forward(features: CubeTensor, weight: CubeTensor, table: CubeTensor) -> CubeTensor {
+    let [input_rows, c_in] = dims(&features);
+    let [volume, w_in, c_out] = dims(&weight);
+    assert_eq!(c_in, w_in, "features of the weight's input width");
+    let [entries] = dims(&table);
+    assert_eq!(entries % volume.max(1), 0, "a table of whole output rows");
+    let output_rows = entries / volume.max(1);
+    let out = buffer(&features, output_rows * c_out);
+    let units = output_rows * c_out;
+    if units > 0 {
+        let client = features.client.clone();
+        let (count, dim) = launch_shape(&client, units);
+        // SAFETY: threads past the last output value return first; output o's table entries
+        // are o · volume + k < entries; a table value is used only within 0..input_rows, the
+        // features' rows; k < volume, i < C_in and c < C_out index the weight within its
+        // shape.
+        unsafe {
+            kernels::forward::launch_unchecked(
+                &client,
+                count,
+                dim,
+                features.into_tensor_arg(),
+                weight.into_tensor_arg(),
+                table.into_tensor_arg(),
+                out.clone().into_tensor_arg(),
+                input_rows as u32,
+                volume as u32,
+                c_in as u32,
+            );
+        }
+    }
+    CubeBackend::float_reshape(out, [output_rows, c_out].into())
+}
+
+/// (input gradient, weight gradient), each where asked for.
+fn backward(
+    [features, weight, table, inverse]: [CubeTensor; 4],
+    grad: CubeTensor,
+    [want_x, want_w]: [bool; 2],
+) -> (Option<CubeTensor>, Option<CubeTensor>) {
+    let [input_rows, c_in] = dims(&features);
+    let [volume, _, c_out] = dims(&weight);
+    let [output_rows, _] = dims(&grad);
+    let client = features.client.clone();
+    let dx = want_x.then(|| {
+        let dx = buffer(&features, input_rows * c_in);
+        let units = input_rows * c_in;
+        if units > 0 {
+            let (count, dim) = launch_shape(&client, units);
+            // SAFETY: threads past the last input value return first; input n's inverse
+            // entries are n · volume + k < input_rows · volume; an inverse value is used only
+            // within 0..output_rows, the gradient's rows; k, i, c index the weight within its
+            // shape.
+            unsafe {
+                kernels::input_gradient::launch_unchecked(
+                    &client,
+                    count,
+                    dim,
+                    grad.clone().into_tensor_arg(),
+                    weight.clone().into_tensor_arg(),
+                    inverse.into_tensor_arg(),
+                    dx.clone().into_tensor_arg(),
+                    output_rows as u32,
+                    volume as u32,
+                    c_out as u32,
+                );
+            }
+        }
+        CubeBackend::float_reshape(dx, [input_rows, c_in].into())
+    });
+    let dw = want_w.then(|| {
+        let weights = volume * c_in * c_out;
+        let blocks = (WEIGHT_GRADIENT_THREADS / weights.max(1)).clamp(1, output_rows.max(1));
+        let block_rows = output_rows.div_ceil(blocks).max(1);
+        let blocks = output_rows.div_ceil(block_rows).max(1);
+        let partial = buffer(&features, blocks * weights);
+        if weights > 0 {
+            let (count, dim) = launch_shape(&client, blocks * weights);
+            // SAFETY: threads past the last partial sum return first; a block's rows are
+            // clipped to output_rows, whose table entries o · volume + k lie within the
+            // table; a table value is used only within 0..input_rows, the features' rows;
+            // i < C_in and c < C_out index the features and the gradient within their shapes.
+            unsafe {
+                kernels::weight_gradient::launch_unchecked(
+                    &client,
+                    count,
+                    dim,
+                    features.into_tensor_arg(),
+                    grad.into_tensor_arg(),
+                    table.into_tensor_arg(),
+                    partial.clone().into_tensor_arg(),
+                    input_rows as u32,
+                    output_rows as u32,
+                    volume as u32,
+                    c_in as u32,
+                    c_out as u32,
+                    block_rows as u32,
+                );
+            }
+        }
+        let partial = CubeBackend::float_reshape(partial, [blocks, weights].into());
+        let summed = CubeBackend::float_sum_dim(partial, 0);
+        CubeBackend::float_reshape(summed, [volume, c_in, c_out].into())
+    });
+    (dx, dw)
+}
+
+impl SparseConvKernelOps for CubeBackend {
+    fn sparse_conv_kernel_map(
+        features: CubeTensor,
+        weight: CubeTensor,
+        table: CubeTensor,
+        _inverse: CubeTensor,
+    ) -> CubeTensor {
+        forward(float_rows(features), float_rows(weight), int_rows(table))
+    }
+}
+
+/// The backward step of [`SparseConvKernelOps::sparse_conv_kernel_map`].
+#[derive(Debug)]
+struct SparseConvKernelBackward;
+
+impl Backward<CubeBackend, 2> for SparseConvKernelBackward {
+    /// The features, the weight, the table and its inverse (as the kernels read them).
+    type State = [CubeTensor; 4];
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let grad = float_rows(grads.consume::<CubeBackend>(&ops.node));
+        let [node_x, node_w] = ops.parents;
+        let want = [node_x.is_some(), node_w.is_some()];
+        let (dx, dw) = backward(ops.state, grad, want);
+        for (node, g) in [(node_x, dx), (node_w, dw)] {
+            if let (Some(node), Some(g)) = (node, g) {
+                grads.register::<CubeBackend>(node.id, g);
+            }
+        }
+    }
+}
+
+impl<C: CheckpointStrategy> SparseConvKernelOps for Autodiff<CubeBackend, C> {
+    fn sparse_conv_kernel_map(
+        features: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        table: IntTensor<Self>,
+        inverse: IntTensor<Self>,
+    ) -> FloatTensor<Self> {
+        let (features, a) = features.into_parts();
+        let (weight, b) = weight.into_parts();
+        let (features, weight) = (float_rows(features), float_rows(weight));
+        let table = int_rows(table);
+        let out = forward(features.clone(), weight.clone(), table.clone());
+        match SparseConvKernelBackward
+            .prepare::<C>([a, b])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                prep.finish([features, weight, table, int_rows(inverse)], out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        }
+    }
+}
+
+#[cfg(all(test, feature = "wgpu"))]
+mod tests {
+    use super::super::conv::SparseConv3d;
+    use super::super::rulebook::{ConvGeometry, RuleGather, RuleLayout, Rulebook};
+    use super::super::sites::SparseSites;
+    use super::super::test_data::{sites, values};
+    use crate::cube::working_wgpu_device;
+    use burn::prelude::*;
+    use std::sync::Arc;
+
+    fn flat<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.try_into_vec_as::<f32>().unwrap()
+    }
+
+    fn close(a: &[f32], b: &[f32], what: &str) {
+        assert_eq!(a.len(), b.len(), "{what}");
+        let scale = b.iter().fold(1f32, |m, v| m.max(v.abs()));
+        for (i, (x, y)) in a.iter().zip(b).enumerate() {
+            assert!((x - y).abs() <= 1e-5 * scale, "{what}[{i}]: {x} vs {y}");
+        }
+    }
+
+    /// One layer's (output, input gradient, weight gradient) on `device` in `layout`;
+    /// `transposed` hands the kernels the features as a transposed view (strides [1, rows]),
+    /// as padded or permuted tensors arrive.
+    fn run(
+        conv: &SparseConv3d,
+        sites: &Arc<SparseSites>,
+        layout: RuleLayout,
+        device: &Device,
+        transposed: bool,
+    ) -> [Vec<f32>; 3] {
+        let conv = conv.clone().fork(device);
+        let [c_in, c_out] = conv.channels();
+        let book = if conv.submanifold {
+            Rulebook::submanifold_in(sites, conv.geometry.kernel, layout, device)
+        } else {
+            Rulebook::strided_in(sites, conv.geometry, layout, device)
+        };
+        if layout == RuleLayout::DeviceKernels {
+            assert!(
+                matches!(
+                    &book.gather,
+                    RuleGather::KernelMap {
+                        inverse: Some(_),
+                        ..
+                    }
+                ),
+                "the kernels' layout on a CubeCL device"
+            );
+        }
+        let rows = sites.len();
+        let data = values(rows * c_in, 1);
+        let x = if transposed {
+            let by_channel: Vec<f32> = (0..c_in * rows)
+                .map(|j| data[(j % rows) * c_in + j / rows])
+                .collect();
+            Tensor::<2>::from_data(TensorData::new(by_channel, [c_in, rows]), device).transpose()
+        } else {
+            Tensor::<2>::from_data(TensorData::new(data, [rows, c_in]), device)
+        }
+        .require_grad();
+        let upstream = Tensor::<2>::from_data(
+            TensorData::new(
+                values(book.output_rows() * c_out, 3),
+                [book.output_rows(), c_out],
+            ),
+            device,
+        );
+        let out = conv.forward(x.clone(), &book);
+        let grads = (out.clone() * upstream).sum().backward();
+        [
+            flat(out),
+            flat(x.grad(&grads).unwrap()),
+            flat(conv.weight.grad(&grads).unwrap()),
+        ]
+    }
+
+    /// The kernels against the flex CPU path (per offset, the order every pinned result was
+    /// made with): outputs and both gradients within rounding, for submanifold and strided
+    /// layers, narrow and wide channels, sites so sparse most offsets are empty; the same bits
+    /// when the features arrive as a transposed view, and in a second run.
+    #[test]
+    fn device_kernels_match_the_cpu() {
+        let Some(gpu) = working_wgpu_device("the sparse convolution's kernels") else {
+            return;
+        };
+        let gpu = gpu.autodiff();
+        let cpu = Device::flex().autodiff();
+        let cases = [
+            ([6, 7, 8], 60, ConvGeometry::same([3; 3]), true, [3, 5]),
+            (
+                [6, 7, 8],
+                60,
+                ConvGeometry::strided([3; 3], [2; 3], [1; 3]),
+                false,
+                [4, 6],
+            ),
+            ([30, 30, 30], 40, ConvGeometry::same([3; 3]), true, [2, 3]),
+            (
+                [10, 14, 14],
+                400,
+                ConvGeometry::strided([3; 3], [2; 3], [1; 3]),
+                false,
+                [16, 32],
+            ),
+            (
+                [9, 10, 11],
+                300,
+                ConvGeometry::strided([3, 1, 1], [2, 1, 1], [0; 3]),
+                false,
+                [8, 8],
+            ),
+            ([8, 8, 8], 150, ConvGeometry::same([3; 3]), true, [16, 16]),
+        ];
+        for (case, (shape, count, geometry, submanifold, channels)) in cases.into_iter().enumerate()
+        {
+            let sites = sites(shape, count, case as u64 + 1);
+            let conv = if submanifold {
+                SparseConv3d::submanifold(channels, geometry.kernel, &cpu)
+            } else {
+                SparseConv3d::regular(channels, geometry, &cpu)
+            };
+            let want = run(&conv, &sites, RuleLayout::PerOffset, &cpu, false);
+            let got = run(&conv, &sites, RuleLayout::DeviceKernels, &gpu, false);
+            for (what, (got, want)) in ["output", "input gradient", "weight gradient"]
+                .iter()
+                .zip(got.iter().zip(&want))
+            {
+                close(got, want, &format!("case {case}: {what}"));
+            }
+            let transposed = run(&conv, &sites, RuleLayout::DeviceKernels, &gpu, true);
+            assert_eq!(
+                transposed, got,
+                "case {case}: a transposed view of the features"
+            );
+            let again = run(&conv, &sites, RuleLayout::DeviceKernels, &gpu, false);
+            assert_eq!(again, got, "case {case}: a second run");
+        }
+    }
+
+    /// A layer over no sites gives an empty output on the kernels' path too.
+    #[test]
+    fn empty_sites() {
+        let Some(gpu) = working_wgpu_device("the sparse convolution's kernels") else {
+            return;
+        };
+        let empty = Arc::new(SparseSites::new(Vec::new(), [4, 4, 4], 1).unwrap());
+        let conv = SparseConv3d::submanifold([2, 3], [3; 3], &gpu);
+        let book = Rulebook::submanifold_in(&empty, [3; 3], RuleLayout::DeviceKernels, &gpu);
+        let out = conv.forward(Tensor::zeros([0, 2], &gpu), &book);
+        assert_eq!(out.dims(), [0, 3]);
+    }
+}
