@@ -38,7 +38,7 @@
 #                  box with the host query's on the same device, and a bench, beside the default
 #                  (default: voxel-rcnn-car dasanet-car; empty to skip)
 #   SPARSE_AB      models also run on the device with the sparse convolution's CubeCL kernels
-#                  (FUSIONDET_SPARSE_RULES=kernels; every GPU's default is the kernel map
+#                  (FUSIONDET_SPARSE_RULES=kernels; wgpu's default, CUDA's is the kernel map
 #                  from burn's operations): a `detect` compared box by box with
 #                  the CPU's, and a bench; the training configurations are also timed with
 #                  them (default: voxel-rcnn-car dasanet-car; empty to skip)
@@ -57,6 +57,11 @@
 #              device (and on the device with the sparse kernels, SPARSE_AB); and the loss of the first step on both (`first_step_loss`), which must
 #              agree within float tolerance: the same data, seed and initial weights (drawn on
 #              the CPU for every device), before any update.
+#   sparse     one submanifold layer of 20,000 sites on the device, in the layout the device
+#              takes (and with the kernels, SPARSE_AB): its output, input gradient and weight
+#              gradient against the CPU's, each relative to the CPU's largest value (printed
+#              by `bench`; about 1e-7 where it differentiates right; on lavapipe burn's kernel
+#              map gave an input gradient off by 1e0)
 #   product    the largest relative error of one 512×512 f32 matrix product on each device
 #              (printed by `bench`): about 1e-7 where products run in f32, about 1e-4 where
 #              tensor cores round their inputs to TF32.
@@ -238,6 +243,12 @@ for m in $models; do
     record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
         "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$kernels")"
     record "$(printf '%-16s stages on %s, ms a frame: %s' "$m" "$device" "$(stage_ms "$det/bench-dev.log")")"
+    if grep -q 'sparse convolution on this device' "$det/bench-dev.log"; then
+        record "$(printf '%-16s %s' "$m" "$(grep -o 'sparse convolution on this device.*' "$det/bench-dev.log" | head -1)")"
+    fi
+    if [ -s "$det/bench-dev-sparse.log" ] && grep -q 'sparse convolution on this device' "$det/bench-dev-sparse.log"; then
+        record "$(printf '%-16s %s' "$m" "$(grep -o 'sparse convolution on this device.*' "$det/bench-dev-sparse.log" | head -1)")"
+    fi
     if [ -z "${precision_recorded:-}" ]; then
         record "f32 matrix product, largest relative error: cpu $(product_error "$det/bench-cpu.log" || echo '?'), $device $(product_error "$det/bench-dev.log" || echo '?') (TF32 inputs: about 1e-4)"
         precision_recorded=1

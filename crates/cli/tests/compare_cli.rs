@@ -107,6 +107,15 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         ),
         "{out}"
     );
+    // The sparse gradient probe from the voxel model's bench: the CPU against itself.
+    assert!(
+        out.contains(
+            "voxel-rcnn-car   sparse convolution on this device (20000 sites, 16 → 16, layout \
+             per-offset): largest difference from the CPU's, relative to its largest value: \
+             output 0.0e0, input gradient 0.0e0, weight gradient 0.0e0"
+        ),
+        "{out}"
+    );
     // The three runs' first-step losses were read (an unread one would also compare as 0):
     // the CPU's, the device's (the CPU again), and the device's with the sparse kernels
     // (here the kernel map: the same sums in another order).

@@ -20,6 +20,7 @@ pub mod prefetch;
 pub mod result_dir;
 pub mod run_dir;
 pub mod schedule;
+pub mod sparse_gradient_probe;
 pub mod trainer;
 pub mod voxel_rcnn;
 

@@ -40,6 +40,30 @@ fn the_voxel_family_trains_to_the_same_first_losses_on_cuda_as_on_the_cpu() {
     training_parity(ComputeDevice::Cuda(0), "CUDA");
 }
 
+/// One backbone-sized sparse layer (20,000 sites) through the CubeCL kernels on wgpu
+/// (its default layout): the output and both gradients within 1e-5 of the CPU's, relative
+/// to their largest value. (burn's kernel map gave input gradients off by up to 1e0 here.)
+#[cfg(feature = "wgpu")]
+#[test]
+fn the_sparse_kernels_differentiate_a_backbone_sized_layer_as_the_cpu_does() {
+    use fusiondet_nn::sparse::RuleLayout;
+    use fusiondet_pipeline::sparse_gradient_probe::sparse_gradient_error;
+    let gpu = ComputeDevice::Wgpu;
+    if let Err(why) = gpu.check() {
+        eprintln!("skipped: {why}; the sparse kernels' gradients were not checked");
+        return;
+    }
+    let error = sparse_gradient_error(&gpu.device(), RuleLayout::DeviceKernels);
+    eprintln!("sparse kernels on wgpu against the CPU: {error:?}");
+    for (what, e) in [
+        ("output", error.output),
+        ("input gradient", error.input_gradient),
+        ("weight gradient", error.weight_gradient),
+    ] {
+        assert!(e < 1e-5, "{what}: {e}");
+    }
+}
+
 /// The first training step (`first_step_loss` of an epoch of two batches of 2 frames) of the
 /// tiny Voxel R-CNN and DASANet on the CPU and on `gpu` from the same seed: the same initial
 /// weights and data, so the loss — both stages, RoIs from the device's own proposals and RoI

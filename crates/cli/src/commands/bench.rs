@@ -60,5 +60,20 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
          terms' magnitude (unit roundoff: f32 6.0e-8, TF32 4.9e-4)",
         side = fusiondet_pipeline::matmul_precision::PROBE_SIDE
     );
+    if kind != fusiondet_models::DetectorKind::Frustum {
+        // Whether training on this device gets the sparse backbone's gradients right.
+        let (layout, error) =
+            fusiondet_pipeline::sparse_gradient_probe::in_the_devices_layout(&device.device());
+        outln!(
+            "  sparse convolution on this device ({sites} sites, 16 → 16, layout {}): largest \
+             difference from the CPU's, relative to its largest value: output {:.1e}, input \
+             gradient {:.1e}, weight gradient {:.1e}",
+            layout.name(),
+            error.output,
+            error.input_gradient,
+            error.weight_gradient,
+            sites = fusiondet_pipeline::sparse_gradient_probe::PROBE_SITES,
+        );
+    }
     Ok(())
 }

@@ -118,27 +118,30 @@ pub enum RuleLayout {
     /// offset), run by the CubeCL kernels of `device_kernels`: no gathered copy, no zeros
     /// multiplied, no atomic additions in the backward pass. Only on a CubeCL device of a
     /// build with the `wgpu` or `cuda` feature; elsewhere it is [`RuleLayout::KernelMap`].
-    /// No device's default yet (`FUSIONDET_SPARSE_RULES=kernels`).
+    /// wgpu's default ([`RuleLayout::for_device`]).
     DeviceKernels,
 }
 
 impl RuleLayout {
     /// Per offset on burn's flex CPU backend (where sums keep the order of every pinned CPU
-    /// result), the kernel map from burn's operations on every other backend (measured on an
-    /// H100 and an H200; the CubeCL kernels wait for a GPU run, and on wgpu over lavapipe
-    /// they take twice its time). `FUSIONDET_SPARSE_RULES=per-offset`, `kernel-map` or
-    /// `kernels` overrides this for the whole process, so that the layouts can be timed
-    /// side by side on one device.
+    /// result); the CubeCL kernels on wgpu, where the kernel map from burn's operations
+    /// differentiates wrongly at a backbone's size (on lavapipe: input gradients off by up to
+    /// their largest value over 20,000 sites; `pipeline::sparse_gradient_probe`); that kernel
+    /// map on every other backend (CUDA: measured fast on an H100 and an H200, its gradients
+    /// and the kernels' speed wait for a GPU run). `FUSIONDET_SPARSE_RULES=per-offset`,
+    /// `kernel-map` or `kernels` overrides this for the whole process, so that the layouts
+    /// can be timed side by side on one device.
     pub fn for_device(device: &Device) -> RuleLayout {
         static FORCED: OnceLock<Option<RuleLayout>> = OnceLock::new();
         let forced = FORCED.get_or_init(|| {
             let value = std::env::var("FUSIONDET_SPARSE_RULES").ok()?;
-            let layout = match value.as_str() {
-                "per-offset" => Some(RuleLayout::PerOffset),
-                "kernel-map" => Some(RuleLayout::KernelMap),
-                "kernels" => Some(RuleLayout::DeviceKernels),
-                _ => None,
-            };
+            let layout = [
+                RuleLayout::PerOffset,
+                RuleLayout::KernelMap,
+                RuleLayout::DeviceKernels,
+            ]
+            .into_iter()
+            .find(|layout| layout.name() == value);
             if layout.is_none() {
                 eprintln!(
                     "warning: FUSIONDET_SPARSE_RULES={value:?} is neither \"per-offset\", \
@@ -147,11 +150,28 @@ impl RuleLayout {
             }
             layout
         });
-        forced.unwrap_or(if device.clone().without_autodiff() == Device::flex() {
+        forced.unwrap_or_else(|| Self::default_for(device))
+    }
+
+    fn default_for(device: &Device) -> RuleLayout {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if crate::cube::cube_runtime(device) == Some(cubecl::RuntimeId::Wgpu) {
+            return RuleLayout::DeviceKernels;
+        }
+        if device.clone().without_autodiff() == Device::flex() {
             RuleLayout::PerOffset
         } else {
             RuleLayout::KernelMap
-        })
+        }
+    }
+
+    /// The layout's name, as `FUSIONDET_SPARSE_RULES` spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            RuleLayout::PerOffset => "per-offset",
+            RuleLayout::KernelMap => "kernel-map",
+            RuleLayout::DeviceKernels => "kernels",
+        }
     }
 
     /// What this layout is on `device`: [`RuleLayout::DeviceKernels`] only where the
