@@ -4,9 +4,9 @@
 //!
 //! Why: on wgpu over lavapipe (2026-11-29) the kernel map built from burn's operations gave
 //! the right outputs and weight gradients but input gradients wrong by up to their largest
-//! value over such a layer (burn's gather backward, a scatter with atomic additions, lost
-//! contributions), where layers of a few hundred sites agreed within 1e-7; training on it
-//! parted from the CPU after one step. A layer this size is what a voxel backbone runs, so
+//! value over such a layer (nine in ten of them off, the cause inside burn not found yet),
+//! where layers of a few hundred sites agreed within 1e-7; training on it parted from the CPU
+//! after one step. A layer this size is what a voxel backbone runs, so
 //! `bench` measures it on the device a model runs on, in the layout it runs, beside the
 //! matrix-product probe ([`crate::matmul_precision`]).
 

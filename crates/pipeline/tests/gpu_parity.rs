@@ -31,13 +31,13 @@ fn shipped_models_give_the_same_boxes_on_cuda_as_on_the_cpu() {
 #[cfg(feature = "wgpu")]
 #[test]
 fn the_voxel_family_trains_to_the_same_first_losses_on_wgpu_as_on_the_cpu() {
-    training_parity(ComputeDevice::Wgpu, "wgpu");
+    training_parity(ComputeDevice::Wgpu, "wgpu", true);
 }
 
 #[cfg(feature = "cuda")]
 #[test]
 fn the_voxel_family_trains_to_the_same_first_losses_on_cuda_as_on_the_cpu() {
-    training_parity(ComputeDevice::Cuda(0), "CUDA");
+    training_parity(ComputeDevice::Cuda(0), "CUDA", false);
 }
 
 /// One backbone-sized sparse layer (20,000 sites) through the CubeCL kernels on wgpu
@@ -67,11 +67,13 @@ fn the_sparse_kernels_differentiate_a_backbone_sized_layer_as_the_cpu_does() {
 /// The first training step (`first_step_loss` of an epoch of two batches of 2 frames) of the
 /// tiny Voxel R-CNN and DASANet on the CPU and on `gpu` from the same seed: the same initial
 /// weights and data, so the loss — both stages, RoIs from the device's own proposals and RoI
-/// grid query — agrees within 1e-4 (relative). Later steps are not compared: Adam's first
-/// updates move a weight by about the learning rate whatever its gradient's size, so a
-/// rounding difference in a near-zero gradient becomes a visible one (measured on lavapipe:
-/// the two-step means 0.6% apart).
-fn training_parity(gpu: ComputeDevice, name: &str) {
+/// grid query — agrees within 1e-4 (relative). With `both_steps`, the epoch's mean over its
+/// two steps too, within 1e-3: the second step runs on weights the first step's gradients
+/// moved, so wrong gradients part it (on lavapipe burn's kernel map, whose input gradients
+/// are wrong at this size, gave means 0.6% and 13% apart; the sparse kernels, wgpu's
+/// default, within 1e-4). Not asked of CUDA yet: its TF32 products may move Adam's first
+/// updates on near-zero gradients, which a GPU run has not measured.
+fn training_parity(gpu: ComputeDevice, name: &str, both_steps: bool) {
     if let Err(why) = gpu.check() {
         eprintln!("skipped: {why}; {name} training parity was not checked");
         return;
@@ -88,7 +90,8 @@ fn training_parity(gpu: ComputeDevice, name: &str) {
         config.train.batch_size = 2;
         config.train.max_frames = 4;
         config.voxel_rcnn.as_mut().unwrap().augment = fusiondet_voxel::AugmentConfig::none();
-        let loss = |device: ComputeDevice, label: &str| {
+        // (first-step loss, two-step mean) of a run.
+        let losses = |device: ComputeDevice, label: &str| {
             let run = dir.path().join(format!("{config_name}-{label}"));
             let mut options = TrainOptions::new(config.clone(), &data, &run);
             options.device = device;
@@ -96,14 +99,30 @@ fn training_parity(gpu: ComputeDevice, name: &str) {
             let metrics = std::fs::read_to_string(run.join("metrics.jsonl")).unwrap();
             let first: serde_json::Value =
                 serde_json::from_str(metrics.lines().next().unwrap()).unwrap();
-            first["first_step_loss"].as_f64().unwrap()
+            (
+                first["first_step_loss"].as_f64().unwrap(),
+                first["loss_total"].as_f64().unwrap(),
+            )
         };
-        let (cpu, on_gpu) = (loss(ComputeDevice::Cpu, "cpu"), loss(gpu, name));
-        eprintln!("{config_name}: first-step loss cpu {cpu}, {name} {on_gpu}");
-        assert!(
-            (cpu - on_gpu).abs() <= 1e-4 * cpu.abs().max(1.0),
-            "{config_name}: first-step loss cpu {cpu} vs {name} {on_gpu}"
+        let (cpu, on_gpu) = (losses(ComputeDevice::Cpu, "cpu"), losses(gpu, name));
+        eprintln!(
+            "{config_name}: first-step loss cpu {}, {name} {}; two-step mean cpu {}, {name} {}",
+            cpu.0, on_gpu.0, cpu.1, on_gpu.1
         );
+        assert!(
+            (cpu.0 - on_gpu.0).abs() <= 1e-4 * cpu.0.abs().max(1.0),
+            "{config_name}: first-step loss cpu {} vs {name} {}",
+            cpu.0,
+            on_gpu.0
+        );
+        if both_steps {
+            assert!(
+                (cpu.1 - on_gpu.1).abs() <= 1e-3 * cpu.1.abs().max(1.0),
+                "{config_name}: two-step mean cpu {} vs {name} {}",
+                cpu.1,
+                on_gpu.1
+            );
+        }
     }
 }
 

@@ -5,7 +5,9 @@
 //! [output rows, volume · C_in] (every absent neighbour's zeros included: a submanifold layer
 //! over LiDAR voxels fills about a third of its 27 offsets), multiplies, and in the backward
 //! pass scatters the gathered gradient back with atomic additions (whose order, and so whose
-//! rounding, changes from run to run). Here three kernels read the features where they lie:
+//! rounding, changes from run to run); on wgpu over lavapipe its input gradient came out
+//! wrong at a backbone's size (`pipeline::sparse_gradient_probe`). Here three kernels read
+//! the features where they lie:
 //!
 //! - forward: one thread an output value, `y[o, c] = Σ_k Σ_i x[table[o, k], i] · W[k, i, c]`
 //!   over the offsets whose neighbour is present;
