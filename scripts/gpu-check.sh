@@ -62,6 +62,8 @@
 #              gradient against the CPU's, each relative to the CPU's largest value (printed
 #              by `bench`; about 1e-7 where it differentiates right; on lavapipe burn's kernel
 #              map gave an input gradient off by 1e0)
+#   repeated   burn's select_assign with Add over rows repeated 27 times (a gather's backward,
+#              in every training graph) on the device against the CPU (printed by `bench`)
 #   product    the largest relative error of one 512×512 f32 matrix product on each device
 #              (printed by `bench`): about 1e-7 where products run in f32, about 1e-4 where
 #              tensor cores round their inputs to TF32.
@@ -251,6 +253,7 @@ for m in $models; do
     fi
     if [ -z "${precision_recorded:-}" ]; then
         record "f32 matrix product, largest relative error: cpu $(product_error "$det/bench-cpu.log" || echo '?'), $device $(product_error "$det/bench-dev.log" || echo '?') (TF32 inputs: about 1e-4)"
+        record "repeated-row additions (every gather's backward) on $device, largest relative difference from the cpu: $(grep -o 'repeated-row additions.*: [0-9.e+-]*$' "$det/bench-dev.log" | grep -o '[0-9.e+-]*$' || echo '?') (about 1e-7 where right; 1e0 on lavapipe)"
         precision_recorded=1
     fi
 done

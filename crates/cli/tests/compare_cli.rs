@@ -107,6 +107,11 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         ),
         "{out}"
     );
+    // The repeated-row probe from the first bench: the CPU against itself.
+    assert!(
+        out.contains("repeated-row additions (every gather's backward) on cpu, largest relative difference from the cpu: 0.0e0"),
+        "{out}"
+    );
     // The sparse gradient probe from the voxel model's bench: the CPU against itself.
     assert!(
         out.contains(

@@ -1,10 +1,12 @@
 //! Whether a device differentiates the sparse convolution as the CPU does: one fixed
 //! submanifold layer over 20,000 sites, its output and both gradients on the device against
-//! the CPU's per-offset path.
+//! the CPU's per-offset path; and whether it adds repeated rows right, which every gather's
+//! backward does.
 //!
 //! Why: on wgpu over lavapipe (2026-11-29) the kernel map built from burn's operations gave
 //! the right outputs and weight gradients but input gradients wrong by up to their largest
-//! value over such a layer (nine in ten of them off, the cause inside burn not found yet),
+//! value over such a layer (nine in ten of them off: burn's `select_assign` with `Add`
+//! over repeated rows, the gather's backward, collides),
 //! where layers of a few hundred sites agreed within 1e-7; training on it parted from the CPU
 //! after one step. A layer this size is what a voxel backbone runs, so
 //! `bench` measures it on the device a model runs on, in the layout it runs, beside the
@@ -126,6 +128,38 @@ fn run(sites: &Arc<SparseSites>, layout: RuleLayout, device: &Device) -> [Vec<f3
     ]
 }
 
+/// Rows the repeated-row probe adds into, and how many rows it adds into each.
+const TARGET_ROWS: usize = 20_001;
+const ADDS_PER_ROW: usize = 27;
+
+/// What the gather's backward does everywhere a network reads rows more than once (LFA's
+/// neighbours, CBAM's pairs, PointNet's scales, RoI pooling's slots, the kernel map): burn's
+/// `select_assign` with `Add`, here 540,027 rows of 16 values added into 20,001 rows, 27 into
+/// each, in a fixed scattered order. The largest difference from the CPU's sums relative to
+/// their largest value: about 1e-7 where additions into one row do not collide.
+pub fn repeated_row_addition_error(device: &Device) -> f64 {
+    let c = 16;
+    let n = TARGET_ROWS * ADDS_PER_ROW;
+    // A stride coprime to the row count visits every row ADDS_PER_ROW times, scattered.
+    let index: Vec<i64> = (0..n).map(|i| ((i * 7919) % TARGET_ROWS) as i64).collect();
+    let rows = probe_values(n * c, 4);
+    let sums = |device: &Device| {
+        let index = Tensor::<1, Int>::from_data(TensorData::new(index.clone(), [n]), device);
+        let rows = Tensor::<2>::from_data(TensorData::new(rows.clone(), [n, c]), device);
+        Tensor::<2>::zeros([TARGET_ROWS, c], device)
+            .select_assign(0, index, rows, burn::tensor::IndexingUpdateOp::Add)
+            .try_into_vec_as::<f32>()
+            .expect("f32 values")
+    };
+    let (cpu, on_device) = (sums(&Device::flex()), sums(device));
+    let scale = cpu.iter().fold(0f64, |m, v| m.max(v.abs() as f64));
+    let worst = on_device
+        .iter()
+        .zip(&cpu)
+        .fold(0f64, |m, (x, y)| m.max((x - y).abs() as f64));
+    if scale > 0.0 { worst / scale } else { worst }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -148,5 +182,11 @@ mod tests {
         ] {
             assert!(e < 1e-5, "{what}: {e}");
         }
+    }
+
+    /// On the CPU the repeated-row additions are the CPU's own: the same sums, bit for bit.
+    #[test]
+    fn the_cpu_adds_repeated_rows_as_itself() {
+        assert_eq!(repeated_row_addition_error(&Device::flex()), 0.0);
     }
 }

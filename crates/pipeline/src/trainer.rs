@@ -180,6 +180,17 @@ pub trait TrainingTask: Sync {
 /// epoch is committed removes the run directory it created, so that the corrected command
 /// can be run again as it was (a resumed run's directory is never removed).
 pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
+    #[cfg(feature = "wgpu")]
+    if options.device == crate::ComputeDevice::Wgpu {
+        // Measured on lavapipe (docs/gpus-and-clusters.md): burn's additions of repeated rows,
+        // the backward pass of every gather that reads a row more than once, collide there.
+        eprintln!(
+            "warning: on wgpu, gradients of gathers that read rows more than once (LFA's \
+             neighbours, CBAM's pairs, RoI pooling's slots) may be wrong: `fusiondet bench \
+             --device wgpu` prints how wrong (\"repeated-row additions\"); train on the CPU \
+             where results must hold"
+        );
+    }
     let creates_run = !options.resume && !options.run_dir.exists();
     let result = match options.config.kind() {
         DetectorKind::Frustum => crate::frustum::train(options),

@@ -60,6 +60,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
          terms' magnitude (unit roundoff: f32 6.0e-8, TF32 4.9e-4)",
         side = fusiondet_pipeline::matmul_precision::PROBE_SIDE
     );
+    // Whether gathers that read rows more than once get their gradients right here.
+    let error =
+        fusiondet_pipeline::sparse_gradient_probe::repeated_row_addition_error(&device.device());
+    outln!(
+        "  repeated-row additions on this device (a gather's backward: 540027 rows into 20001): \
+         largest difference from the CPU's, relative to its largest value: {error:.1e}"
+    );
     if kind != fusiondet_models::DetectorKind::Frustum {
         // Whether training on this device gets the sparse backbone's gradients right.
         let (layout, error) =
