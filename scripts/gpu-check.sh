@@ -245,12 +245,13 @@ for m in $models; do
     record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
         "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$kernels")"
     record "$(printf '%-16s stages on %s, ms a frame: %s' "$m" "$device" "$(stage_ms "$det/bench-dev.log")")"
-    if grep -q 'sparse convolution on this device' "$det/bench-dev.log"; then
-        record "$(printf '%-16s %s' "$m" "$(grep -o 'sparse convolution on this device.*' "$det/bench-dev.log" | head -1)")"
-    fi
-    if [ -s "$det/bench-dev-sparse.log" ] && grep -q 'sparse convolution on this device' "$det/bench-dev-sparse.log"; then
-        record "$(printf '%-16s %s' "$m" "$(grep -o 'sparse convolution on this device.*' "$det/bench-dev-sparse.log" | head -1)")"
-    fi
+    # The sparse gradient probe of each device bench (the default layout, and the kernels').
+    for log in "$det/bench-dev.log" "$det/bench-dev-sparse.log"; do
+        probe="$(grep -o 'sparse convolution on this device.*' "$log" 2>/dev/null | head -1 || true)"
+        if [ -n "$probe" ]; then
+            record "$(printf '%-16s %s' "$m" "$probe")"
+        fi
+    done
     if [ -z "${precision_recorded:-}" ]; then
         record "f32 matrix product, largest relative error: cpu $(product_error "$det/bench-cpu.log" || echo '?'), $device $(product_error "$det/bench-dev.log" || echo '?') (TF32 inputs: about 1e-4)"
         record "repeated-row additions (every gather's backward) on $device, largest relative difference from the cpu: $(grep -o 'repeated-row additions.*: [0-9.e+-]*$' "$det/bench-dev.log" | grep -o '[0-9.e+-]*$' || echo '?') (about 1e-7 where right; 1e0 on lavapipe)"

@@ -35,7 +35,13 @@ pub fn matmul_relative_error(device: &Device) -> f64 {
 /// Fixed entries in [-1, 1) from a multiplicative hash of (matrix, index): no generator, no
 /// seed, the same probe on every machine.
 fn probe_matrix(n: usize, which: u64) -> Vec<f32> {
-    (0..(n * n) as u64)
+    probe_values(n * n, which)
+}
+
+/// `count` fixed values in [-1, 1) from a multiplicative hash of (which, index); the
+/// probes' inputs ([`crate::sparse_gradient_probe`] too).
+pub(crate) fn probe_values(count: usize, which: u64) -> Vec<f32> {
+    (0..count as u64)
         .map(|i| {
             let h = (i ^ (which << 40)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
             // The top 24 bits as a fraction in [0, 1), exact in f32.

@@ -5,13 +5,13 @@
 //!
 //! Why: on wgpu over lavapipe (2026-11-29) the kernel map built from burn's operations gave
 //! the right outputs and weight gradients but input gradients wrong by up to their largest
-//! value over such a layer (nine in ten of them off: burn's `select_assign` with `Add`
-//! over repeated rows, the gather's backward, collides),
-//! where layers of a few hundred sites agreed within 1e-7; training on it parted from the CPU
-//! after one step. A layer this size is what a voxel backbone runs, so
-//! `bench` measures it on the device a model runs on, in the layout it runs, beside the
-//! matrix-product probe ([`crate::matmul_precision`]).
+//! value over such a layer (nine in ten of them off: burn's `select_assign` with `Add` over
+//! repeated rows, the gather's backward, collides), where layers of a few hundred sites
+//! agreed within 1e-7; training on it parted from the CPU after one step. A layer this size
+//! is what a voxel backbone runs, so `bench` measures it on the device a model runs on, in
+//! the layout it runs, beside the matrix-product probe ([`crate::matmul_precision`]).
 
+use crate::matmul_precision::probe_values;
 use burn::module::Param;
 use burn::prelude::*;
 use fusiondet_nn::sparse::{RuleLayout, Rulebook, SparseConv3d, SparseSites};
@@ -42,19 +42,22 @@ pub fn sparse_gradient_error(device: &Device, layout: RuleLayout) -> SparseGradi
     let sites = Arc::new(probe_sites());
     let cpu = run(&sites, RuleLayout::PerOffset, &Device::flex().autodiff());
     let on_device = run(&sites, layout, &device.clone().autodiff());
-    let error = |a: &[f32], b: &[f32]| {
-        let scale = b.iter().fold(0f64, |m, v| m.max(v.abs() as f64));
-        let worst = a
-            .iter()
-            .zip(b)
-            .fold(0f64, |m, (x, y)| m.max((x - y).abs() as f64));
-        if scale > 0.0 { worst / scale } else { worst }
-    };
     SparseGradientError {
-        output: error(&on_device[0], &cpu[0]),
-        input_gradient: error(&on_device[1], &cpu[1]),
-        weight_gradient: error(&on_device[2], &cpu[2]),
+        output: relative_difference(&on_device[0], &cpu[0]),
+        input_gradient: relative_difference(&on_device[1], &cpu[1]),
+        weight_gradient: relative_difference(&on_device[2], &cpu[2]),
     }
+}
+
+/// The largest |got − want| over the values, relative to the largest |want| (absolute where
+/// every wanted value is zero).
+fn relative_difference(got: &[f32], want: &[f32]) -> f64 {
+    let scale = want.iter().fold(0f64, |m, v| m.max(v.abs() as f64));
+    let worst = got
+        .iter()
+        .zip(want)
+        .fold(0f64, |m, (x, y)| m.max((x - y).abs() as f64));
+    if scale > 0.0 { worst / scale } else { worst }
 }
 
 /// Sites where a multiplicative hash of the linear index falls below the share that leaves
@@ -76,16 +79,6 @@ fn probe_sites() -> SparseSites {
         })
         .collect();
     SparseSites::new(coords, GRID, 1).expect("distinct sites inside the grid")
-}
-
-/// Fixed values in [−1, 1) from a multiplicative hash of (which, index).
-fn probe_values(n: usize, which: u64) -> Vec<f32> {
-    (0..n as u64)
-        .map(|i| {
-            let h = (i ^ (which << 40)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-            ((h >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-        })
-        .collect()
 }
 
 /// (output, input gradient, weight gradient) of the layer on `device` in `layout`.
@@ -114,18 +107,15 @@ fn run(sites: &Arc<SparseSites>, layout: RuleLayout, device: &Device) -> [Vec<f3
     );
     let out = conv.forward(x.clone(), &book);
     let grads = (out.clone() * upstream).sum().backward();
-    let values = |t: Tensor<2>| t.try_into_vec_as::<f32>().expect("f32 values");
-    let dw = conv
-        .weight
-        .grad(&grads)
-        .expect("the weight is tracked")
-        .try_into_vec_as::<f32>()
-        .expect("f32 values");
     [
         values(out),
         values(x.grad(&grads).expect("the features are tracked")),
-        dw,
+        values(conv.weight.grad(&grads).expect("the weight is tracked")),
     ]
+}
+
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.try_into_vec_as::<f32>().expect("f32 values")
 }
 
 /// Rows the repeated-row probe adds into, and how many rows it adds into each.
@@ -146,18 +136,14 @@ pub fn repeated_row_addition_error(device: &Device) -> f64 {
     let sums = |device: &Device| {
         let index = Tensor::<1, Int>::from_data(TensorData::new(index.clone(), [n]), device);
         let rows = Tensor::<2>::from_data(TensorData::new(rows.clone(), [n, c]), device);
-        Tensor::<2>::zeros([TARGET_ROWS, c], device)
-            .select_assign(0, index, rows, burn::tensor::IndexingUpdateOp::Add)
-            .try_into_vec_as::<f32>()
-            .expect("f32 values")
+        values(Tensor::<2>::zeros([TARGET_ROWS, c], device).select_assign(
+            0,
+            index,
+            rows,
+            burn::tensor::IndexingUpdateOp::Add,
+        ))
     };
-    let (cpu, on_device) = (sums(&Device::flex()), sums(device));
-    let scale = cpu.iter().fold(0f64, |m, v| m.max(v.abs() as f64));
-    let worst = on_device
-        .iter()
-        .zip(&cpu)
-        .fold(0f64, |m, (x, y)| m.max((x - y).abs() as f64));
-    if scale > 0.0 { worst / scale } else { worst }
+    relative_difference(&sums(device), &sums(&Device::flex()))
 }
 
 #[cfg(test)]
