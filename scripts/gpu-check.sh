@@ -259,7 +259,7 @@ for m in $models; do
     done
     if [ -z "${precision_recorded:-}" ]; then
         record "f32 matrix product, largest relative error: cpu $(product_error "$det/bench-cpu.log" || echo '?'), $device $(product_error "$det/bench-dev.log" || echo '?') (TF32 inputs: about 1e-4)"
-        record "repeated-row additions (every gather's backward) on $device, largest relative difference from the cpu: $(grep -o 'repeated-row additions.*: [0-9.e+-]*$' "$det/bench-dev.log" | grep -o '[0-9.e+-]*$' || echo '?') (about 1e-7 where right; 1e0 on lavapipe)"
+        record "repeated-row additions (every gather's backward) on $device, largest relative difference from the cpu: $(grep -o 'repeated-row additions.*: [0-9.e+-]*$' "$det/bench-dev.log" | grep -o '[0-9.e+-]*$' || echo '?') (about 1e-7 where right; 1e0 on lavapipe), $(grep -o 'into 20001, [0-9.]* ms' "$det/bench-dev.log" | grep -o '[0-9.]* ms' || echo '?') a run"
         precision_recorded=1
     fi
 done

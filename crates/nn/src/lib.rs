@@ -14,6 +14,9 @@ pub mod conv2d;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 pub mod cube;
 pub mod deconv;
+pub mod gather;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod gather_device;
 pub mod host_max;
 pub mod linear;
 pub mod matmul;

@@ -125,9 +125,20 @@ const ADDS_PER_ROW: usize = 27;
 /// What the gather's backward does everywhere a network reads rows more than once (LFA's
 /// neighbours, CBAM's pairs, PointNet's scales, RoI pooling's slots, the kernel map): burn's
 /// `select_assign` with `Add`, here 540,027 rows of 16 values added into 20,001 rows, 27 into
-/// each, in a fixed scattered order. The largest difference from the CPU's sums relative to
-/// their largest value: about 1e-7 where additions into one row do not collide.
-pub fn repeated_row_addition_error(device: &Device) -> f64 {
+/// each, in a fixed scattered order.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RepeatedRowAddition {
+    /// The largest difference from the CPU's sums relative to their largest value: about
+    /// 1e-7 where additions into one row do not collide.
+    pub error: f64,
+    /// Seconds of one such addition on the device, its upload and read-back included, after
+    /// a first run that compiled it: burn's GPU kernel gives each column one thread that walks
+    /// every added row, so this tells whether gathers' backward passes hold a training step.
+    pub seconds: f64,
+}
+
+/// The repeated-row probe on `device` against the CPU.
+pub fn repeated_row_addition(device: &Device) -> RepeatedRowAddition {
     let c = 16;
     let n = TARGET_ROWS * ADDS_PER_ROW;
     // A stride coprime to the row count visits every row ADDS_PER_ROW times, scattered.
@@ -143,7 +154,15 @@ pub fn repeated_row_addition_error(device: &Device) -> f64 {
             burn::tensor::IndexingUpdateOp::Add,
         ))
     };
-    relative_difference(&sums(device), &sums(&Device::flex()))
+    let want = sums(&Device::flex());
+    sums(device);
+    let started = std::time::Instant::now();
+    let got = sums(device);
+    let seconds = started.elapsed().as_secs_f64();
+    RepeatedRowAddition {
+        error: relative_difference(&got, &want),
+        seconds,
+    }
 }
 
 #[cfg(test)]
@@ -173,6 +192,6 @@ mod tests {
     /// On the CPU the repeated-row additions are the CPU's own: the same sums, bit for bit.
     #[test]
     fn the_cpu_adds_repeated_rows_as_itself() {
-        assert_eq!(repeated_row_addition_error(&Device::flex()), 0.0);
+        assert_eq!(repeated_row_addition(&Device::flex()).error, 0.0);
     }
 }

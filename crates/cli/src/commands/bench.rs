@@ -61,11 +61,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         side = fusiondet_pipeline::matmul_precision::PROBE_SIDE
     );
     // Whether gathers that read rows more than once get their gradients right here.
-    let error =
-        fusiondet_pipeline::sparse_gradient_probe::repeated_row_addition_error(&device.device());
+    let added = fusiondet_pipeline::sparse_gradient_probe::repeated_row_addition(&device.device());
     outln!(
-        "  repeated-row additions on this device (a gather's backward: 540027 rows into 20001): \
-         largest difference from the CPU's, relative to its largest value: {error:.1e}"
+        "  repeated-row additions on this device (a gather's backward: 540027 rows into 20001, \
+         {:.1} ms): largest difference from the CPU's, relative to its largest value: {:.1e}",
+        added.seconds * 1e3,
+        added.error
     );
     if kind != fusiondet_models::DetectorKind::Frustum {
         // Whether training on this device gets the sparse backbone's gradients right.

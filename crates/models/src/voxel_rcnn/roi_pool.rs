@@ -16,6 +16,7 @@ use super::config::{HEAD_NORM, PoolLevelConfig, RoiHeadConfig};
 use burn::nn::{BatchNorm, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+use fusiondet_nn::gather::RowGather;
 use fusiondet_nn::ragged::{self, Neighbours, Runs};
 use fusiondet_nn::sparse::SparseSites;
 use fusiondet_nn::{batch_norm, norm_rows, norm_rows_relu};
@@ -568,19 +569,23 @@ impl RoiGridPool {
                     )
                 }
                 _ => {
-                    let (rows, offsets) = match level {
-                        LevelIndex::Host(level) => (
-                            Tensor::<1, Int>::from_data(
-                                TensorData::new(level.rows.clone(), [points * s]),
-                                &device,
-                            ),
-                            level.offsets_tensor(&device),
-                        ),
+                    let (gathered, offsets) = match level {
+                        // On a GPU the gather's backward adds each voxel's readers in one
+                        // thread (`RowGather`), where burn's walks all rows per column.
+                        LevelIndex::Host(level) => {
+                            let rows: Vec<u32> = level.rows.iter().map(|&r| r as u32).collect();
+                            let gather =
+                                RowGather::new(&rows, level.sentinel as usize + 1, &device);
+                            (gather.gather(features), level.offsets_tensor(&device))
+                        }
                         // Made on the device without autodiff: a constant in the graph.
-                        LevelIndex::Device(level) => (level.rows.clone(), level.offsets.clone()),
+                        LevelIndex::Device(level) => (
+                            features.select(0, level.rows.clone()),
+                            level.offsets.clone(),
+                        ),
                     };
                     let positions = layer.positions.forward(offsets);
-                    relu(features.select(0, rows) + positions)
+                    relu(gathered + positions)
                         .reshape([points, s, mid])
                         .max_dim(1)
                         .reshape([points, mid])

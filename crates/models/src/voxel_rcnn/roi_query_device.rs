@@ -617,4 +617,72 @@ mod tests {
             .fold(0.0, f32::max);
         assert!(worst < 1e-4, "pooled features differ by {worst}");
     }
+    /// Through the host's index on a GPU the pooling's gather differentiates by each
+    /// voxel's readers (`fusiondet_nn::gather::RowGather`): the pooled features and the
+    /// features' gradient are the CPU's within rounding.
+    #[test]
+    fn pooling_gradients_through_the_host_index_match_the_cpu() {
+        let Some(device) = wgpu_device() else { return };
+        let (sites, rois, level, geometry) = scene();
+        let (grid, channels) = (2, 6);
+        let mut state = 7u64;
+        let feats: Vec<f32> = (0..sites.len() * channels)
+            .map(|_| unit(&mut state) as f32 - 0.5)
+            .collect();
+        let config = RoiHeadConfig {
+            grid_size: grid,
+            levels: vec![level.clone()],
+            ..RoiHeadConfig::default()
+        };
+        let cpu = Device::flex().autodiff();
+        let pool = RoiGridPool::new(&config, &[channels], &cpu);
+        let index = RoiGridIndex::new(
+            &rois,
+            &[&sites],
+            std::slice::from_ref(&level),
+            grid,
+            &geometry,
+        );
+        let read = |t: Tensor<2>| t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
+        let run = |device: &Device| {
+            let pool = pool.clone().fork(device);
+            let x = Tensor::<2>::from_data(
+                TensorData::new(feats.clone(), [sites.len(), channels]),
+                device,
+            )
+            .require_grad();
+            let map = SparseMap {
+                features: x.clone(),
+                sites: sites.clone(),
+            };
+            let y = pool.forward(&[&map], &index);
+            let [r, c] = y.dims();
+            let upstream: Vec<f32> = (0..r * c)
+                .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
+                .collect();
+            let grads = (y.clone() * Tensor::from_data(TensorData::new(upstream, [r, c]), device))
+                .sum()
+                .backward();
+            (read(y), read(x.grad(&grads).unwrap()))
+        };
+        let want = run(&cpu);
+        let got = run(&device.autodiff());
+        for (what, got, want) in [("pooled", &got.0, &want.0), ("gradient", &got.1, &want.1)] {
+            assert_eq!(got.len(), want.len(), "{what}");
+            let scale = want.iter().fold(1f32, |m, v| m.max(v.abs()));
+            let worst = got
+                .iter()
+                .zip(want)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max);
+            assert!(
+                worst <= 1e-4 * scale,
+                "{what} differs by {worst} (scale {scale})"
+            );
+        }
+        assert!(
+            want.1.iter().any(|&g| g != 0.0),
+            "a gradient reaches the features"
+        );
+    }
 }

@@ -1,0 +1,149 @@
+//! Rows gathered by an index made on the host, differentiated on GPUs by each source row's
+//! list of readers.
+//!
+//! Why: burn differentiates `select` through `select_assign` with `Add`, and its CubeCL
+//! kernel for that gives each column one thread that walks every gathered row in turn:
+//! gradients of [M, C] gathered rows go back with C threads of M serial steps each (a RoI
+//! grid pooling level of 128 RoIs · 216 grid points · 16 samples: 442,368 steps on each of
+//! 32 threads), and on wgpu over lavapipe its sums came out wrong at that size
+//! (`pipeline::sparse_gradient_probe`). With the index on the host its transpose is cheap to
+//! build there: for every source row, the gathered rows that read it, in ascending order.
+//! On a CubeCL device (`gather_device`, features `wgpu` / `cuda`) the backward pass is one
+//! thread a source value adding its readers' gradients in that order: every value written
+//! by one thread, no atomics, the same bits run after run. On the CPU (and any other
+//! backend) the gather stays burn's `select`, whose results every pinned file was made with.
+
+use burn::prelude::*;
+
+/// A gather's index on its device, and on CubeCL devices its readers, for the backward pass.
+#[derive(Debug, Clone)]
+pub struct RowGather {
+    /// [M] source rows, one a gathered row.
+    index: Tensor<1, Int>,
+    source_rows: usize,
+    /// On differentiating CubeCL devices: (starts [N + 1], readers [M]); source row n is
+    /// read by gathered rows `readers[starts[n]..starts[n + 1]]`, ascending.
+    #[cfg_attr(not(any(feature = "wgpu", feature = "cuda")), allow(dead_code))]
+    readers: Option<(Tensor<1, Int>, Tensor<1, Int>)>,
+}
+
+impl RowGather {
+    /// Gathered row m reads source row `index[m]` of `source_rows` (each below it; panics
+    /// otherwise: an index is built by the caller, never read from a user's file).
+    pub fn new(index: &[u32], source_rows: usize, device: &Device) -> Self {
+        for &n in index {
+            assert!((n as usize) < source_rows, "row {n} of {source_rows}");
+        }
+        let m = index.len();
+        let as_i64: Vec<i64> = index.iter().map(|&n| n as i64).collect();
+        let index_tensor = Tensor::<1, Int>::from_data(TensorData::new(as_i64, [m]), device);
+        // Only a differentiating device runs the backward pass that reads them.
+        let readers = (on_cube_device(device) && device.is_autodiff()).then(|| {
+            let (starts, readers) = readers_of(index, source_rows);
+            (
+                Tensor::<1, Int>::from_data(TensorData::new(starts, [source_rows + 1]), device),
+                Tensor::<1, Int>::from_data(TensorData::new(readers, [m]), device),
+            )
+        });
+        Self {
+            index: index_tensor,
+            source_rows,
+            readers,
+        }
+    }
+
+    /// The [M] index on its device.
+    pub fn index(&self) -> &Tensor<1, Int> {
+        &self.index
+    }
+
+    /// How many rows the gather reads from.
+    pub fn source_rows(&self) -> usize {
+        self.source_rows
+    }
+
+    /// `values` [N, C] → [M, C], row m being `values[index[m]]`.
+    pub fn gather(&self, values: Tensor<2>) -> Tensor<2> {
+        let [rows, _] = values.dims();
+        assert_eq!(rows, self.source_rows, "values of the gather's source rows");
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if let Some((starts, readers)) = &self.readers
+            && on_cube_device(&values.device())
+        {
+            return crate::gather_device::gather_rows(values, &self.index, starts, readers);
+        }
+        values.select(0, self.index.clone())
+    }
+}
+
+/// Whether `device` runs CubeCL kernels (only in a GPU build).
+fn on_cube_device(device: &Device) -> bool {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    {
+        crate::cube::cube_runtime(device).is_some()
+    }
+    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
+    {
+        let _ = device;
+        false
+    }
+}
+
+/// The index turned around: (starts [N + 1], readers [M]) with source row n read by
+/// gathered rows `readers[starts[n]..starts[n + 1]]`, in ascending order (a counting sort).
+fn readers_of(index: &[u32], source_rows: usize) -> (Vec<i64>, Vec<i64>) {
+    let mut starts = vec![0i64; source_rows + 1];
+    for &n in index {
+        starts[n as usize + 1] += 1;
+    }
+    for n in 0..source_rows {
+        starts[n + 1] += starts[n];
+    }
+    let mut next: Vec<i64> = starts[..source_rows].to_vec();
+    let mut readers = vec![0i64; index.len()];
+    for (m, &n) in index.iter().enumerate() {
+        let at = &mut next[n as usize];
+        readers[*at as usize] = m as i64;
+        *at += 1;
+    }
+    (starts, readers)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn readers_list_every_gathered_row_under_its_source_in_order() {
+        let (starts, readers) = readers_of(&[2, 0, 2, 3, 2], 5);
+        assert_eq!(starts, vec![0, 1, 1, 4, 5, 5]);
+        assert_eq!(readers, vec![1, 0, 2, 4, 3]);
+    }
+
+    /// On the CPU the gather is burn's `select`: the same values and gradients, to the bit.
+    #[test]
+    fn on_the_cpu_it_is_select() {
+        let device = Device::flex().autodiff();
+        let values: Vec<f32> = (0..12).map(|v| v as f32 * 0.37 - 1.0).collect();
+        let index = [2u32, 0, 2, 3, 2, 1];
+        let gather = RowGather::new(&index, 4, &device);
+        let run = |ours: bool| {
+            let x = Tensor::<2>::from_data(TensorData::new(values.clone(), [4, 3]), &device)
+                .require_grad();
+            let y = if ours {
+                gather.gather(x.clone())
+            } else {
+                x.clone().select(0, gather.index().clone())
+            };
+            let weights: Vec<f32> = (0..18).map(|v| v as f32 - 4.0).collect();
+            let loss =
+                (y.clone() * Tensor::from_data(TensorData::new(weights, [6, 3]), &device)).sum();
+            let grads = loss.backward();
+            (
+                y.try_into_vec_as::<f32>().unwrap(),
+                x.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap(),
+            )
+        };
+        assert_eq!(run(true), run(false));
+    }
+}

@@ -1,0 +1,230 @@
+//! [`crate::gather::RowGather`] on burn's GPU backends: burn's `select` forward, and a
+//! backward pass of one thread a source value, `dx[n, c] = Σ_j dy[readers[j], c]` over
+//! `starts[n] ≤ j < starts[n + 1]` in that order (see the `gather` module for why).
+//! Inputs are indexed by their strides and the gradient written one-dimensional, as the
+//! sparse convolution's kernels do (`sparse::device_kernels`: CUDA pads 2-D rows).
+
+use crate::cube::launch_shape;
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::ops::{FloatTensorOps, IntTensorOps};
+use burn::backend::tensor::{FloatTensor, IntTensor};
+use burn::backend::{Autodiff, Backend, Dispatch, backend_extension};
+use burn::prelude::*;
+use burn::tensor::{DType, FloatDType, IntDType};
+use burn_cubecl::CubeBackend;
+use burn_cubecl::kernel::untile;
+use burn_cubecl::ops::numeric::empty_device_dtype;
+use burn_cubecl::tensor::CubeTensor;
+
+/// The gather (see the module's documentation).
+#[backend_extension(Cube, Autodiff)]
+pub trait RowGatherOps: Backend {
+    /// `values` [N, C] at `index` [M] → [M, C]; `starts` [N + 1] and `readers` [M] list the
+    /// gathered rows that read each source row, ascending (the backward pass's order).
+    fn gather_rows(
+        values: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        starts: IntTensor<Self>,
+        readers: IntTensor<Self>,
+    ) -> FloatTensor<Self>;
+}
+
+/// [`RowGatherOps::gather_rows`] on burn tensors of a CubeCL device.
+pub fn gather_rows(
+    values: Tensor<2>,
+    index: &Tensor<1, Int>,
+    starts: &Tensor<1, Int>,
+    readers: &Tensor<1, Int>,
+) -> Tensor<2> {
+    Tensor::from_dispatch(<Dispatch as RowGatherOps>::gather_rows(
+        values.into_dispatch(),
+        index.clone().into_dispatch(),
+        starts.clone().into_dispatch(),
+        readers.clone().into_dispatch(),
+    ))
+}
+
+mod kernels {
+    use cubecl::prelude::*;
+
+    /// One source value a thread: `dx[n · C + c]`.
+    #[cube(launch_unchecked)]
+    pub fn readers_sum(
+        dy: &Tensor<f32>,
+        starts: &Tensor<i32>,
+        readers: &Tensor<i32>,
+        dx: &mut Tensor<f32>,
+        channels: u32,
+    ) {
+        let unit = ABSOLUTE_POS;
+        if unit >= dx.shape(0) {
+            terminate!();
+        }
+        let (n, c) = (unit / channels as usize, unit % channels as usize);
+        let first = usize::cast_from(starts[n * starts.stride(0)]);
+        let end = usize::cast_from(starts[(n + 1) * starts.stride(0)]);
+        let mut sum = 0f32;
+        for j in first..end {
+            let m = usize::cast_from(readers[j * readers.stride(0)]);
+            sum += dy[m * dy.stride(0) + c * dy.stride(1)];
+        }
+        dx[unit] = sum;
+    }
+}
+
+fn dims2(t: &CubeTensor) -> [usize; 2] {
+    let shape = t.meta.shape();
+    assert_eq!(shape.num_dims(), 2, "a matrix");
+    [shape[0], shape[1]]
+}
+
+/// The gradient of the source rows, [N, C], from the gathered rows' `grad` [M, C].
+fn backward(grad: CubeTensor, starts: CubeTensor, readers: CubeTensor) -> CubeTensor {
+    let grad = untile(CubeBackend::float_cast(grad, FloatDType::F32));
+    let [_, channels] = dims2(&grad);
+    let source_rows = starts.meta.shape()[0] - 1;
+    let units = source_rows * channels;
+    let dx = empty_device_dtype(
+        grad.client.clone(),
+        grad.device.clone(),
+        [units].into(),
+        DType::F32,
+    );
+    if units > 0 {
+        let client = grad.client.clone();
+        let (count, dim) = launch_shape(&client, units);
+        // SAFETY: threads past the last source value return first; n + 1 ≤ N indexes
+        // `starts` [N + 1]; starts are ascending from 0 to M, so j < M indexes `readers`;
+        // a reader is a gathered row below M, the gradient's rows; c < C its columns.
+        unsafe {
+            kernels::readers_sum::launch_unchecked(
+                &client,
+                count,
+                dim,
+                grad.into_tensor_arg(),
+                starts.into_tensor_arg(),
+                readers.into_tensor_arg(),
+                dx.clone().into_tensor_arg(),
+                channels as u32,
+            );
+        }
+    }
+    CubeBackend::float_reshape(dx, [source_rows, channels].into())
+}
+
+fn int_rows(t: CubeTensor) -> CubeTensor {
+    CubeBackend::int_cast(t, IntDType::I32)
+}
+
+impl RowGatherOps for CubeBackend {
+    fn gather_rows(
+        values: CubeTensor,
+        index: CubeTensor,
+        _starts: CubeTensor,
+        _readers: CubeTensor,
+    ) -> CubeTensor {
+        CubeBackend::float_select(values, 0, index)
+    }
+}
+
+/// The backward step of [`RowGatherOps::gather_rows`].
+#[derive(Debug)]
+struct RowGatherBackward;
+
+impl Backward<CubeBackend, 1> for RowGatherBackward {
+    /// The readers' starts and rows (i32).
+    type State = [CubeTensor; 2];
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let grad = grads.consume::<CubeBackend>(&ops.node);
+        let [starts, readers] = ops.state;
+        if let [Some(node)] = ops.parents {
+            grads.register::<CubeBackend>(node.id, backward(grad, starts, readers));
+        }
+    }
+}
+
+impl<C: CheckpointStrategy> RowGatherOps for Autodiff<CubeBackend, C> {
+    fn gather_rows(
+        values: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        starts: IntTensor<Self>,
+        readers: IntTensor<Self>,
+    ) -> FloatTensor<Self> {
+        let (values, parent) = values.into_parts();
+        let out = CubeBackend::float_select(values, 0, index);
+        match RowGatherBackward
+            .prepare::<C>([parent])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish([int_rows(starts), int_rows(readers)], out),
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        }
+    }
+}
+
+#[cfg(all(test, feature = "wgpu"))]
+mod tests {
+    use crate::cube::working_wgpu_device;
+    use crate::gather::RowGather;
+    use burn::prelude::*;
+
+    /// Values and gradients of a gather of `m` rows from `n` on `device`, through the
+    /// [`RowGather`] or burn's `select`.
+    fn run(n: usize, m: usize, c: usize, device: &Device, ours: bool) -> [Vec<f32>; 2] {
+        // A stride coprime to n reads every row about m / n times, scattered.
+        let index: Vec<u32> = (0..m).map(|i| ((i * 7919) % n) as u32).collect();
+        let values: Vec<f32> = (0..n * c)
+            .map(|v| ((v * 37) % 101) as f32 / 50.0 - 1.0)
+            .collect();
+        let upstream: Vec<f32> = (0..m * c)
+            .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
+            .collect();
+        let gather = RowGather::new(&index, n, device);
+        let x = Tensor::<2>::from_data(TensorData::new(values, [n, c]), device).require_grad();
+        let y = if ours {
+            gather.gather(x.clone())
+        } else {
+            x.clone().select(0, gather.index().clone())
+        };
+        let grads = (y.clone() * Tensor::from_data(TensorData::new(upstream, [m, c]), device))
+            .sum()
+            .backward();
+        [
+            y.try_into_vec_as::<f32>().unwrap(),
+            x.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap(),
+        ]
+    }
+
+    fn close(got: &[f32], want: &[f32], what: &str) {
+        assert_eq!(got.len(), want.len(), "{what}");
+        let scale = want.iter().fold(1f32, |m, v| m.max(v.abs()));
+        for (i, (x, y)) in got.iter().zip(want).enumerate() {
+            assert!((x - y).abs() <= 1e-5 * scale, "{what}[{i}]: {x} vs {y}");
+        }
+    }
+
+    /// The gather on wgpu against the CPU's `select`: the same rows, and gradients within
+    /// rounding at a RoI pooling level's size (27 readers a row), the same bits twice. (At
+    /// the largest size burn's own `select` on lavapipe gave a gradient off by 1.4 of its
+    /// largest value, 2026-11-29.)
+    #[test]
+    fn gather_rows_match_the_cpu() {
+        let Some(gpu) = working_wgpu_device("the row gather's kernels") else {
+            return;
+        };
+        let gpu = gpu.autodiff();
+        let cpu = Device::flex().autodiff();
+        for (n, m, c) in [(5, 12, 3), (300, 301, 8), (20_001, 540_027, 16)] {
+            let want = run(n, m, c, &cpu, false);
+            let got = run(n, m, c, &gpu, true);
+            assert_eq!(got[0], want[0], "{n} → {m}: gathered rows");
+            close(&got[1], &want[1], &format!("{n} → {m}: gradient"));
+            assert_eq!(run(n, m, c, &gpu, true), got, "{n} → {m}: a second run");
+        }
+    }
+}
