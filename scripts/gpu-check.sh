@@ -35,17 +35,17 @@
 #   FRAMES         simulated frames, half of them val (default: 48)
 #   REPEATS        bench repeats after the warm-up run (default: 3)
 #   STEPS_FRAMES   training frames per epoch for the step timing (default: 8)
-#   QUERY_AB       models also run on the device with the RoI grid query's kernels
-#                  (FUSIONDET_ROI_QUERY=device; CUDA's default is the host query, wgpu's the
-#                  kernels): a `detect` that compares the kernels' rows with the host query's
-#                  (FUSIONDET_ROI_QUERY=check), a `detect` with the kernels compared box by
-#                  box with the host query's on the same device, and a bench, beside the default
+#   QUERY_AB       models also run on the device with the RoI grid query on the host
+#                  (FUSIONDET_ROI_QUERY=host; a GPU's default in detection is its kernels):
+#                  a `detect` that compares the kernels' rows with the host query's
+#                  (FUSIONDET_ROI_QUERY=check), a `detect` with the host query compared box
+#                  by box with the kernels' on the same device, and a bench, beside the
+#                  default (default: voxel-rcnn-car dasanet-car; empty to skip)
+#   SPARSE_AB      models also run on the device with the sparse convolution as a kernel
+#                  map of burn's operations (FUSIONDET_SPARSE_RULES=kernel-map; a GPU's
+#                  default is the CubeCL kernels): a `detect` compared box by box with the
+#                  CPU's, and a bench; the training configurations are also timed with it
 #                  (default: voxel-rcnn-car dasanet-car; empty to skip)
-#   SPARSE_AB      models also run on the device with the sparse convolution's CubeCL kernels
-#                  (FUSIONDET_SPARSE_RULES=kernels; wgpu's default, CUDA's is the kernel map
-#                  from burn's operations): a `detect` compared box by box with
-#                  the CPU's, and a bench; the training configurations are also timed with
-#                  them (default: voxel-rcnn-car dasanet-car; empty to skip)
 #
 # What each figure is:
 #   parity     `fusiondet compare` of the CPU's and the device's result files of the val frames:
@@ -162,8 +162,11 @@ frames_per_second() { grep -o '[0-9.]* frames/s' "$1" | head -1 | cut -d' ' -f1;
 # A bench log → its f32 matrix product's largest relative error (matmul_precision.rs).
 product_error() { grep -o 'largest error [0-9.e+-]*' "$1" | head -1 | cut -d' ' -f3; }
 stage_ms() { # a bench log → its stages in ms a frame: "voxelize 3.1, 3D backbone (…) 83.5, …"
-    awk '/ ms +[0-9.]+%$/ { ms = $(NF - 2); $NF = ""; $(NF - 1) = ""; $(NF - 2) = "";
-        sub(/^ +/, ""); sub(/ +$/, ""); printf "%s%s %s", (n++ ? ", " : ""), $0, ms }' "$1"
+    # `bench` lists each stage's time over one run of all its frames (its first line: "N frames").
+    local frames
+    frames="$(grep -o '[0-9]* frames,' "$1" | head -1 | grep -o '[0-9]*' || true)"
+    awk -v n="${frames:-1}" '/ ms +[0-9.]+%$/ { ms = $(NF - 2); $NF = ""; $(NF - 1) = ""; $(NF - 2) = "";
+        sub(/^ +/, ""); sub(/ +$/, ""); printf "%s%s %.1f", (k++ ? ", " : ""), $0, ms / (n > 0 ? n : 1) }' "$1"
 }
 
 # 2. Per shipped model: detect on both devices, compare, bench on both.
@@ -205,7 +208,7 @@ for m in $models; do
     fps_cpu=$(frames_per_second "$det/bench-cpu.log" || true)
     fps_dev=$(frames_per_second "$det/bench-dev.log" || true)
     [ -n "$fps_dev" ] || { echo "  $device bench failed:"; tail -5 "$det/bench-dev.log"; failures=$((failures + 1)); }
-    kernels=""
+    host_query=""
     if [[ " $query_ab " == *" $m "* ]]; then
         # The kernels' rows against the host query's, level by level (roi_pool.rs, QueryPlace).
         FUSIONDET_ROI_QUERY=check "$bin" detect --checkpoint "$ckpt" --data "$data" --split val \
@@ -215,42 +218,42 @@ for m in $models; do
         record "$(printf '%-16s RoI query kernels on %s: %s of %s levels checked differ from the host query' \
             "$m" "$device" "$differing" "$checked")"
         grep '^RoI query check' "$det/dev-check.log" | grep -v ': 0 of ' | head -3 | sed 's/^/  /' || true
-        # The boxes the kernels give against the host query's on the same device (the same
-        # TF32 products, so only the query differs): whether CUDA can take the kernels.
-        if FUSIONDET_ROI_QUERY=device "$bin" detect --checkpoint "$ckpt" --data "$data" --split val \
-            --out "$det/dev-kernels" --device "$device" >"$det/dev-kernels.log" 2>&1; then
-            "$bin" compare "$det/dev" "$det/dev-kernels" >"$det/compare-kernels.log" 2>&1 &&
+        # The boxes of the host query against the kernels' (the default) on the same device
+        # (the same products, so only the query differs).
+        if FUSIONDET_ROI_QUERY=host "$bin" detect --checkpoint "$ckpt" --data "$data" --split val \
+            --out "$det/dev-host-query" --device "$device" >"$det/dev-host-query.log" 2>&1; then
+            "$bin" compare "$det/dev-host-query" "$det/dev" >"$det/compare-host-query.log" 2>&1 &&
                 kparity="same" || kparity="DIFFERENT"
             record "$(printf '%-16s boxes with the RoI query kernels against the host query on %s: %s (%s)' \
-                "$m" "$device" "$kparity" "$(grep -o 'boxes [0-9]* / [0-9]*, paired [0-9]*' "$det/compare-kernels.log" | head -1), largest centre offset $(largest "$det/compare-kernels.log" 'centre offset') m")"
+                "$m" "$device" "$kparity" "$(grep -o 'boxes [0-9]* / [0-9]*, paired [0-9]*' "$det/compare-host-query.log" | head -1), largest centre offset $(largest "$det/compare-host-query.log" 'centre offset') m")"
         else
-            record "$m: detect with the RoI query kernels failed: $(tail -1 "$det/dev-kernels.log")"
+            record "$m: detect with the host RoI query failed: $(tail -1 "$det/dev-host-query.log")"
             failures=$((failures + 1))
         fi
-        bench_into "$det/bench-dev-kernels.log" "$ckpt" "$device" device
-        kernels=" (RoI query kernels $(frames_per_second "$det/bench-dev-kernels.log" || echo '?'))"
+        bench_into "$det/bench-dev-host-query.log" "$ckpt" "$device" host
+        host_query=" (host RoI query $(frames_per_second "$det/bench-dev-host-query.log" || echo '?'))"
     fi
     if [[ " $sparse_ab " == *" $m "* ]]; then
-        # The sparse convolution's CubeCL kernels (sparse/device_kernels.rs in the nn crate):
-        # their boxes against the CPU's, and their speed, beside the device's default layout.
-        if FUSIONDET_SPARSE_RULES=kernels "$bin" detect --checkpoint "$ckpt" --data "$data" \
+        # The sparse convolution as a kernel map of burn's operations (sparse/rulebook.rs in
+        # the nn crate) instead of the CubeCL kernels: its boxes against the CPU's, its speed.
+        if FUSIONDET_SPARSE_RULES=kernel-map "$bin" detect --checkpoint "$ckpt" --data "$data" \
             --split val --out "$det/dev-sparse" --device "$device" >"$det/dev-sparse.log" 2>&1; then
             "$bin" compare "$det/cpu" "$det/dev-sparse" >"$det/compare-sparse.log" 2>&1 &&
                 sparity="same" || sparity="DIFFERENT"
-            bench_into "$det/bench-dev-sparse.log" "$ckpt" "$device" "" kernels
-            record "$(printf '%-16s sparse convolution kernels on %s: parity with the cpu %s (%s, centre %s m, score %s), frames/s %s; stages: %s' \
+            bench_into "$det/bench-dev-sparse.log" "$ckpt" "$device" "" kernel-map
+            record "$(printf '%-16s sparse convolution as a kernel map on %s: parity with the cpu %s (%s, centre %s m, score %s), frames/s %s; stages: %s' \
                 "$m" "$device" "$sparity" "$(grep -o 'boxes [0-9]* / [0-9]*, paired [0-9]*' "$det/compare-sparse.log" | head -1)" \
                 "$(largest "$det/compare-sparse.log" 'centre offset')" "$(largest "$det/compare-sparse.log" 'score change')" \
                 "$(frames_per_second "$det/bench-dev-sparse.log" || echo '?')" "$(stage_ms "$det/bench-dev-sparse.log")")"
         else
-            record "$m: detect with the sparse convolution kernels failed: $(tail -1 "$det/dev-sparse.log")"
+            record "$m: detect with the sparse convolution as a kernel map failed: $(tail -1 "$det/dev-sparse.log")"
             failures=$((failures + 1))
         fi
     fi
     record "$(printf '%-16s parity %-9s (%s boxes, centre %s m, score %s)  frames/s cpu %s, %s %s%s' \
-        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$kernels")"
+        "$m" "$parity" "$boxes" "$offset" "$score" "${fps_cpu:-?}" "$device" "${fps_dev:-?}" "$host_query")"
     record "$(printf '%-16s stages on %s, ms a frame: %s' "$m" "$device" "$(stage_ms "$det/bench-dev.log")")"
-    # The sparse gradient probe of each device bench (the default layout, and the kernels').
+    # The sparse gradient probe of each device bench (the default layout, and the kernel map).
     for log in "$det/bench-dev.log" "$det/bench-dev-sparse.log"; do
         probe="$(grep -o 'sparse convolution on this device.*' "$log" 2>/dev/null | head -1 || true)"
         if [ -n "$probe" ]; then
@@ -292,11 +295,11 @@ if [ "$train" = 1 ]; then
         losses=()
         runs=("$device")
         [ "$train_cpu" = 1 ] && runs=(cpu "$device")
-        [ -n "$sparse_ab" ] && runs+=("$device+kernels")
+        [ -n "$sparse_ab" ] && runs+=("$device+kernel-map")
         for r in "${runs[@]}"; do
-            d="${r%+kernels}"
+            d="${r%+kernel-map}"
             sparse=""
-            [ "$r" != "$d" ] && sparse=kernels
+            [ "$r" != "$d" ] && sparse=kernel-map
             run="$out/train/$name-${r//:/-}"
             rm -rf "$run"
             mkdir -p "$out/train"
@@ -307,17 +310,17 @@ if [ "$train" = 1 ]; then
                 row+=("$r $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
                 losses+=("$(first_loss "$run/metrics.jsonl")")
                 if [ "$d" != cpu ] && [ -z "$sparse" ] && [ -f "$run/model.bpk" ]; then
-                    # The configuration's detection speed on the device, the default RoI query and
-                    # on the host.
+                    # The configuration's detection speed on the device: the defaults, the
+                    # RoI query on the host, the sparse convolution as a kernel map.
                     bench_into "$run-bench.log" "$run/model.bpk" "$d"
-                    bench_into "$run-bench-kernels.log" "$run/model.bpk" "$d" device
-                    record "$(printf '%-26s bench on %s: %s frames/s (RoI query kernels %s)' "$name" "$d" \
+                    bench_into "$run-bench-host-query.log" "$run/model.bpk" "$d" host
+                    record "$(printf '%-26s bench on %s: %s frames/s (host RoI query %s)' "$name" "$d" \
                         "$(frames_per_second "$run-bench.log" || echo '?')" \
-                        "$(frames_per_second "$run-bench-kernels.log" || echo '?')")"
+                        "$(frames_per_second "$run-bench-host-query.log" || echo '?')")"
                     record "$(printf '%-26s stages on %s, ms a frame: %s' "$name" "$d" "$(stage_ms "$run-bench.log")")"
                     if [ -n "$sparse_ab" ]; then
-                        bench_into "$run-bench-sparse.log" "$run/model.bpk" "$d" "" kernels
-                        record "$(printf '%-26s bench on %s with the sparse convolution kernels: %s frames/s; stages: %s' \
+                        bench_into "$run-bench-sparse.log" "$run/model.bpk" "$d" "" kernel-map
+                        record "$(printf '%-26s bench on %s with the sparse convolution as a kernel map: %s frames/s; stages: %s' \
                             "$name" "$d" "$(frames_per_second "$run-bench-sparse.log" || echo '?')" "$(stage_ms "$run-bench-sparse.log")")"
                     fi
                 fi

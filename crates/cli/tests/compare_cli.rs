@@ -99,11 +99,11 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         out.contains("boxes with the RoI query kernels against the host query on cpu: same"),
         "{out}"
     );
-    // The sparse convolution's kernels A/B ran for the voxel model (on the CPU the layout
-    // falls back to the kernel map, whose boxes match the per-offset layout's).
+    // The sparse convolution's A/B ran for the voxel model: a kernel map of burn's
+    // operations, whose boxes on the CPU match the per-offset layout's.
     assert!(
         out.contains(
-            "voxel-rcnn-car   sparse convolution kernels on cpu: parity with the cpu same"
+            "voxel-rcnn-car   sparse convolution as a kernel map on cpu: parity with the cpu same"
         ),
         "{out}"
     );
@@ -122,8 +122,8 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         "{out}"
     );
     // The three runs' first-step losses were read (an unread one would also compare as 0):
-    // the CPU's, the device's (the CPU again), and the device's with the sparse kernels
-    // (here the kernel map: the same sums in another order).
+    // the CPU's, the device's (the CPU again), and the device's with the sparse convolution
+    // as a kernel map (the same sums in another order).
     let losses = out
         .split("first-step loss ")
         .nth(1)

@@ -16,38 +16,52 @@
 use burn::prelude::*;
 
 /// A gather's index on its device, and on CubeCL devices its readers, for the backward pass.
+/// An index equal to the source's row count reads a row of zeros (an empty voxel, cell or
+/// neighbour slot), which gets no gradient: its readers, often most gathered rows, are not
+/// listed, so no thread walks them.
 #[derive(Debug, Clone)]
 pub struct RowGather {
-    /// [M] source rows, one a gathered row.
+    /// [M] source rows, one a gathered row (`source_rows`: the zero row).
     index: Tensor<1, Int>,
     source_rows: usize,
-    /// On differentiating CubeCL devices: (starts [N + 1], readers [M]); source row n is
-    /// read by gathered rows `readers[starts[n]..starts[n + 1]]`, ascending.
+    /// Whether any gathered row reads the zero row.
+    reads_zeros: bool,
+    /// On differentiating CubeCL devices: (starts [N + 1], or [N + 2] with the zero row,
+    /// readers); source row n is read by gathered rows `readers[starts[n]..starts[n + 1]]`,
+    /// ascending.
     #[cfg_attr(not(any(feature = "wgpu", feature = "cuda")), allow(dead_code))]
     readers: Option<(Tensor<1, Int>, Tensor<1, Int>)>,
 }
 
 impl RowGather {
-    /// Gathered row m reads source row `index[m]` of `source_rows` (each below it; panics
-    /// otherwise: an index is built by the caller, never read from a user's file).
+    /// Gathered row m reads source row `index[m]` of `source_rows`, or zeros where it is
+    /// `source_rows` (past that it panics: an index is built by the caller, never read from a
+    /// user's file).
     pub fn new(index: &[u32], source_rows: usize, device: &Device) -> Self {
         for &n in index {
-            assert!((n as usize) < source_rows, "row {n} of {source_rows}");
+            assert!((n as usize) <= source_rows, "row {n} of {source_rows}");
         }
+        let reads_zeros = index.iter().any(|&n| n as usize == source_rows);
         let m = index.len();
         let as_i64: Vec<i64> = index.iter().map(|&n| n as i64).collect();
         let index_tensor = Tensor::<1, Int>::from_data(TensorData::new(as_i64, [m]), device);
         // Only a differentiating device runs the backward pass that reads them.
         let readers = (on_cube_device(device) && device.is_autodiff()).then(|| {
-            let (starts, readers) = readers_of(index, source_rows);
+            let (mut starts, readers) = readers_of(index, source_rows);
+            if reads_zeros {
+                // The appended zero row, with no reader listed: its gradient is zeros.
+                starts.push(starts[source_rows]);
+            }
+            let (rows, listed) = (starts.len(), readers.len());
             (
-                Tensor::<1, Int>::from_data(TensorData::new(starts, [source_rows + 1]), device),
-                Tensor::<1, Int>::from_data(TensorData::new(readers, [m]), device),
+                Tensor::<1, Int>::from_data(TensorData::new(starts, [rows]), device),
+                Tensor::<1, Int>::from_data(TensorData::new(readers, [listed]), device),
             )
         });
         Self {
             index: index_tensor,
             source_rows,
+            reads_zeros,
             readers,
         }
     }
@@ -57,15 +71,23 @@ impl RowGather {
         &self.index
     }
 
-    /// How many rows the gather reads from.
+    /// How many rows the gather reads from (besides the zero row).
     pub fn source_rows(&self) -> usize {
         self.source_rows
     }
 
-    /// `values` [N, C] → [M, C], row m being `values[index[m]]`.
+    /// `values` [N, C] → [M, C], row m being `values[index[m]]` (zeros for index N).
     pub fn gather(&self, values: Tensor<2>) -> Tensor<2> {
-        let [rows, _] = values.dims();
+        let [rows, c] = values.dims();
         assert_eq!(rows, self.source_rows, "values of the gather's source rows");
+        // The zero row appended, as the callers did before: the same operations on the
+        // CPU, so the same bits.
+        let values = if self.reads_zeros {
+            let device = values.device();
+            Tensor::cat(vec![values, Tensor::zeros([1, c], &device)], 0)
+        } else {
+            values
+        };
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
         if let Some((starts, readers)) = &self.readers
             && on_cube_device(&values.device())
@@ -89,22 +111,26 @@ fn on_cube_device(device: &Device) -> bool {
     }
 }
 
-/// The index turned around: (starts [N + 1], readers [M]) with source row n read by
-/// gathered rows `readers[starts[n]..starts[n + 1]]`, in ascending order (a counting sort).
+/// The index turned around: (starts [N + 1], readers) with source row n read by gathered
+/// rows `readers[starts[n]..starts[n + 1]]`, in ascending order (a counting sort); the zero
+/// row's readers are left out.
 fn readers_of(index: &[u32], source_rows: usize) -> (Vec<i64>, Vec<i64>) {
     let mut starts = vec![0i64; source_rows + 1];
     for &n in index {
-        starts[n as usize + 1] += 1;
+        if (n as usize) < source_rows {
+            starts[n as usize + 1] += 1;
+        }
     }
     for n in 0..source_rows {
         starts[n + 1] += starts[n];
     }
     let mut next: Vec<i64> = starts[..source_rows].to_vec();
-    let mut readers = vec![0i64; index.len()];
+    let mut readers = vec![0i64; starts[source_rows] as usize];
     for (m, &n) in index.iter().enumerate() {
-        let at = &mut next[n as usize];
-        readers[*at as usize] = m as i64;
-        *at += 1;
+        if let Some(at) = next.get_mut(n as usize) {
+            readers[*at as usize] = m as i64;
+            *at += 1;
+        }
     }
     (starts, readers)
 }
@@ -118,14 +144,19 @@ mod tests {
         let (starts, readers) = readers_of(&[2, 0, 2, 3, 2], 5);
         assert_eq!(starts, vec![0, 1, 1, 4, 5, 5]);
         assert_eq!(readers, vec![1, 0, 2, 4, 3]);
+        // Row 4 of 4 is the zero row: read, never listed.
+        let (starts, readers) = readers_of(&[4, 1, 4, 0], 4);
+        assert_eq!(starts, vec![0, 1, 2, 2, 2]);
+        assert_eq!(readers, vec![3, 1]);
     }
 
-    /// On the CPU the gather is burn's `select`: the same values and gradients, to the bit.
+    /// On the CPU the gather is burn's `select` after the zero row: the same values and
+    /// gradients, to the bit.
     #[test]
     fn on_the_cpu_it_is_select() {
         let device = Device::flex().autodiff();
         let values: Vec<f32> = (0..12).map(|v| v as f32 * 0.37 - 1.0).collect();
-        let index = [2u32, 0, 2, 3, 2, 1];
+        let index = [2u32, 0, 2, 3, 2, 4];
         let gather = RowGather::new(&index, 4, &device);
         let run = |ours: bool| {
             let x = Tensor::<2>::from_data(TensorData::new(values.clone(), [4, 3]), &device)
@@ -133,7 +164,8 @@ mod tests {
             let y = if ours {
                 gather.gather(x.clone())
             } else {
-                x.clone().select(0, gather.index().clone())
+                Tensor::cat(vec![x.clone(), Tensor::zeros([1, 3], &device)], 0)
+                    .select(0, gather.index().clone())
             };
             let weights: Vec<f32> = (0..18).map(|v| v as f32 - 4.0).collect();
             let loss =

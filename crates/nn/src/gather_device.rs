@@ -22,8 +22,9 @@ use burn_cubecl::tensor::CubeTensor;
 /// The gather (see the module's documentation).
 #[backend_extension(Cube, Autodiff)]
 pub trait RowGatherOps: Backend {
-    /// `values` [N, C] at `index` [M] → [M, C]; `starts` [N + 1] and `readers` [M] list the
-    /// gathered rows that read each source row, ascending (the backward pass's order).
+    /// `values` [N, C] at `index` [M] → [M, C]; `starts` [N + 1] and `readers` (at most M)
+    /// list the gathered rows that read each source row, ascending (the backward pass's
+    /// order); a row with an empty range gets a zero gradient.
     fn gather_rows(
         values: FloatTensor<Self>,
         index: IntTensor<Self>,
@@ -97,8 +98,9 @@ fn backward(grad: CubeTensor, starts: CubeTensor, readers: CubeTensor) -> CubeTe
         let client = grad.client.clone();
         let (count, dim) = launch_shape(&client, units);
         // SAFETY: threads past the last source value return first; n + 1 ≤ N indexes
-        // `starts` [N + 1]; starts are ascending from 0 to M, so j < M indexes `readers`;
-        // a reader is a gathered row below M, the gradient's rows; c < C its columns.
+        // `starts` [N + 1]; starts ascend from 0 to the readers' length, so j indexes
+        // `readers`; a reader is a gathered row, below the gradient's M rows; c < C its
+        // columns.
         unsafe {
             kernels::readers_sum::launch_unchecked(
                 &client,
@@ -173,11 +175,13 @@ mod tests {
     use crate::gather::RowGather;
     use burn::prelude::*;
 
-    /// Values and gradients of a gather of `m` rows from `n` on `device`, through the
-    /// [`RowGather`] or burn's `select`.
+    /// Values and gradients of a gather of `m` rows from `n` on `device` (one in seven of
+    /// them the zero row), through the [`RowGather`] or burn's `select`.
     fn run(n: usize, m: usize, c: usize, device: &Device, ours: bool) -> [Vec<f32>; 2] {
         // A stride coprime to n reads every row about m / n times, scattered.
-        let index: Vec<u32> = (0..m).map(|i| ((i * 7919) % n) as u32).collect();
+        let index: Vec<u32> = (0..m)
+            .map(|i| if i % 7 == 3 { n } else { (i * 7919) % n } as u32)
+            .collect();
         let values: Vec<f32> = (0..n * c)
             .map(|v| ((v * 37) % 101) as f32 / 50.0 - 1.0)
             .collect();
@@ -189,7 +193,8 @@ mod tests {
         let y = if ours {
             gather.gather(x.clone())
         } else {
-            x.clone().select(0, gather.index().clone())
+            Tensor::cat(vec![x.clone(), Tensor::zeros([1, c], device)], 0)
+                .select(0, gather.index().clone())
         };
         let grads = (y.clone() * Tensor::from_data(TensorData::new(upstream, [m, c]), device))
             .sum()

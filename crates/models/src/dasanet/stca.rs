@@ -22,6 +22,7 @@ use super::bev_buckets::BevBuckets;
 use super::tca::CoordinateAttention3d;
 use crate::voxel_rcnn::roi_pool::RoiBox;
 use burn::prelude::*;
+use fusiondet_nn::gather::RowGather;
 use fusiondet_nn::sparse::{ConvGeometry, Rulebook, SparseConv3d, SparseConvBlock, SparseSites};
 use fusiondet_nn::{MlpLayer, NormConfig, SegmentPool, mlp_stack};
 use rayon::prelude::*;
@@ -363,18 +364,14 @@ impl Stca {
 /// gather (an appended zero row fills inactive cells).
 fn densify(features: Tensor<2>, sites: &SparseSites, rois: usize, g: usize) -> Tensor<5> {
     let [rows, c] = features.dims();
-    let device = features.device();
-    let mut index = vec![rows as i64; rois * g * g * g];
+    let mut index = vec![rows as u32; rois * g * g * g];
     for (row, s) in sites.coords().iter().enumerate() {
         let [r, z, y, x] = s.map(|v| v as usize);
-        index[((r * g + x) * g + y) * g + z] = row as i64;
+        index[((r * g + x) * g + y) * g + z] = row as u32;
     }
-    let cells = index.len();
-    Tensor::cat(vec![features, Tensor::zeros([1, c], &device)], 0)
-        .select(
-            0,
-            Tensor::from_data(TensorData::new(index, [cells]), &device),
-        )
+    // On a GPU its backward adds each site's readers in one thread (`RowGather`).
+    RowGather::new(&index, rows, &features.device())
+        .gather(features)
         .reshape([rois, g, g, g, c])
 }
 

@@ -75,7 +75,8 @@ pub fn roi_grid_points(roi: &RoiBox, grid: usize) -> Vec<[f64; 3]> {
 /// The neighbour index of every grid point at one level, where it was made.
 #[derive(Debug, Clone)]
 pub enum LevelIndex {
-    /// By the host query (the CPU, CUDA, or `FUSIONDET_ROI_QUERY=host`; [`QueryPlace`]).
+    /// By the host query (the CPU, training on a GPU, or `FUSIONDET_ROI_QUERY=host`;
+    /// [`QueryPlace`]).
     Host(HostLevelIndex),
     /// By the device's kernels, on the device.
     Device(Box<DeviceLevelIndex>),
@@ -234,21 +235,25 @@ pub enum QueryPlace {
 
 impl QueryPlace {
     /// The host on the CPU; on a CubeCL device, `FUSIONDET_ROI_QUERY` (`host`, `device` or
-    /// `check`) where set, else the device's kernels on wgpu and the host query on CUDA.
+    /// `check`) where set, else the device's kernels where the network only infers and the
+    /// host query where it trains.
     ///
-    /// Why not the kernels on CUDA: on an NVIDIA H200 (2026-11-28) they gave rows that made
-    /// the shipped Voxel R-CNN find no box at all (175 on the CPU and with the host query on
-    /// the same GPU), and training NaN at its first step, while on wgpu (lavapipe) they
-    /// agree with the host query row for row. The likely cause, CUDA's padded rows, is fixed
-    /// ([`super::roi_query_device`]) but not yet rerun on a GPU; `check` reports the rows
-    /// that differ there.
+    /// Why the host in training: the pooling gathers the features by the query's rows, and
+    /// with the rows on the host the gather's backward pass adds each voxel's readers in one
+    /// GPU thread ([`fusiondet_nn::gather::RowGather`]); over the device's rows it would be
+    /// burn's `select`, whose backward walks every gathered row per column (172 ms for 540,027
+    /// rows of 16 values on an H200, 2026-11-29). The host query costs a training step about
+    /// 0.06 s (published Voxel R-CNN, 16 cores). In inference the kernels took the shipped
+    /// Voxel R-CNN from 35 to 50 frames/s on that H200, with the host query's boxes (111 of
+    /// 111 paired within 0.01 m); `check` there found only grid points at float ties with
+    /// other rows (2 of 22 levels).
     pub fn for_device(device: &Device) -> QueryPlace {
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        if let Some(runtime) = super::roi_query_device::cube_runtime(device) {
-            return Self::from_env().unwrap_or(if runtime == cubecl::RuntimeId::Wgpu {
-                QueryPlace::Device
-            } else {
+        if super::roi_query_device::cube_runtime(device).is_some() {
+            return Self::from_env().unwrap_or(if device.is_autodiff() {
                 QueryPlace::Host
+            } else {
+                QueryPlace::Device
             });
         }
         let _ = device;
@@ -553,7 +558,9 @@ impl RoiGridPool {
             let features = layer.features.forward(map.features.clone());
             let [_, mid] = features.dims();
             // The appended zero row is what an empty neighbourhood gathers.
-            let features = Tensor::cat(vec![features, Tensor::zeros([1, mid], &device)], 0);
+            let with_zero_row = |features: Tensor<2>| {
+                Tensor::cat(vec![features, Tensor::zeros([1, mid], &device)], 0)
+            };
             let summed = match level {
                 LevelIndex::Host(level) if ragged::custom_path(&features) => {
                     // One pass each way for the gather + add and for the max (the same
@@ -564,23 +571,27 @@ impl RoiGridPool {
                         Arc::new(Neighbours::new(rows, s, level.sentinel as usize + 1));
                     let runs = Arc::new(Runs::blocks(points, s));
                     ragged::runs_max(
-                        relu(ragged::gather_add(features, positions, &neighbours)),
+                        relu(ragged::gather_add(
+                            with_zero_row(features),
+                            positions,
+                            &neighbours,
+                        )),
                         &runs,
                     )
                 }
                 _ => {
                     let (gathered, offsets) = match level {
                         // On a GPU the gather's backward adds each voxel's readers in one
-                        // thread (`RowGather`), where burn's walks all rows per column.
+                        // thread (`RowGather`; the sentinel is its zero row), where burn's
+                        // walks all rows per column.
                         LevelIndex::Host(level) => {
                             let rows: Vec<u32> = level.rows.iter().map(|&r| r as u32).collect();
-                            let gather =
-                                RowGather::new(&rows, level.sentinel as usize + 1, &device);
+                            let gather = RowGather::new(&rows, level.sentinel as usize, &device);
                             (gather.gather(features), level.offsets_tensor(&device))
                         }
                         // Made on the device without autodiff: a constant in the graph.
                         LevelIndex::Device(level) => (
-                            features.select(0, level.rows.clone()),
+                            with_zero_row(features).select(0, level.rows.clone()),
                             level.offsets.clone(),
                         ),
                     };

@@ -18,19 +18,16 @@ pub fn to_dense_bev(features: Tensor<2>, sites: &SparseSites) -> Tensor<4> {
     assert_eq!(rows, sites.len(), "one feature row per site");
     let [z, y, x] = sites.spatial_shape();
     let b = sites.batch_size();
-    let device = features.device();
     // Cells of a [B, Y, X, Z] grid, height fastest, each naming its row (or the zero row).
-    let mut index = vec![rows as i64; b * y * x * z];
+    let mut index = vec![rows as u32; b * y * x * z];
     for (row, s) in sites.coords().iter().enumerate() {
         let [bi, zi, yi, xi] = s.map(|v| v as usize);
-        index[((bi * y + yi) * x + xi) * z + zi] = row as i64;
+        index[((bi * y + yi) * x + xi) * z + zi] = row as u32;
     }
-    let cells = index.len();
-    Tensor::cat(vec![features, Tensor::zeros([1, c], &device)], 0)
-        .select(
-            0,
-            Tensor::from_data(TensorData::new(index, [cells]), &device),
-        )
+    // On a GPU its backward adds each site's readers in one thread; the empty cells, most
+    // of the grid, read the zero row, which no thread walks (`RowGather`).
+    crate::gather::RowGather::new(&index, rows, &features.device())
+        .gather(features)
         .reshape([b, y, x, z * c])
         .permute([0, 3, 1, 2])
 }

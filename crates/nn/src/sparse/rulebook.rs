@@ -118,19 +118,24 @@ pub enum RuleLayout {
     /// offset), run by the CubeCL kernels of `device_kernels`: no gathered copy, no zeros
     /// multiplied, no atomic additions in the backward pass. Only on a CubeCL device of a
     /// build with the `wgpu` or `cuda` feature; elsewhere it is [`RuleLayout::KernelMap`].
-    /// wgpu's default ([`RuleLayout::for_device`]).
+    /// The GPUs' default ([`RuleLayout::for_device`]).
     DeviceKernels,
 }
 
 impl RuleLayout {
     /// Per offset on burn's flex CPU backend (where sums keep the order of every pinned CPU
-    /// result); the CubeCL kernels on wgpu, where the kernel map from burn's operations
-    /// differentiates wrongly at a backbone's size (on lavapipe: input gradients off by up to
-    /// their largest value over 20,000 sites; `pipeline::sparse_gradient_probe`); that kernel
-    /// map on every other backend (CUDA: measured fast on an H100 and an H200, its gradients
-    /// and the kernels' speed wait for a GPU run). `FUSIONDET_SPARSE_RULES=per-offset`,
-    /// `kernel-map` or `kernels` overrides this for the whole process, so that the layouts
-    /// can be timed side by side on one device.
+    /// result); the CubeCL kernels on wgpu and CUDA; the kernel map from burn's operations
+    /// on any other backend. Why the kernels on GPUs (measured 2026-11-29): on lavapipe the
+    /// kernel map's input gradients came out wrong at a backbone's size (off by up to their
+    /// largest value over 20,000 sites; `pipeline::sparse_gradient_probe`); on an H200 they
+    /// were right but its products ran in TF32 (gradients 2e-4 from the CPU's, the shipped
+    /// Voxel R-CNN's boxes up to 0.47 m away) and its backward pass through burn's
+    /// `select_assign` walks every gathered row per column: the kernels' training steps took
+    /// 2.8 s against 5.2 s (published Voxel R-CNN) and 10.2 s against 23.9 s (DASANet), and
+    /// their boxes matched the CPU's within the parity tolerance, at 8% fewer frames/s in
+    /// detection (32.4 against 35.0 for the shipped Voxel R-CNN).
+    /// `FUSIONDET_SPARSE_RULES=per-offset`, `kernel-map` or `kernels` overrides this for the
+    /// whole process, so that the layouts can be timed side by side on one device.
     pub fn for_device(device: &Device) -> RuleLayout {
         static FORCED: OnceLock<Option<RuleLayout>> = OnceLock::new();
         let forced = FORCED.get_or_init(|| {
@@ -155,7 +160,7 @@ impl RuleLayout {
 
     fn default_for(device: &Device) -> RuleLayout {
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        if crate::cube::cube_runtime(device) == Some(cubecl::RuntimeId::Wgpu) {
+        if crate::cube::cube_runtime(device).is_some() {
             return RuleLayout::DeviceKernels;
         }
         if device.clone().without_autodiff() == Device::flex() {
@@ -518,27 +523,47 @@ fn gather(
             }
         }
         layout @ (RuleLayout::KernelMap | RuleLayout::DeviceKernels) => {
-            let mut table = vec![input_rows as i64; output_rows * volume];
-            if let Some(k) = identity {
-                for o in 0..output_rows {
-                    table[o * volume + k] = o as i64;
-                }
+            // Built column by column (one offset a task), then laid out row by row (rows
+            // split over tasks): on a GPU machine these tables are the host's work of every
+            // frame (a serial fill held the published Voxel R-CNN's rulebooks at 35 ms a frame
+            // on an H200's host). i32: what the kernels read, uploaded without a conversion.
+            let mut by_offset: Vec<Option<&(usize, Vec<i64>, Vec<i64>)>> = vec![None; volume];
+            for entry in &pairs {
+                by_offset[entry.0] = Some(entry);
             }
-            for (k, input, output) in &pairs {
-                for (&i, &o) in input.iter().zip(output) {
-                    table[o as usize * volume + k] = i;
-                }
-            }
-            // Within one offset no input row repeats, so each entry is written once.
-            let inverse = (layout == RuleLayout::DeviceKernels).then(|| {
-                let mut inverse = vec![-1i32; input_rows * volume];
-                for (o, row) in table.chunks_exact(volume.max(1)).enumerate() {
-                    for (k, &n) in row.iter().enumerate() {
-                        if n < input_rows as i64 {
-                            inverse[n as usize * volume + k] = o as i32;
-                        }
+            let column = |len: usize, none: i32, k: usize, forward: bool| {
+                let mut column = vec![none; len];
+                if identity == Some(k) {
+                    for (row, v) in column.iter_mut().enumerate() {
+                        *v = row as i32;
                     }
                 }
+                if let Some((_, input, output)) = by_offset[k] {
+                    let (at, value) = if forward {
+                        (output, input)
+                    } else {
+                        (input, output)
+                    };
+                    for (&a, &v) in at.iter().zip(value) {
+                        column[a as usize] = v as i32;
+                    }
+                }
+                column
+            };
+            // The table: output o reads `table[o · volume + k]` at offset k, `input_rows` for
+            // none (the zero row).
+            let columns: Vec<Vec<i32>> = (0..volume)
+                .into_par_iter()
+                .map(|k| column(output_rows, input_rows as i32, k, true))
+                .collect();
+            let table = interleave(&columns, output_rows);
+            // Within one offset no input row repeats, so each inverse entry has one writer.
+            let inverse = (layout == RuleLayout::DeviceKernels).then(|| {
+                let columns: Vec<Vec<i32>> = (0..volume)
+                    .into_par_iter()
+                    .map(|k| column(input_rows, -1, k, false))
+                    .collect();
+                let inverse = interleave(&columns, input_rows);
                 let n = inverse.len();
                 Box::new(Tensor::from_data(TensorData::new(inverse, [n]), device))
             });
@@ -549,6 +574,22 @@ fn gather(
             }
         }
     }
+}
+
+/// Columns of `rows` values each, as one row-major [rows · columns] list; rows in parallel.
+fn interleave(columns: &[Vec<i32>], rows: usize) -> Vec<i32> {
+    let width = columns.len();
+    let mut out = vec![0i32; rows * width];
+    if width > 0 {
+        out.par_chunks_mut(width)
+            .enumerate()
+            .for_each(|(row, values)| {
+                for (v, column) in values.iter_mut().zip(columns) {
+                    *v = column[row];
+                }
+            });
+    }
+    out
 }
 
 #[cfg(test)]
