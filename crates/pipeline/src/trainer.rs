@@ -183,12 +183,13 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     #[cfg(feature = "wgpu")]
     if options.device == crate::ComputeDevice::Wgpu {
         // Measured on lavapipe (docs/gpus-and-clusters.md): burn's additions of repeated rows,
-        // the backward pass of every gather that reads a row more than once, collide there.
+        // the backward pass of every gather still made by burn's `select` (the voxel family's
+        // large ones go through `RowGather`), come out wrong there.
         eprintln!(
-            "warning: on wgpu, gradients of gathers that read rows more than once (LFA's \
-             neighbours, CBAM's pairs, RoI pooling's slots) may be wrong: `fusiondet bench \
-             --device wgpu` prints how wrong (\"repeated-row additions\"); train on the CPU \
-             where results must hold"
+            "warning: on wgpu, gradients of gathers that read rows more than once (the frustum \
+             family's LFA neighbours, CBAM pairs and PointNet scales) may be wrong: `fusiondet \
+             bench --device wgpu` prints how wrong (\"repeated-row additions\"); train on the \
+             CPU where results must hold"
         );
     }
     let creates_run = !options.resume && !options.run_dir.exists();
