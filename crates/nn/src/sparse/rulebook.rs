@@ -527,9 +527,10 @@ fn gather(
             // split over tasks): on a GPU machine these tables are the host's work of every
             // frame (a serial fill held the published Voxel R-CNN's rulebooks at 35 ms a frame
             // on an H200's host). i32: what the kernels read, uploaded without a conversion.
-            let mut by_offset: Vec<Option<&(usize, Vec<i64>, Vec<i64>)>> = vec![None; volume];
-            for entry in &pairs {
-                by_offset[entry.0] = Some(entry);
+            // Per offset, its (input rows, output rows).
+            let mut by_offset: Vec<Option<(&[i64], &[i64])>> = vec![None; volume];
+            for (k, input, output) in &pairs {
+                by_offset[*k] = Some((input, output));
             }
             let column = |len: usize, none: i32, k: usize, forward: bool| {
                 let mut column = vec![none; len];
@@ -538,7 +539,7 @@ fn gather(
                         *v = row as i32;
                     }
                 }
-                if let Some((_, input, output)) = by_offset[k] {
+                if let Some((input, output)) = by_offset[k] {
                     let (at, value) = if forward {
                         (output, input)
                     } else {
