@@ -26,6 +26,7 @@ use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use fusiondet_nn::buffers::{par_chunks_filled, par_chunks_written};
+use fusiondet_nn::gather::RowGather;
 use fusiondet_nn::ragged::{self, Neighbours, Runs};
 use fusiondet_nn::{MlpLayer, host_max, mlp_stack};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -45,6 +46,11 @@ pub struct LfaStageIndex {
     /// The same rows on the host (with their transpose), for the first layer's host path
     /// in inference and its custom operation in training.
     pub neighbours_host: Arc<Neighbours>,
+    /// The survivors' and the neighbours' gathers of features: burn's `select` on the CPU,
+    /// a backward pass by each row's readers on a GPU (`RowGather`), where burn's walks
+    /// every gathered row per column (and on lavapipe sums wrongly).
+    pub keep_gather: RowGather,
+    pub neighbour_gather: RowGather,
 }
 
 /// Everything LFA needs for a batch.
@@ -122,14 +128,14 @@ impl LfaInputs {
                 let len = v.len();
                 Tensor::<1, Int>::from_data(TensorData::new(v, [len]), device)
             };
+            let rows = |v: &[i64]| v.iter().map(|&r| r as u32).collect::<Vec<u32>>();
+            let neighbour_rows = rows(&neighbours);
             stage_index.push(LfaStageIndex {
                 points: n,
+                keep_gather: RowGather::new(&rows(&keep), batch_size * n, device),
+                neighbour_gather: RowGather::new(&neighbour_rows, batch_size * n, device),
                 keep: ints(keep),
-                neighbours_host: Arc::new(Neighbours::new(
-                    neighbours.iter().map(|&r| r as u32).collect(),
-                    k,
-                    batch_size * n,
-                )),
+                neighbours_host: Arc::new(Neighbours::new(neighbour_rows, k, batch_size * n)),
                 neighbours: ints(neighbours),
             });
             n = half;
@@ -261,7 +267,7 @@ impl Lfa {
             let local = relu(local);
             let mut point_in = vec![scaled(q.clone(), inputs.position_gain)];
             if let Some(g) = &feats {
-                point_in.push(g.clone().select(0, index.keep.clone()));
+                point_in.push(index.keep_gather.gather(g.clone()));
             }
             let point = run(&stage.point, Tensor::cat(point_in, 1));
             feats = Some(Tensor::cat(vec![local, point], 1));
@@ -437,9 +443,9 @@ impl FirstLayerTerms {
             .sum_dim(1)
             .add_scalar(1e-12)
             .sqrt();
-        let y = self
-            .per_point
-            .select(0, index.neighbours.clone())
+        let y = index
+            .neighbour_gather
+            .gather(self.per_point)
             .reshape([m, k, c1])
             + self.per_query.reshape([m, 1, c1])
             + (dist * self.w_d).reshape([m, k, c1]);
@@ -629,7 +635,7 @@ mod tests {
             let mut point_in = vec![q.clone().mul_scalar(a)];
             if let Some(g) = &feats {
                 local_in.push(g.clone().select(0, index.neighbours.clone()));
-                point_in.push(g.clone().select(0, index.keep.clone()));
+                point_in.push(index.keep_gather.gather(g.clone()));
             }
             let local = run(&stage.local, Tensor::cat(local_in, 1));
             let c = local.dims()[1];
@@ -869,5 +875,72 @@ mod tests {
         }
         let bad = LfaInputs::new(&points[..2 * 6 * 3], 2, 6, &config, &device);
         assert!(bad.unwrap_err().to_string().contains("halved"));
+    }
+    /// In training on a GPU the features' gathers differentiate by their readers
+    /// (`RowGather`): the output and every stage's first-layer weight gradient on wgpu are
+    /// the CPU's (its custom operations) within rounding.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn training_gradients_on_wgpu_match_the_cpu() {
+        let Some(gpu) = fusiondet_nn::cube::working_wgpu_device("LFA's gathers on a GPU") else {
+            return;
+        };
+        let n0 = 64;
+        let points: Vec<f32> = (0..3 * n0 * 3)
+            .map(|i| ((i * 53) % 97) as f32 * 0.21 - 9.0)
+            .collect();
+        let config = LfaConfig {
+            neighbours: 4,
+            ..LfaConfig::default()
+        };
+        let model = ModelConfig {
+            lfa: Some(config.clone()),
+            ..ModelConfig::default()
+        };
+        let cpu = Device::flex().autodiff();
+        let lfa = Lfa::new(&model, &config, &cpu);
+        let run = |device: &Device| {
+            let lfa = lfa.clone().fork(device);
+            let inputs = LfaInputs::new(&points, 3, n0, &config, device).unwrap();
+            let y = lfa.forward(&inputs);
+            let [r, c] = y.dims();
+            let upstream: Vec<f32> = (0..r * c)
+                .map(|v| ((v * 31) % 89) as f32 / 44.0 - 1.0)
+                .collect();
+            let grads = (y.clone() * Tensor::from_data(TensorData::new(upstream, [r, c]), device))
+                .sum()
+                .backward();
+            let mut out = vec![y.try_into_vec_as::<f32>().unwrap()];
+            for stage in &lfa.stages {
+                let weight = &stage.local[0].linear.weight;
+                out.push(
+                    weight
+                        .grad(&grads)
+                        .unwrap()
+                        .try_into_vec_as::<f32>()
+                        .unwrap(),
+                );
+            }
+            out
+        };
+        let want = run(&cpu);
+        assert!(
+            want[1..].iter().all(|g| g.iter().any(|&v| v != 0.0)),
+            "gradients reach LFA"
+        );
+        let got = run(&gpu.autodiff());
+        for (i, (got, want)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(got.len(), want.len(), "{i}");
+            let scale = want.iter().fold(1f32, |m, v| m.max(v.abs()));
+            let worst = got
+                .iter()
+                .zip(want)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max);
+            assert!(
+                worst <= 1e-3 * scale,
+                "quantity {i}: off by {worst} (scale {scale})"
+            );
+        }
     }
 }

@@ -123,8 +123,8 @@ fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 const TARGET_ROWS: usize = 20_001;
 const ADDS_PER_ROW: usize = 27;
 
-/// What the gather's backward does everywhere a network reads rows more than once (LFA's
-/// neighbours, CBAM's pairs, PointNet's scales; RoI pooling, STCA and the BEV take
+/// What the gather's backward does everywhere a network reads rows more than once through
+/// burn's `select` (CBAM's pairs, PointNet's scales; RoI pooling, STCA, the BEV and LFA take
 /// `fusiondet_nn::gather::RowGather` on GPUs, the sparse convolution its kernels): burn's
 /// `select_assign` with `Add`, here 540,027 rows of 16 values added into 20,001 rows, 27 into
 /// each, in a fixed scattered order.
