@@ -882,6 +882,7 @@ mod tests {
     #[cfg(feature = "wgpu")]
     #[test]
     fn training_gradients_on_wgpu_match_the_cpu() {
+        use crate::device_test_support::{assert_close, upstream};
         let Some(gpu) = fusiondet_nn::cube::working_wgpu_device("LFA's gathers on a GPU") else {
             return;
         };
@@ -903,13 +904,7 @@ mod tests {
             let lfa = lfa.clone().fork(device);
             let inputs = LfaInputs::new(&points, 3, n0, &config, device).unwrap();
             let y = lfa.forward(&inputs);
-            let [r, c] = y.dims();
-            let upstream: Vec<f32> = (0..r * c)
-                .map(|v| ((v * 31) % 89) as f32 / 44.0 - 1.0)
-                .collect();
-            let grads = (y.clone() * Tensor::from_data(TensorData::new(upstream, [r, c]), device))
-                .sum()
-                .backward();
+            let grads = (y.clone() * upstream(y.dims(), device)).sum().backward();
             let mut out = vec![y.try_into_vec_as::<f32>().unwrap()];
             for stage in &lfa.stages {
                 let weight = &stage.local[0].linear.weight;
@@ -930,17 +925,7 @@ mod tests {
         );
         let got = run(&gpu.autodiff());
         for (i, (got, want)) in got.iter().zip(&want).enumerate() {
-            assert_eq!(got.len(), want.len(), "{i}");
-            let scale = want.iter().fold(1f32, |m, v| m.max(v.abs()));
-            let worst = got
-                .iter()
-                .zip(want)
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f32::max);
-            assert!(
-                worst <= 1e-3 * scale,
-                "quantity {i}: off by {worst} (scale {scale})"
-            );
+            assert_close(got, want, 1e-3, &format!("quantity {i}"));
         }
     }
 }

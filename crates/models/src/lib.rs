@@ -26,6 +26,8 @@ pub mod checkpoint;
 pub mod config;
 pub mod dasanet;
 pub mod decode;
+#[cfg(all(test, feature = "wgpu"))]
+mod device_test_support;
 pub mod error;
 pub mod family;
 pub mod fcn;

@@ -624,6 +624,7 @@ mod tests {
     /// features' gradient are the CPU's within rounding.
     #[test]
     fn pooling_gradients_through_the_host_index_match_the_cpu() {
+        use crate::device_test_support::{assert_close, upstream};
         let Some(device) = wgpu_device() else { return };
         let (sites, rois, level, geometry) = scene();
         let (grid, channels) = (2, 6);
@@ -658,30 +659,13 @@ mod tests {
                 sites: sites.clone(),
             };
             let y = pool.forward(&[&map], &index);
-            let [r, c] = y.dims();
-            let upstream: Vec<f32> = (0..r * c)
-                .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
-                .collect();
-            let grads = (y.clone() * Tensor::from_data(TensorData::new(upstream, [r, c]), device))
-                .sum()
-                .backward();
+            let grads = (y.clone() * upstream(y.dims(), device)).sum().backward();
             (read(y), read(x.grad(&grads).unwrap()))
         };
         let want = run(&cpu);
         let got = run(&device.autodiff());
-        for (what, got, want) in [("pooled", &got.0, &want.0), ("gradient", &got.1, &want.1)] {
-            assert_eq!(got.len(), want.len(), "{what}");
-            let scale = want.iter().fold(1f32, |m, v| m.max(v.abs()));
-            let worst = got
-                .iter()
-                .zip(want)
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f32::max);
-            assert!(
-                worst <= 1e-4 * scale,
-                "{what} differs by {worst} (scale {scale})"
-            );
-        }
+        assert_close(&got.0, &want.0, 1e-4, "pooled");
+        assert_close(&got.1, &want.1, 1e-4, "gradient");
         assert!(
             want.1.iter().any(|&g| g != 0.0),
             "a gradient reaches the features"
