@@ -246,20 +246,21 @@ impl Cbam {
         if let Some(t) = &self.channel_tanh {
             logits = logits + t.forward(avg) + t.forward(max);
         }
-        sigmoid(logits).select(0, index.pair_frustum.clone())
+        index.pair_frustum_gather.gather(sigmoid(logits))
     }
 
     /// M_s per pair, [pairs, 1].
     fn spatial_weights(&self, x: Tensor<2>, index: &AttentionIndex) -> Tensor<2> {
-        let device = x.device();
         let maps = Tensor::cat(vec![x.clone().max_dim(1), x.mean_dim(1)], 1); // [P, 2]
         let (b, l, n) = (index.frustums, index.slices_per_frustum, index.cap);
-        let grid = Tensor::cat(vec![maps, Tensor::zeros([1, 2], &device)], 0)
-            .select(0, index.grid_cell_pair.clone())
+        // Empty cells read the gather's zero row.
+        let grid = index
+            .grid_cell_gather
+            .gather(maps)
             .reshape([b, l, n, 2])
             .permute([0, 3, 1, 2]);
         let att = self.spatial.forward(grid).reshape([b * l * n, 1]);
-        sigmoid(att.select(0, index.pair_grid_cell.clone()))
+        sigmoid(index.pair_grid_cell_gather.gather(att))
     }
 }
 

@@ -10,6 +10,7 @@ use crate::lfa::LfaInputs;
 use burn::prelude::*;
 use fusiondet_frustum::{BatchScale, FrustumBatch};
 use fusiondet_nn::SegmentPool;
+use fusiondet_nn::gather::RowGather;
 
 /// The output length of a kernel-3, padding-1 convolution with the given stride.
 pub fn conv3_output_len(len: usize, stride: usize) -> usize {
@@ -59,6 +60,12 @@ pub struct AttentionIndex {
     pub pair_grid_cell: Tensor<1, Int>,
     /// The same cells on the host, for CBAM's host path in inference.
     pub pair_grid_cell_host: Vec<u32>,
+    /// The three gathers above as `RowGather`s (burn's `select` on the CPU; on a GPU a
+    /// backward pass by each row's readers, where burn's walks every row per column):
+    /// frustum rows to pairs, pair rows (and the zero row) to grid cells, cells to pairs.
+    pub pair_frustum_gather: RowGather,
+    pub grid_cell_gather: RowGather,
+    pub pair_grid_cell_gather: RowGather,
 }
 
 impl AttentionIndex {
@@ -92,10 +99,15 @@ impl AttentionIndex {
             let n = v.len();
             Tensor::<1, Int>::from_data(TensorData::new(v, [n]), device)
         };
+        let rows = |v: &[i64]| v.iter().map(|&r| r as u32).collect::<Vec<u32>>();
+        let cells = frustums * slices_per_frustum * cap;
         Self {
             frustums,
             slices_per_frustum,
             cap,
+            pair_frustum_gather: RowGather::new(&rows(&pair_frustum), frustums, device),
+            grid_cell_gather: RowGather::new(&rows(&cell_pair), num_pairs, device),
+            pair_grid_cell_gather: RowGather::new(&rows(&pair_cell), cells, device),
             pair_frustum: ints(pair_frustum),
             frustum_counts: Tensor::from_data(TensorData::new(counts_f, [frustums, 1]), device),
             frustum_pool: SegmentPool::new(&counts, &starts, device),

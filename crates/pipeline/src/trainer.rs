@@ -184,12 +184,12 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     if options.device == crate::ComputeDevice::Wgpu {
         // Measured on lavapipe (docs/gpus-and-clusters.md): burn's additions of repeated rows,
         // the backward pass of every gather still made by burn's `select` (the voxel family's
-        // large ones and LFA's go through `RowGather`), come out wrong there.
+        // large ones, LFA's and CBAM's go through `RowGather`), come out wrong there.
         eprintln!(
-            "warning: on wgpu, gradients of gathers that read rows more than once (the frustum \
-             family's CBAM pairs and PointNet scales) may be wrong: `fusiondet bench --device \
-             wgpu` prints how wrong (\"repeated-row additions\"); train on the CPU where \
-             results must hold"
+            "warning: on wgpu, the frustum family's additions of repeated rows (CBAM's \
+             per-frustum sums, the PointNet scales' gradients) may be wrong: `fusiondet bench \
+             --device wgpu` prints how wrong (\"repeated-row additions\"); train on the CPU \
+             where results must hold"
         );
     }
     let creates_run = !options.resume && !options.run_dir.exists();
