@@ -453,4 +453,58 @@ mod tests {
             }
         }
     }
+    /// In training on a GPU CBAM's gathers differentiate by their readers (`RowGather`):
+    /// the improved CBAM's output and the gradients of its input and spatial kernel on wgpu
+    /// are the CPU's within rounding.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn training_gradients_on_wgpu_match_the_cpu() {
+        use crate::device_test_support::{assert_close, upstream};
+        let Some(gpu) = fusiondet_nn::cube::working_wgpu_device("CBAM's gathers on a GPU") else {
+            return;
+        };
+        let config = ModelConfig {
+            slice_encoder: SliceEncoderKind::ImprovedCbam,
+            ..ModelConfig::tiny()
+        };
+        let batch = synthetic_batch(&SyntheticSpec::tiny(3), 7);
+        let c = 16;
+        let cpu = Device::flex().autodiff();
+        let cbam = Cbam::new(c, true, &config.attention, &cpu);
+        let run = |device: &Device| {
+            let inputs = BatchInputs::new(&batch, &config, device).unwrap();
+            let scale = &inputs.scales[1];
+            let index = scale.attention.as_ref().expect("attention index");
+            let cbam = cbam.clone().fork(device);
+            let values: Vec<f32> = (0..scale.num_pairs * c)
+                .map(|v| ((v * 37) % 101) as f32 / 50.0)
+                .collect();
+            let x = Tensor::<2>::from_data(TensorData::new(values, [scale.num_pairs, c]), device)
+                .require_grad();
+            let y = cbam.forward(x.clone(), index);
+            let grads = (y.clone() * upstream(y.dims(), device)).sum().backward();
+            [
+                y.try_into_vec_as::<f32>().unwrap(),
+                x.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap(),
+                cbam.spatial
+                    .weight
+                    .grad(&grads)
+                    .unwrap()
+                    .try_into_vec_as::<f32>()
+                    .unwrap(),
+            ]
+        };
+        let want = run(&cpu);
+        assert!(
+            want[1].iter().any(|&g| g != 0.0),
+            "a gradient reaches the input"
+        );
+        let got = run(&gpu.autodiff());
+        for (what, (got, want)) in ["output", "input gradient", "spatial kernel gradient"]
+            .iter()
+            .zip(got.iter().zip(&want))
+        {
+            assert_close(got, want, 1e-3, what);
+        }
+    }
 }
