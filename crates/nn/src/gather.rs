@@ -13,6 +13,7 @@
 //! by one thread, no atomics, the same bits run after run. On the CPU (and any other
 //! backend) the gather stays burn's `select`, whose results every pinned file was made with.
 
+use crate::row_pairs::RowPairs;
 use burn::prelude::*;
 
 /// A gather's index on its device, and on CubeCL devices its readers, for the backward pass.
@@ -112,26 +113,20 @@ fn on_cube_device(device: &Device) -> bool {
 }
 
 /// The index turned around: (starts [N + 1], readers) with source row n read by gathered
-/// rows `readers[starts[n]..starts[n + 1]]`, in ascending order (a counting sort); the zero
-/// row's readers are left out.
+/// rows `readers[starts[n]..starts[n + 1]]`, in ascending order; the zero row's readers are
+/// left out. The index as one list turned around by [`RowPairs`], the zero row counted as
+/// row N: its readers come last, and are cut off.
 fn readers_of(index: &[u32], source_rows: usize) -> (Vec<i64>, Vec<i64>) {
-    let mut starts = vec![0i64; source_rows + 1];
-    for &n in index {
-        if (n as usize) < source_rows {
-            starts[n as usize + 1] += 1;
-        }
-    }
-    for n in 0..source_rows {
-        starts[n + 1] += starts[n];
-    }
-    let mut next: Vec<i64> = starts[..source_rows].to_vec();
-    let mut readers = vec![0i64; starts[source_rows] as usize];
-    for (m, &n) in index.iter().enumerate() {
-        if let Some(at) = next.get_mut(n as usize) {
-            readers[*at as usize] = m as i64;
-            *at += 1;
-        }
-    }
+    let by_row = RowPairs::new(source_rows + 1, std::iter::once(index));
+    let starts: Vec<i64> = by_row.starts()[..=source_rows]
+        .iter()
+        .map(|&s| s as i64)
+        .collect();
+    let listed = by_row.starts()[source_rows];
+    let readers = by_row.entries()[..listed]
+        .iter()
+        .map(|&(_, m)| m as i64)
+        .collect();
     (starts, readers)
 }
 

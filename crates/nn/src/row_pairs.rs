@@ -53,6 +53,16 @@ impl RowPairs {
         &self.entries[self.starts[row]..self.starts[row + 1]]
     }
 
+    /// [rows + 1]: row r's entries are `entries()[starts()[r]..starts()[r + 1]]`.
+    pub fn starts(&self) -> &[usize] {
+        &self.starts
+    }
+
+    /// Every row's entries, row after row.
+    pub fn entries(&self) -> &[(u32, u32)] {
+        &self.entries
+    }
+
     /// Adds into each [c]-row r of `target` first `first[r]` (where given), then row p of
     /// `sources[j]` for every (j, p) entry of r, in that order; rows in parallel.
     pub(crate) fn add_into<S: AsRef<[f32]> + Sync>(
