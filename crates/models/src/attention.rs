@@ -236,7 +236,7 @@ impl Cbam {
         let device = x.device();
         let sum = Tensor::<2>::zeros([index.frustums, c], &device).select_assign(
             0,
-            index.pair_frustum.clone(),
+            index.pair_frustum.index().clone(),
             x.clone(),
             IndexingUpdateOp::Add,
         );
@@ -246,7 +246,7 @@ impl Cbam {
         if let Some(t) = &self.channel_tanh {
             logits = logits + t.forward(avg) + t.forward(max);
         }
-        index.pair_frustum_gather.gather(sigmoid(logits))
+        index.pair_frustum.gather(sigmoid(logits))
     }
 
     /// M_s per pair, [pairs, 1].
@@ -255,12 +255,12 @@ impl Cbam {
         let (b, l, n) = (index.frustums, index.slices_per_frustum, index.cap);
         // Empty cells read the gather's zero row.
         let grid = index
-            .grid_cell_gather
+            .grid_cell_pair
             .gather(maps)
             .reshape([b, l, n, 2])
             .permute([0, 3, 1, 2]);
         let att = self.spatial.forward(grid).reshape([b * l * n, 1]);
-        sigmoid(index.pair_grid_cell_gather.gather(att))
+        sigmoid(index.pair_grid_cell.gather(att))
     }
 }
 

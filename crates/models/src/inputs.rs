@@ -48,24 +48,22 @@ pub struct AttentionIndex {
     pub slices_per_frustum: usize,
     /// Grid columns: the scale's cap on points per sub-frustum.
     pub cap: usize,
-    /// [pairs]: the frustum of each pair.
-    pub pair_frustum: Tensor<1, Int>,
+    /// [pairs]: the frustum of each pair (`index()` on the device), and its gather of
+    /// frustum rows to pairs. The three gathers are `RowGather`s: burn's `select` on the
+    /// CPU; on a GPU a backward pass by each row's readers, where burn's walks every row per
+    /// column.
+    pub pair_frustum: RowGather,
     /// [frustums, 1]: pairs per frustum, at least 1 (the mean's divisor).
     pub frustum_counts: Tensor<2>,
     /// Max-pools pair rows into frustums.
     pub frustum_pool: SegmentPool,
-    /// [frustums · slices · cap]: the pair in each grid cell, `pairs` (a zero row) if empty.
-    pub grid_cell_pair: Tensor<1, Int>,
+    /// [frustums · slices · cap]: the pair in each grid cell, `pairs` (the gather's zero
+    /// row) if empty.
+    pub grid_cell_pair: RowGather,
     /// [pairs]: the grid cell of each pair.
-    pub pair_grid_cell: Tensor<1, Int>,
+    pub pair_grid_cell: RowGather,
     /// The same cells on the host, for CBAM's host path in inference.
     pub pair_grid_cell_host: Vec<u32>,
-    /// The three gathers above as `RowGather`s (burn's `select` on the CPU; on a GPU a
-    /// backward pass by each row's readers, where burn's walks every row per column):
-    /// frustum rows to pairs, pair rows (and the zero row) to grid cells, cells to pairs.
-    pub pair_frustum_gather: RowGather,
-    pub grid_cell_gather: RowGather,
-    pub pair_grid_cell_gather: RowGather,
 }
 
 impl AttentionIndex {
@@ -81,13 +79,14 @@ impl AttentionIndex {
         let num_pairs = *slice_start.last().unwrap_or(&0);
         let mut pair_frustum = Vec::with_capacity(num_pairs);
         let mut pair_cell = Vec::with_capacity(num_pairs);
-        let mut cell_pair = vec![num_pairs as i64; frustums * slices_per_frustum * cap];
+        let cells = frustums * slices_per_frustum * cap;
+        let mut cell_pair = vec![num_pairs as u32; cells];
         for (sl, w) in slice_start.windows(2).enumerate() {
             for (j, pair) in (w[0]..w[1]).enumerate() {
                 let cell = sl * cap + j;
-                pair_frustum.push((sl / slices_per_frustum) as i64);
-                pair_cell.push(cell as i64);
-                cell_pair[cell] = pair as i64;
+                pair_frustum.push((sl / slices_per_frustum) as u32);
+                pair_cell.push(cell as u32);
+                cell_pair[cell] = pair as u32;
             }
         }
         let starts: Vec<usize> = (0..=frustums)
@@ -95,25 +94,16 @@ impl AttentionIndex {
             .collect();
         let counts: Vec<usize> = starts.windows(2).map(|w| w[1] - w[0]).collect();
         let counts_f: Vec<f32> = counts.iter().map(|&c| c.max(1) as f32).collect();
-        let ints = |v: Vec<i64>| {
-            let n = v.len();
-            Tensor::<1, Int>::from_data(TensorData::new(v, [n]), device)
-        };
-        let rows = |v: &[i64]| v.iter().map(|&r| r as u32).collect::<Vec<u32>>();
-        let cells = frustums * slices_per_frustum * cap;
         Self {
             frustums,
             slices_per_frustum,
             cap,
-            pair_frustum_gather: RowGather::new(&rows(&pair_frustum), frustums, device),
-            grid_cell_gather: RowGather::new(&rows(&cell_pair), num_pairs, device),
-            pair_grid_cell_gather: RowGather::new(&rows(&pair_cell), cells, device),
-            pair_frustum: ints(pair_frustum),
+            pair_frustum: RowGather::new(&pair_frustum, frustums, device),
             frustum_counts: Tensor::from_data(TensorData::new(counts_f, [frustums, 1]), device),
             frustum_pool: SegmentPool::new(&counts, &starts, device),
-            grid_cell_pair: ints(cell_pair),
-            pair_grid_cell_host: pair_cell.iter().map(|&c| c as u32).collect(),
-            pair_grid_cell: ints(pair_cell),
+            grid_cell_pair: RowGather::new(&cell_pair, num_pairs, device),
+            pair_grid_cell: RowGather::new(&pair_cell, cells, device),
+            pair_grid_cell_host: pair_cell,
         }
     }
 }

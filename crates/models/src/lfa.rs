@@ -39,18 +39,16 @@ use std::sync::Arc;
 pub struct LfaStageIndex {
     /// Points of the stage per frustum (N_s).
     pub points: usize,
-    /// [B · N_s / 2]: rows of the survivors in the stage's point rows.
-    pub keep: Tensor<1, Int>,
-    /// [B · N_s / 2 · K]: rows of each survivor's K nearest neighbours.
-    pub neighbours: Tensor<1, Int>,
+    /// [B · N_s / 2]: rows of the survivors in the stage's point rows (`index()` on the
+    /// device), and their gather: burn's `select` on the CPU, a backward pass by each row's
+    /// readers on a GPU (`RowGather`), where burn's walks every gathered row per column (and
+    /// on lavapipe sums wrongly).
+    pub keep: RowGather,
+    /// [B · N_s / 2 · K]: rows of each survivor's K nearest neighbours, gathered likewise.
+    pub neighbours: RowGather,
     /// The same rows on the host (with their transpose), for the first layer's host path
     /// in inference and its custom operation in training.
     pub neighbours_host: Arc<Neighbours>,
-    /// The survivors' and the neighbours' gathers of features: burn's `select` on the CPU,
-    /// a backward pass by each row's readers on a GPU (`RowGather`), where burn's walks
-    /// every gathered row per column (and on lavapipe sums wrongly).
-    pub keep_gather: RowGather,
-    pub neighbour_gather: RowGather,
 }
 
 /// Everything LFA needs for a batch.
@@ -102,8 +100,8 @@ impl LfaInputs {
         let mut n = n0;
         for _ in 0..stages {
             let half = n / 2;
-            let keep: Vec<i64> = (0..batch_size * half)
-                .map(|r| ((r / half) * n + r % half) as i64)
+            let keep: Vec<u32> = (0..batch_size * half)
+                .map(|r| ((r / half) * n + r % half) as u32)
                 .collect();
             // The frustums' searches are independent: one per rayon task, collected in
             // frustum order (the same indices with any number of threads).
@@ -122,21 +120,13 @@ impl LfaInputs {
                 .collect();
             let mut neighbours = Vec::with_capacity(batch_size * half * k);
             for (f, knn) in per_frustum.into_iter().enumerate() {
-                neighbours.extend(knn.into_iter().map(|j| (f * n + j) as i64));
+                neighbours.extend(knn.into_iter().map(|j| (f * n + j) as u32));
             }
-            let ints = |v: Vec<i64>| {
-                let len = v.len();
-                Tensor::<1, Int>::from_data(TensorData::new(v, [len]), device)
-            };
-            let rows = |v: &[i64]| v.iter().map(|&r| r as u32).collect::<Vec<u32>>();
-            let neighbour_rows = rows(&neighbours);
             stage_index.push(LfaStageIndex {
                 points: n,
-                keep_gather: RowGather::new(&rows(&keep), batch_size * n, device),
-                neighbour_gather: RowGather::new(&neighbour_rows, batch_size * n, device),
-                keep: ints(keep),
-                neighbours_host: Arc::new(Neighbours::new(neighbour_rows, k, batch_size * n)),
-                neighbours: ints(neighbours),
+                keep: RowGather::new(&keep, batch_size * n, device),
+                neighbours: RowGather::new(&neighbours, batch_size * n, device),
+                neighbours_host: Arc::new(Neighbours::new(neighbours, k, batch_size * n)),
             });
             n = half;
         }
@@ -239,7 +229,7 @@ impl Lfa {
         let mut coords = inputs.coords.clone();
         let mut feats: Option<Tensor<2>> = None;
         for (stage, index) in self.stages.iter().zip(&inputs.stages) {
-            let q = coords.clone().select(0, index.keep.clone()); // [M, 3]
+            let q = coords.clone().select(0, index.keep.index().clone()); // [M, 3]
             let (first, rest) = stage.local.split_first().expect("a local MLP has layers");
             let at = Neighbourhood {
                 coords: &coords,
@@ -267,7 +257,7 @@ impl Lfa {
             let local = relu(local);
             let mut point_in = vec![scaled(q.clone(), inputs.position_gain)];
             if let Some(g) = &feats {
-                point_in.push(index.keep_gather.gather(g.clone()));
+                point_in.push(index.keep.gather(g.clone()));
             }
             let point = run(&stage.point, Tensor::cat(point_in, 1));
             feats = Some(Tensor::cat(vec![local, point], 1));
@@ -432,7 +422,10 @@ impl FirstLayerTerms {
         let (index, k) = (at.index, at.k);
         let [m, c1] = self.per_query.dims();
         // ‖p_i − p_k‖ of the scaled offsets, [M·K, 1].
-        let nb = at.coords.clone().select(0, index.neighbours.clone()); // [M·K, 3]
+        let nb = at
+            .coords
+            .clone()
+            .select(0, index.neighbours.index().clone()); // [M·K, 3]
         let qk =
             at.q.clone()
                 .reshape([m, 1, 3])
@@ -443,10 +436,7 @@ impl FirstLayerTerms {
             .sum_dim(1)
             .add_scalar(1e-12)
             .sqrt();
-        let y = index
-            .neighbour_gather
-            .gather(self.per_point)
-            .reshape([m, k, c1])
+        let y = index.neighbours.gather(self.per_point).reshape([m, k, c1])
             + self.per_query.reshape([m, 1, c1])
             + (dist * self.w_d).reshape([m, k, c1]);
         y.reshape([m * k, c1])
@@ -621,9 +611,9 @@ mod tests {
         let mut coords = inputs.coords.clone();
         let mut feats: Option<Tensor<2>> = None;
         for (stage, index) in lfa.stages.iter().zip(&inputs.stages) {
-            let q = coords.clone().select(0, index.keep.clone());
+            let q = coords.clone().select(0, index.keep.index().clone());
             let m = q.dims()[0];
-            let nb = coords.clone().select(0, index.neighbours.clone());
+            let nb = coords.clone().select(0, index.neighbours.index().clone());
             let qk = q
                 .clone()
                 .reshape([m, 1, 3])
@@ -634,8 +624,8 @@ mod tests {
             let mut local_in = vec![nb.mul_scalar(a), rel, dist, qk.mul_scalar(a)];
             let mut point_in = vec![q.clone().mul_scalar(a)];
             if let Some(g) = &feats {
-                local_in.push(g.clone().select(0, index.neighbours.clone()));
-                point_in.push(index.keep_gather.gather(g.clone()));
+                local_in.push(g.clone().select(0, index.neighbours.index().clone()));
+                point_in.push(g.clone().select(0, index.keep.index().clone()));
             }
             let local = run(&stage.local, Tensor::cat(local_in, 1));
             let c = local.dims()[1];
@@ -722,7 +712,7 @@ mod tests {
         };
         let inputs = LfaInputs::new(&points, 2, n0, &config, &device).unwrap();
         let index = &inputs.stages[0];
-        let q = inputs.coords.clone().select(0, index.keep.clone());
+        let q = inputs.coords.clone().select(0, index.keep.index().clone());
         let m = q.dims()[0];
         let values = |rows: usize, seed: usize| {
             let v: Vec<f32> = (0..rows * c1)
@@ -849,8 +839,13 @@ mod tests {
         let inputs = LfaInputs::new(&points, 2, n0, &config, &device).unwrap();
         let mut n = n0;
         for stage in &inputs.stages {
-            let keep = stage.keep.clone().try_into_vec_as::<i64>().unwrap();
-            let nb = stage.neighbours.clone().try_into_vec_as::<i64>().unwrap();
+            let keep = stage.keep.index().clone().try_into_vec_as::<i64>().unwrap();
+            let nb = stage
+                .neighbours
+                .index()
+                .clone()
+                .try_into_vec_as::<i64>()
+                .unwrap();
             assert_eq!(keep.len(), n);
             assert_eq!(nb.len(), n * 4);
             for (row, &r) in keep.iter().enumerate() {
@@ -870,8 +865,8 @@ mod tests {
             .install(|| LfaInputs::new(&points, 2, n0, &config, &device).unwrap());
         for (a, b) in inputs.stages.iter().zip(&one_thread.stages) {
             let ints = |t: &Tensor<1, Int>| t.clone().try_into_vec_as::<i64>().unwrap();
-            assert_eq!(ints(&a.neighbours), ints(&b.neighbours));
-            assert_eq!(ints(&a.keep), ints(&b.keep));
+            assert_eq!(ints(a.neighbours.index()), ints(b.neighbours.index()));
+            assert_eq!(ints(a.keep.index()), ints(b.keep.index()));
         }
         let bad = LfaInputs::new(&points[..2 * 6 * 3], 2, 6, &config, &device);
         assert!(bad.unwrap_err().to_string().contains("halved"));
