@@ -43,3 +43,17 @@ pub fn working_wgpu_device(unchecked: &str) -> Option<Device> {
         }
     }
 }
+
+/// Asserts every value of `got` within `tolerance` times the largest |value| of `want` (at
+/// least 1) of `want`'s: a GPU's results against the CPU's, in the tests of GPU code.
+#[cfg(feature = "wgpu")]
+pub fn assert_close(got: &[f32], want: &[f32], tolerance: f32, what: &str) {
+    assert_eq!(got.len(), want.len(), "{what}");
+    let scale = want.iter().fold(1f32, |m, v| m.max(v.abs()));
+    for (i, (x, y)) in got.iter().zip(want).enumerate() {
+        assert!(
+            (x - y).abs() <= tolerance * scale,
+            "{what}[{i}]: {x} vs {y}"
+        );
+    }
+}

@@ -171,7 +171,7 @@ impl<C: CheckpointStrategy> RowGatherOps for Autodiff<CubeBackend, C> {
 
 #[cfg(all(test, feature = "wgpu"))]
 mod tests {
-    use crate::cube::working_wgpu_device;
+    use crate::cube::{assert_close, working_wgpu_device};
     use crate::gather::RowGather;
     use burn::prelude::*;
 
@@ -205,14 +205,6 @@ mod tests {
         ]
     }
 
-    fn close(got: &[f32], want: &[f32], what: &str) {
-        assert_eq!(got.len(), want.len(), "{what}");
-        let scale = want.iter().fold(1f32, |m, v| m.max(v.abs()));
-        for (i, (x, y)) in got.iter().zip(want).enumerate() {
-            assert!((x - y).abs() <= 1e-5 * scale, "{what}[{i}]: {x} vs {y}");
-        }
-    }
-
     /// The gather on wgpu against the CPU's `select`: the same rows, and gradients within
     /// rounding at a RoI pooling level's size (27 readers a row), the same bits twice. (At
     /// the largest size burn's own `select` on lavapipe gave a gradient off by 1.4 of its
@@ -228,7 +220,7 @@ mod tests {
             let want = run(n, m, c, &cpu, false);
             let got = run(n, m, c, &gpu, true);
             assert_eq!(got[0], want[0], "{n} → {m}: gathered rows");
-            close(&got[1], &want[1], &format!("{n} → {m}: gradient"));
+            assert_close(&got[1], &want[1], 1e-5, &format!("{n} → {m}: gradient"));
             assert_eq!(run(n, m, c, &gpu, true), got, "{n} → {m}: a second run");
         }
     }

@@ -391,20 +391,12 @@ mod tests {
     use super::super::rulebook::{ConvGeometry, RuleGather, RuleLayout, Rulebook};
     use super::super::sites::SparseSites;
     use super::super::test_data::{sites, values};
-    use crate::cube::working_wgpu_device;
+    use crate::cube::{assert_close, working_wgpu_device};
     use burn::prelude::*;
     use std::sync::Arc;
 
     fn flat<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         t.try_into_vec_as::<f32>().unwrap()
-    }
-
-    fn close(a: &[f32], b: &[f32], what: &str) {
-        assert_eq!(a.len(), b.len(), "{what}");
-        let scale = b.iter().fold(1f32, |m, v| m.max(v.abs()));
-        for (i, (x, y)) in a.iter().zip(b).enumerate() {
-            assert!((x - y).abs() <= 1e-5 * scale, "{what}[{i}]: {x} vs {y}");
-        }
     }
 
     /// One layer's (output, input gradient, weight gradient) on `device` in `layout`;
@@ -514,7 +506,7 @@ mod tests {
                 .iter()
                 .zip(got.iter().zip(&want))
             {
-                close(got, want, &format!("case {case}: {what}"));
+                assert_close(got, want, 1e-5, &format!("case {case}: {what}"));
             }
             let transposed = run(&conv, &sites, RuleLayout::DeviceKernels, &gpu, true);
             assert_eq!(
