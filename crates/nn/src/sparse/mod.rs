@@ -17,7 +17,10 @@ pub mod dense;
 pub mod device_kernels;
 pub mod fused;
 pub mod rulebook;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod rulebook_device;
 pub mod sites;
+mod strided_sites;
 #[cfg(test)]
 mod test_data;
 

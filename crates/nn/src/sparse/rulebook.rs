@@ -4,7 +4,8 @@
 //! stage share one). The pairs reach the device in one of two layouts ([`RuleLayout`]):
 //! a list per offset for the CPU, one kernel map for GPUs.
 
-use super::sites::{SparseSites, decode_key, in_shape, linear_key};
+use super::sites::{SparseSites, in_shape, linear_key};
+use super::strided_sites::StridedOutputs;
 use crate::row_pairs::RowPairs;
 use burn::prelude::*;
 use rayon::prelude::*;
@@ -87,6 +88,45 @@ impl ConvGeometry {
                 }
             }
         }
+    }
+
+    /// The output site input site `c` feeds at offset `k` (`o·s − p + d_k = c`), if inside
+    /// `out_shape`: [`ConvGeometry::for_each_target`] for one offset.
+    pub(crate) fn target(&self, c: &[i32; 4], k: usize, out_shape: [usize; 3]) -> Option<[i32; 4]> {
+        let d = self.offset(k);
+        let mut o = [c[0], 0, 0, 0];
+        for a in 0..3 {
+            let n = c[a + 1] + self.padding[a] as i32 - d[a];
+            let s = self.stride[a] as i32;
+            if n < 0 || n % s != 0 || (n / s) as usize >= out_shape[a] {
+                return None;
+            }
+            o[a + 1] = n / s;
+        }
+        Some(o)
+    }
+
+    /// The rows of `coords` by residue class modulo the stride of `c + p` (z, y, x), each
+    /// class in row order: offset `k` reaches outputs from class
+    /// [`ConvGeometry::offset_class`] only.
+    fn residue_buckets(&self, coords: &[[i32; 4]]) -> Vec<Vec<u32>> {
+        let s = self.stride.map(|s| s as i32);
+        let mut buckets = vec![Vec::new(); self.stride.iter().product()];
+        for (row, c) in coords.iter().enumerate() {
+            let r: [i32; 3] =
+                std::array::from_fn(|a| (c[a + 1] + self.padding[a] as i32).rem_euclid(s[a]));
+            buckets[((r[0] * s[1] + r[1]) * s[2] + r[2]) as usize].push(row as u32);
+        }
+        buckets
+    }
+
+    /// The residue class (as [`ConvGeometry::residue_buckets`] numbers them) of the inputs
+    /// offset `k` reaches outputs from: `c + p ≡ d_k` modulo the stride.
+    fn offset_class(&self, k: usize) -> usize {
+        let s = self.stride.map(|s| s as i32);
+        let d = self.offset(k);
+        let r: [i32; 3] = std::array::from_fn(|a| d[a] % s[a]);
+        ((r[0] * s[1] + r[1]) * s[2] + r[2]) as usize
     }
 
     /// (dz, dy, dx) of offset index `k`.
@@ -276,8 +316,9 @@ pub struct Rulebook {
     pub submanifold: bool,
     pub input_rows: usize,
     pub output: Arc<SparseSites>,
-    /// All (input, output) pairs, a submanifold kernel's centre included.
-    pub pairs: usize,
+    /// All (input, output) pairs, a submanifold kernel's centre included: counted as the
+    /// host builds them, or from the table when first asked for where the device built it.
+    pairs: OnceLock<usize>,
     pub gather: RuleGather,
 }
 
@@ -295,8 +336,29 @@ impl Rulebook {
         layout: RuleLayout,
         device: &Device,
     ) -> Rulebook {
+        Self::submanifold_built(sites, kernel, layout, device, TableBuild::Device)
+    }
+
+    /// [`Rulebook::submanifold_in`], the kernels' tables built where `build` says.
+    pub(crate) fn submanifold_built(
+        sites: &Arc<SparseSites>,
+        kernel: [usize; 3],
+        layout: RuleLayout,
+        device: &Device,
+        build: TableBuild,
+    ) -> Rulebook {
         let geometry = ConvGeometry::same(kernel);
         let volume = geometry.volume();
+        if let Some(gather) = device_tables(sites, None, &geometry, layout, device, build) {
+            return Rulebook {
+                geometry,
+                submanifold: true,
+                input_rows: sites.len(),
+                output: sites.clone(),
+                pairs: OnceLock::new(),
+                gather,
+            };
+        }
         let centre = volume / 2;
         // Offset k and its mirror `volume − 1 − k` pair the same sites the other way round
         // (o reads i at +d exactly when i reads o at −d), so only the offsets before the
@@ -330,7 +392,7 @@ impl Rulebook {
             submanifold: true,
             input_rows: sites.len(),
             output: sites.clone(),
-            pairs: count_pairs(&pairs) + identity.map_or(0, |_| sites.len()),
+            pairs: OnceLock::from(count_pairs(&pairs) + identity.map_or(0, |_| sites.len())),
             gather: gather(
                 pairs,
                 identity,
@@ -357,53 +419,50 @@ impl Rulebook {
         layout: RuleLayout,
         device: &Device,
     ) -> Rulebook {
+        Self::strided_built(sites, geometry, layout, device, TableBuild::Device)
+    }
+
+    /// [`Rulebook::strided_in`], the kernels' tables built where `build` says.
+    pub(crate) fn strided_built(
+        sites: &SparseSites,
+        geometry: ConvGeometry,
+        layout: RuleLayout,
+        device: &Device,
+        build: TableBuild,
+    ) -> Rulebook {
         let out_shape = geometry.output_shape(sites.spatial_shape());
         let volume = geometry.volume();
-        let n = sites.len();
-        // Every (output index, input row, offset) an input feeds, sorted by output index: the
-        // distinct indices in order are the output sites (batch-major), and each entry's
-        // rank among them its output row, written to `row_of[offset · n + input]`.
-        let mut feeds: Vec<(u64, u32, u32)> = sites
-            .coords()
-            .par_iter()
-            .enumerate()
-            .fold(Vec::new, |mut feeds, (i, c)| {
-                geometry.for_each_target(c, out_shape, |k, o| {
-                    feeds.push((linear_key(o, out_shape), i as u32, k as u32));
-                });
-                feeds
-            })
-            .reduce(Vec::new, |mut a, mut b| {
-                a.append(&mut b);
-                a
-            });
-        feeds.par_sort_unstable_by_key(|&(key, _, _)| key);
-        let mut row_of = vec![NONE; volume * n];
-        let mut outputs: Vec<[i32; 4]> = Vec::new();
-        let mut last_key = None;
-        for &(key, i, k) in &feeds {
-            if last_key != Some(key) {
-                last_key = Some(key);
-                outputs.push(decode_key(key, out_shape));
-            }
-            row_of[k as usize * n + i as usize] = (outputs.len() - 1) as u32;
-        }
-        drop(feeds);
+        let outputs = StridedOutputs::new(sites, &geometry);
         let output = Arc::new(SparseSites::from_sorted(
-            outputs,
+            outputs.coords.clone(),
             out_shape,
             sites.batch_size(),
         ));
-        // Per offset, the pairs in input row order.
-        let pairs: Vec<(usize, Vec<i64>, Vec<i64>)> = row_of
-            .par_chunks(n.max(1))
-            .enumerate()
-            .map(|(k, rows)| {
+        if let Some(gather) = device_tables(sites, Some(&output), &geometry, layout, device, build)
+        {
+            return Rulebook {
+                geometry,
+                submanifold: false,
+                input_rows: sites.len(),
+                output,
+                pairs: OnceLock::new(),
+                gather,
+            };
+        }
+        // Per offset, the pairs in input row order. An offset reaches an output from the
+        // inputs of one residue class modulo the stride only (`c + p − d ≡ 0`), so the
+        // inputs are bucketed by class first (in row order) and each offset walks its own
+        // bucket: an eighth of the inputs per offset at stride 2, not all of them.
+        let buckets = geometry.residue_buckets(sites.coords());
+        let pairs: OffsetPairs = (0..volume)
+            .into_par_iter()
+            .map(|k| {
                 let (mut input, mut out_rows) = (Vec::new(), Vec::new());
-                for (i, &o) in rows.iter().enumerate() {
-                    if o != NONE {
+                for &i in &buckets[geometry.offset_class(k)] {
+                    let c = &sites.coords()[i as usize];
+                    if let Some(o) = geometry.target(c, k, out_shape) {
                         input.push(i as i64);
-                        out_rows.push(o as i64);
+                        out_rows.push(outputs.row(linear_key(o, out_shape)) as i64);
                     }
                 }
                 (k, input, out_rows)
@@ -415,7 +474,7 @@ impl Rulebook {
             submanifold: false,
             input_rows: sites.len(),
             output,
-            pairs: count_pairs(&pairs),
+            pairs: OnceLock::from(count_pairs(&pairs)),
             gather: gather(
                 pairs,
                 None,
@@ -434,9 +493,53 @@ impl Rulebook {
 
     /// All (input, output) pairs, the identity offset's included: a convolution over
     /// these sites costs `pairs · C_in · C_out` multiply-adds (in the per-offset layout).
+    /// Where the device built the table, the first call reads it back (a wait for the
+    /// device; `info` and benchmarks ask, a forward pass does not).
     pub fn total_pairs(&self) -> usize {
-        self.pairs
+        *self.pairs.get_or_init(|| match &self.gather {
+            RuleGather::KernelMap { table, .. } => table
+                .clone()
+                .into_data()
+                .convert::<i64>()
+                .iter::<i64>()
+                .filter(|&row| (0..self.input_rows as i64).contains(&row))
+                .count(),
+            RuleGather::PerOffset { .. } => unreachable!("a per-offset rulebook counts its pairs"),
+        })
     }
+}
+
+/// Where the tables of [`RuleLayout::DeviceKernels`] are built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum TableBuild {
+    /// On the device by search (`rulebook_device`), where the grid's indices fit an i32.
+    Device,
+    /// On the host from the pairs, then uploaded (the device build's reference in tests).
+    #[cfg_attr(not(all(test, feature = "wgpu")), allow(dead_code))]
+    Host,
+}
+
+/// The kernels' table and inverse built on the device, where `layout` is
+/// [`RuleLayout::DeviceKernels`] on `device` and `build` asks for it; `output` is `None` for a
+/// submanifold layer (its outputs are its inputs).
+fn device_tables(
+    input: &SparseSites,
+    output: Option<&SparseSites>,
+    geometry: &ConvGeometry,
+    layout: RuleLayout,
+    device: &Device,
+    build: TableBuild,
+) -> Option<RuleGather> {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if build == TableBuild::Device && layout.on(device) == RuleLayout::DeviceKernels {
+        let (table, inverse) = super::rulebook_device::kernel_map(input, output, geometry, device)?;
+        return Some(RuleGather::KernelMap {
+            table: Box::new(table),
+            inverse: Some(Box::new(inverse)),
+        });
+    }
+    let _ = (input, output, geometry, layout, device, build);
+    None
 }
 
 /// A row that is not there.
