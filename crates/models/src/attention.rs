@@ -17,7 +17,6 @@ use crate::inputs::AttentionIndex;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{Linear, LinearConfig, PaddingConfig2d};
 use burn::prelude::*;
-use burn::tensor::IndexingUpdateOp;
 use burn::tensor::activation::{relu, sigmoid, tanh};
 use fusiondet_nn::host_max::{flex_max, host_path};
 use rayon::prelude::*;
@@ -232,14 +231,7 @@ impl Cbam {
 
     /// M_c per pair, [pairs, C].
     fn channel_weights(&self, x: Tensor<2>, index: &AttentionIndex) -> Tensor<2> {
-        let [_, c] = x.dims();
-        let device = x.device();
-        let sum = Tensor::<2>::zeros([index.frustums, c], &device).select_assign(
-            0,
-            index.pair_frustum.index().clone(),
-            x.clone(),
-            IndexingUpdateOp::Add,
-        );
+        let sum = index.pair_frustum.sum_by_source(x.clone());
         let avg = sum / index.frustum_counts.clone();
         let max = index.frustum_pool.max_pool(x);
         let mut logits = self.channel.forward(avg.clone()) + self.channel.forward(max.clone());

@@ -34,7 +34,7 @@ pub struct ScaleInputs {
     /// Indices for FCAM's attention; built only when the encoder needs them.
     pub attention: Option<AttentionIndex>,
     /// [num_pairs]: each pair's row in the LFA feature tensor (SAF only).
-    pub pair_feature_row: Option<Tensor<1, Int>>,
+    pub pair_feature_row: Option<RowGather>,
     /// Host copies, for building the padded form on demand.
     rel_host: Vec<f32>,
     slice_start: Vec<usize>,
@@ -48,10 +48,10 @@ pub struct AttentionIndex {
     pub slices_per_frustum: usize,
     /// Grid columns: the scale's cap on points per sub-frustum.
     pub cap: usize,
-    /// [pairs]: the frustum of each pair (`index()` on the device), and its gather of
-    /// frustum rows to pairs. The three gathers are `RowGather`s: burn's `select` on the
-    /// CPU; on a GPU a backward pass by each row's readers, where burn's walks every row per
-    /// column.
+    /// [pairs]: the frustum of each pair (`index()` on the device), its gather of frustum
+    /// rows to pairs and its sums of pair rows into frustums. The three gathers are
+    /// `RowGather`s: burn's `select` (and `select_assign` for the sums) on the CPU; on a GPU
+    /// additions by each row's readers, where burn's walk every row per column.
     pub pair_frustum: RowGather,
     /// [frustums, 1]: pairs per frustum, at least 1 (the mean's divisor).
     pub frustum_counts: Tensor<2>,
@@ -98,7 +98,7 @@ impl AttentionIndex {
             frustums,
             slices_per_frustum,
             cap,
-            pair_frustum: RowGather::new(&pair_frustum, frustums, device),
+            pair_frustum: RowGather::with_sums(&pair_frustum, frustums, device),
             frustum_counts: Tensor::from_data(TensorData::new(counts_f, [frustums, 1]), device),
             frustum_pool: SegmentPool::new(&counts, &starts, device),
             grid_cell_pair: RowGather::new(&cell_pair, num_pairs, device),
@@ -222,6 +222,7 @@ impl BatchInputs {
                         &s.pair_point,
                         batch.points_per_frustum,
                         surviving,
+                        b,
                         device,
                     )?);
                 }
@@ -256,8 +257,9 @@ fn pair_feature_rows(
     pair_point: &[i64],
     n0: usize,
     surviving: usize,
+    frustums: usize,
     device: &Device,
-) -> Result<Tensor<1, Int>, ModelError> {
+) -> Result<RowGather, ModelError> {
     let mut rows = Vec::with_capacity(pair_point.len());
     for &p in pair_point {
         let (f, i) = (p as usize / n0, p as usize % n0);
@@ -267,10 +269,9 @@ fn pair_feature_rows(
                  {surviving} survive LFA's halvings; set frustum.sliced_points = {surviving}"
             )));
         }
-        rows.push((f * surviving + i) as i64);
+        rows.push((f * surviving + i) as u32);
     }
-    let n = rows.len();
-    Ok(Tensor::from_data(TensorData::new(rows, [n]), device))
+    Ok(RowGather::new(&rows, frustums * surviving, device))
 }
 
 impl ScaleInputs {

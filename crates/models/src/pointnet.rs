@@ -99,10 +99,9 @@ impl PointNet {
         }
         let (last, rest) = self.layers.split_last().expect("at least one layer");
         let mut x = match (point_features, &scale.pair_feature_row) {
-            (Some(f), Some(rows)) => Tensor::cat(
-                vec![scale.rel_coords.clone(), f.clone().select(0, rows.clone())],
-                1,
-            ),
+            (Some(f), Some(rows)) => {
+                Tensor::cat(vec![scale.rel_coords.clone(), rows.gather(f.clone())], 1)
+            }
             _ => scale.rel_coords.clone(),
         };
         for (l, layer) in rest.iter().enumerate() {

@@ -39,6 +39,22 @@ impl RowGather {
     /// `source_rows` (past that it panics: an index is built by the caller, never read from a
     /// user's file).
     pub fn new(index: &[u32], source_rows: usize, device: &Device) -> Self {
+        Self::build(index, source_rows, false, device)
+    }
+
+    /// [`RowGather::new`] for an index that also sums rows into their sources
+    /// ([`RowGather::sum_by_source`]): its readers are listed on every CubeCL device, not
+    /// only where a backward pass reads them. No row may read the zero row.
+    pub fn with_sums(index: &[u32], source_rows: usize, device: &Device) -> Self {
+        let gather = Self::build(index, source_rows, true, device);
+        assert!(
+            !gather.reads_zeros,
+            "a summed index names a source row everywhere"
+        );
+        gather
+    }
+
+    fn build(index: &[u32], source_rows: usize, sums: bool, device: &Device) -> Self {
         for &n in index {
             assert!((n as usize) <= source_rows, "row {n} of {source_rows}");
         }
@@ -46,8 +62,9 @@ impl RowGather {
         let m = index.len();
         let as_i64: Vec<i64> = index.iter().map(|&n| n as i64).collect();
         let index_tensor = Tensor::<1, Int>::from_data(TensorData::new(as_i64, [m]), device);
-        // Only a differentiating device runs the backward pass that reads them.
-        let readers = (on_cube_device(device) && device.is_autodiff()).then(|| {
+        // Only a differentiating device runs the backward pass that reads them, and the
+        // sums' forward pass.
+        let readers = (on_cube_device(device) && (sums || device.is_autodiff())).then(|| {
             let (mut starts, readers) = readers_of(index, source_rows);
             if reads_zeros {
                 // The appended zero row, with no reader listed: its gradient is zeros.
@@ -96,6 +113,35 @@ impl RowGather {
             return crate::gather_device::gather_rows(values, &self.index, starts, readers);
         }
         values.select(0, self.index.clone())
+    }
+
+    /// The gather turned around: `values` [M, C] → [N, C], source row n the sum of the rows
+    /// that read it (zeros where none does): a segment sum by a host index, as CBAM's
+    /// per-frustum means take it. On the CPU burn's `select_assign` with `Add` (the bits
+    /// every pinned result was made with); on a CubeCL device, for an index made by
+    /// [`RowGather::with_sums`], one thread a source value adding its readers in ascending
+    /// order (`select_assign` there walks every row per column, and on lavapipe went wrong
+    /// at size), differentiated by a gather.
+    pub fn sum_by_source(&self, values: Tensor<2>) -> Tensor<2> {
+        let [rows, c] = values.dims();
+        assert_eq!(rows, self.index.dims()[0], "values of the gathered rows");
+        assert!(
+            !self.reads_zeros,
+            "a summed index names a source row everywhere"
+        );
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if let Some((starts, readers)) = &self.readers
+            && on_cube_device(&values.device())
+        {
+            return crate::gather_device::sum_rows(values, &self.index, starts, readers);
+        }
+        let device = values.device();
+        Tensor::<2>::zeros([self.source_rows, c], &device).select_assign(
+            0,
+            self.index.clone(),
+            values,
+            burn::tensor::IndexingUpdateOp::Add,
+        )
     }
 }
 

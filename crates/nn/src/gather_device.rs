@@ -31,6 +31,16 @@ pub trait RowGatherOps: Backend {
         starts: IntTensor<Self>,
         readers: IntTensor<Self>,
     ) -> FloatTensor<Self>;
+
+    /// The gather turned around: `values` [M, C] → [N, C] (N + 1 = `starts`' length), row n
+    /// the sum of `values[readers[j]]` over `starts[n] ≤ j < starts[n + 1]` in that order;
+    /// `index` [M] (every entry below N) is the gradient's gather.
+    fn sum_rows(
+        values: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        starts: IntTensor<Self>,
+        readers: IntTensor<Self>,
+    ) -> FloatTensor<Self>;
 }
 
 /// [`RowGatherOps::gather_rows`] on burn tensors of a CubeCL device.
@@ -41,6 +51,21 @@ pub fn gather_rows(
     readers: &Tensor<1, Int>,
 ) -> Tensor<2> {
     Tensor::from_dispatch(<Dispatch as RowGatherOps>::gather_rows(
+        values.into_dispatch(),
+        index.clone().into_dispatch(),
+        starts.clone().into_dispatch(),
+        readers.clone().into_dispatch(),
+    ))
+}
+
+/// [`RowGatherOps::sum_rows`] on burn tensors of a CubeCL device.
+pub fn sum_rows(
+    values: Tensor<2>,
+    index: &Tensor<1, Int>,
+    starts: &Tensor<1, Int>,
+    readers: &Tensor<1, Int>,
+) -> Tensor<2> {
+    Tensor::from_dispatch(<Dispatch as RowGatherOps>::sum_rows(
         values.into_dispatch(),
         index.clone().into_dispatch(),
         starts.clone().into_dispatch(),
@@ -82,7 +107,8 @@ fn dims2(t: &CubeTensor) -> [usize; 2] {
     [shape[0], shape[1]]
 }
 
-/// The gradient of the source rows, [N, C], from the gathered rows' `grad` [M, C].
+/// The gradient of the source rows, [N, C], from the gathered rows' `grad` [M, C]; the
+/// forward pass of the sums (the same additions).
 fn backward(grad: CubeTensor, starts: CubeTensor, readers: CubeTensor) -> CubeTensor {
     let grad = untile(CubeBackend::float_cast(grad, FloatDType::F32));
     let [_, channels] = dims2(&grad);
@@ -130,6 +156,32 @@ impl RowGatherOps for CubeBackend {
     ) -> CubeTensor {
         CubeBackend::float_select(values, 0, index)
     }
+
+    fn sum_rows(
+        values: CubeTensor,
+        _index: CubeTensor,
+        starts: CubeTensor,
+        readers: CubeTensor,
+    ) -> CubeTensor {
+        backward(values, int_rows(starts), int_rows(readers))
+    }
+}
+
+/// The backward step of [`RowGatherOps::sum_rows`]: each summed row's gradient gathered
+/// back to the rows that went into it.
+#[derive(Debug)]
+struct SumRowsBackward;
+
+impl Backward<CubeBackend, 1> for SumRowsBackward {
+    /// The index [M].
+    type State = CubeTensor;
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let grad = grads.consume::<CubeBackend>(&ops.node);
+        if let [Some(node)] = ops.parents {
+            grads.register::<CubeBackend>(node.id, CubeBackend::float_select(grad, 0, ops.state));
+        }
+    }
 }
 
 /// The backward step of [`RowGatherOps::gather_rows`].
@@ -164,6 +216,24 @@ impl<C: CheckpointStrategy> RowGatherOps for Autodiff<CubeBackend, C> {
             .stateful()
         {
             OpsKind::Tracked(prep) => prep.finish([int_rows(starts), int_rows(readers)], out),
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        }
+    }
+
+    fn sum_rows(
+        values: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        starts: IntTensor<Self>,
+        readers: IntTensor<Self>,
+    ) -> FloatTensor<Self> {
+        let (values, parent) = values.into_parts();
+        let out = backward(values, int_rows(starts), int_rows(readers));
+        match SumRowsBackward
+            .prepare::<C>([parent])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish(index, out),
             OpsKind::UnTracked(prep) => prep.finish(out),
         }
     }
@@ -223,5 +293,59 @@ mod tests {
             assert_close(&got[1], &want[1], 1e-5, &format!("{n} → {m}: gradient"));
             assert_eq!(run(n, m, c, &gpu, true), got, "{n} → {m}: a second run");
         }
+    }
+
+    /// The sums into the sources on wgpu against the CPU's `select_assign`: values within
+    /// rounding (another order of the same additions), the same bits twice, and the
+    /// gradient (a gather) the CPU's exactly; at the size where burn's own kernel went
+    /// wrong on lavapipe.
+    #[test]
+    fn sums_by_source_match_the_cpu() {
+        let Some(gpu) = working_wgpu_device("the row sums' kernel") else {
+            return;
+        };
+        let run = |n: usize, m: usize, c: usize, device: &Device| {
+            let index: Vec<u32> = (0..m).map(|i| ((i * 7919) % n) as u32).collect();
+            let values: Vec<f32> = (0..m * c)
+                .map(|v| ((v * 37) % 101) as f32 / 50.0 - 1.0)
+                .collect();
+            let upstream: Vec<f32> = (0..n * c)
+                .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
+                .collect();
+            let sums = RowGather::with_sums(&index, n, device);
+            let x = Tensor::<2>::from_data(TensorData::new(values, [m, c]), device).require_grad();
+            let y = sums.sum_by_source(x.clone());
+            let grads = (y.clone() * Tensor::from_data(TensorData::new(upstream, [n, c]), device))
+                .sum()
+                .backward();
+            [
+                y.try_into_vec_as::<f32>().unwrap(),
+                x.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap(),
+            ]
+        };
+        let (gpu, cpu) = (gpu.autodiff(), Device::flex().autodiff());
+        for (n, m, c) in [(5, 12, 3), (300, 301, 8), (20_001, 540_027, 16)] {
+            let want = run(n, m, c, &cpu);
+            let got = run(n, m, c, &gpu);
+            assert_close(&got[0], &want[0], 1e-5, &format!("{m} → {n}: sums"));
+            assert_eq!(got[1], want[1], "{m} → {n}: gradient");
+            assert_eq!(run(n, m, c, &gpu), got, "{m} → {n}: a second run");
+        }
+        // Inference (no autodiff) builds the readers and takes the kernel too.
+        let plain = gpu.without_autodiff();
+        let index: Vec<u32> = (0..40).map(|i| (i % 7) as u32).collect();
+        let values: Vec<f32> = (0..40 * 2).map(|v| v as f32).collect();
+        let sums = RowGather::with_sums(&index, 7, &plain);
+        let x = Tensor::<2>::from_data(TensorData::new(values, [40, 2]), &plain);
+        let got = sums.sum_by_source(x).try_into_vec_as::<f32>().unwrap();
+        let want: Vec<f32> = (0..7 * 2)
+            .map(|v| {
+                (0..40)
+                    .filter(|i| i % 7 == v / 2)
+                    .map(|i| (i * 2 + v % 2) as f32)
+                    .sum()
+            })
+            .collect();
+        assert_eq!(got, want, "sums without autodiff");
     }
 }

@@ -2,6 +2,7 @@
 //! pairs of a frustum, the points of a voxel. Segments are given by their row counts
 //! and start rows in a flat [rows, C] tensor, so no group is padded to the largest.
 
+use crate::gather::RowGather;
 use crate::{host_max, ragged};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
@@ -31,15 +32,19 @@ pub struct SegmentPool {
     pub runs: Arc<ragged::Runs>,
     /// [num_segments]: row of each segment in the concatenated bucket outputs; `None`
     /// when that is already segment order.
-    pub restore: Option<Tensor<1, Int>>,
+    pub restore: Option<RowGather>,
+    /// Rows the segments cover (the largest end): the buckets' source rows.
+    rows: usize,
 }
 
 #[derive(Debug, Clone)]
 pub struct PoolBucket {
     pub width: usize,
     pub num_segments: usize,
-    /// [num_segments · width] rows into the features (with the zero row).
-    pub index: Tensor<1, Int>,
+    /// [num_segments · width] rows into the features; a `RowGather`, so that on a GPU the
+    /// windows' repeated rows add their gradients by readers (burn's `select` there walks
+    /// every gathered row per column, and went wrong on lavapipe at size).
+    pub index: RowGather,
 }
 
 impl SegmentPool {
@@ -51,7 +56,13 @@ impl SegmentPool {
         for (s, &c) in counts.iter().enumerate() {
             by_width.entry(width(c)).or_default().push(s);
         }
-        let mut restore = vec![0i64; counts.len()];
+        let rows = counts
+            .iter()
+            .zip(starts)
+            .map(|(&c, &s)| s + c)
+            .max()
+            .unwrap_or(0);
+        let mut restore = vec![0u32; counts.len()];
         let mut next = 0;
         let buckets = by_width
             .into_iter()
@@ -61,23 +72,24 @@ impl SegmentPool {
                     restore[s] = next;
                     next += 1;
                     let (start, n) = (starts[s], counts[s]);
-                    index.extend((0..w).map(|j| (start + j % n) as i64));
+                    index.extend((0..w).map(|j| (start + j % n) as u32));
                 }
                 PoolBucket {
                     width: w,
                     num_segments: segments.len(),
-                    index: Tensor::from_data(TensorData::new(index, [segments.len() * w]), device),
+                    index: RowGather::new(&index, rows, device),
                 }
             })
             .collect::<Vec<_>>();
-        let in_order = restore.iter().enumerate().all(|(i, &r)| r == i as i64);
+        let in_order = restore.iter().enumerate().all(|(i, &r)| r as usize == i);
         let n = restore.len();
         Self {
             buckets,
             starts: starts[..counts.len()].to_vec(),
             counts: counts.to_vec(),
             runs: Arc::new(ragged::Runs::new(&starts[..counts.len()], counts)),
-            restore: (!in_order).then(|| Tensor::from_data(TensorData::new(restore, [n]), device)),
+            restore: (!in_order).then(|| RowGather::new(&restore, n, device)),
+            rows,
         }
     }
 
@@ -102,7 +114,14 @@ impl SegmentPool {
     /// max over each window), on any backend: what other devices run, and the reference
     /// the custom operation is tested against.
     pub fn max_pool_generic(&self, features: Tensor<2>) -> Tensor<2> {
-        let c = features.dims()[1];
+        let [rows, c] = features.dims();
+        // Rows past every segment are read by none (the buckets' gathers take exactly
+        // their source rows).
+        let features = if rows > self.rows {
+            features.slice([0..self.rows, 0..c])
+        } else {
+            features
+        };
         let parts: Vec<Tensor<2>> = self
             .buckets
             .iter()
@@ -110,7 +129,7 @@ impl SegmentPool {
                 if b.width == 0 {
                     return Tensor::zeros([b.num_segments, c], &features.device());
                 }
-                let rows = features.clone().select(0, b.index.clone());
+                let rows = b.index.gather(features.clone());
                 if b.width == 1 {
                     rows
                 } else {
@@ -126,7 +145,7 @@ impl SegmentPool {
             Tensor::cat(parts, 0)
         };
         match &self.restore {
-            Some(r) => pooled.select(0, r.clone()),
+            Some(r) => r.gather(pooled),
             None => pooled,
         }
     }

@@ -180,18 +180,6 @@ pub trait TrainingTask: Sync {
 /// epoch is committed removes the run directory it created, so that the corrected command
 /// can be run again as it was (a resumed run's directory is never removed).
 pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
-    #[cfg(feature = "wgpu")]
-    if options.device == crate::ComputeDevice::Wgpu {
-        // Measured on lavapipe (docs/gpus-and-clusters.md): burn's additions of repeated rows,
-        // the backward pass of every gather still made by burn's `select` (the voxel family's
-        // large ones, LFA's and CBAM's go through `RowGather`), come out wrong there.
-        eprintln!(
-            "warning: on wgpu, the frustum family's additions of repeated rows (CBAM's \
-             per-frustum sums, the PointNet scales' gradients) may be wrong: `fusiondet bench \
-             --device wgpu` prints how wrong (\"repeated-row additions\"); train on the CPU \
-             where results must hold"
-        );
-    }
     let creates_run = !options.resume && !options.run_dir.exists();
     let result = match options.config.kind() {
         DetectorKind::Frustum => crate::frustum::train(options),

@@ -31,14 +31,32 @@ fn shipped_models_give_the_same_boxes_on_cuda_as_on_the_cpu() {
 #[cfg(feature = "wgpu")]
 #[test]
 fn the_voxel_family_trains_to_the_same_first_losses_on_wgpu_as_on_the_cpu() {
-    training_parity(ComputeDevice::Wgpu, "wgpu", true);
+    training_parity(ComputeDevice::Wgpu, "wgpu", VOXEL_FAMILY, true);
+}
+
+/// The frustum family's attention and SAF's parts on wgpu: CBAM's per-frustum sums and
+/// gathers, LFA's gathers, the PointNet scales' pooling windows all add repeated rows by
+/// their readers (`RowGather`).
+#[cfg(feature = "wgpu")]
+#[test]
+fn the_frustum_family_trains_to_the_same_first_losses_on_wgpu_as_on_the_cpu() {
+    training_parity(ComputeDevice::Wgpu, "wgpu", FRUSTUM_FAMILY, true);
 }
 
 #[cfg(feature = "cuda")]
 #[test]
 fn the_voxel_family_trains_to_the_same_first_losses_on_cuda_as_on_the_cpu() {
-    training_parity(ComputeDevice::Cuda(0), "CUDA", false);
+    training_parity(ComputeDevice::Cuda(0), "CUDA", VOXEL_FAMILY, false);
 }
+
+/// (configuration, frames, batch size) of the voxel family's training parity: two batches of
+/// 2 frames.
+const VOXEL_FAMILY: &[(&str, usize, usize)] = &[("tiny-voxel-rcnn", 4, 2), ("tiny-dasanet", 4, 2)];
+
+/// The frustum family's: FCAM's improved CBAM and SAF (depth-guided slicing, LFA, the
+/// projection loss), two batches of the first simulated frame's 18 frustums (its cars, each
+/// twice: `augment.copies`).
+const FRUSTUM_FAMILY: &[(&str, usize, usize)] = &[("tiny-fcam", 1, 9), ("tiny-saf", 1, 9)];
 
 /// One backbone-sized sparse layer (20,000 sites) through the CubeCL kernels on wgpu
 /// (its default layout): the output and both gradients within 1e-5 of the CPU's, relative
@@ -64,16 +82,21 @@ fn the_sparse_kernels_differentiate_a_backbone_sized_layer_as_the_cpu_does() {
     }
 }
 
-/// The first training step (`first_step_loss` of an epoch of two batches of 2 frames) of the
-/// tiny Voxel R-CNN and DASANet on the CPU and on `gpu` from the same seed: the same initial
-/// weights and data, so the loss — both stages, RoIs from the device's own proposals and RoI
-/// grid query — agrees within 1e-4 (relative). With `both_steps`, the epoch's mean over its
+/// The first training step (`first_step_loss` of an epoch of two batches from the first
+/// `frames` frames) of tiny configurations on the CPU and on `gpu` from the same seed: the
+/// same initial weights and data, so the loss — for the voxel family both stages, RoIs from
+/// the device's own proposals and RoI grid query — agrees within 1e-4 (relative). With `both_steps`, the epoch's mean over its
 /// two steps too, within 1e-3: the second step runs on weights the first step's gradients
 /// moved, so wrong gradients part it (on lavapipe burn's kernel map, whose input gradients
 /// are wrong at this size, gave means 0.6% and 13% apart; the sparse kernels, wgpu's
 /// default, within 1e-4). Not asked of CUDA yet: its TF32 products may move Adam's first
 /// updates on near-zero gradients, which a GPU run has not measured.
-fn training_parity(gpu: ComputeDevice, name: &str, both_steps: bool) {
+fn training_parity(
+    gpu: ComputeDevice,
+    name: &str,
+    configs: &[(&str, usize, usize)],
+    both_steps: bool,
+) {
     if let Err(why) = gpu.check() {
         eprintln!("skipped: {why}; {name} training parity was not checked");
         return;
@@ -82,14 +105,16 @@ fn training_parity(gpu: ComputeDevice, name: &str, both_steps: bool) {
     let data = dir.path().join("sim");
     fusiondet_sim::write_dataset(&fusiondet_sim::DatasetOptions::new(&data, 8, 5), &|_, _| {})
         .unwrap();
-    for config_name in ["tiny-voxel-rcnn", "tiny-dasanet"] {
+    for &(config_name, frames, batch_size) in configs {
         let mut config =
             ExperimentConfig::from_file(&repo().join(format!("configs/{config_name}.toml")))
                 .unwrap();
         config.train.epochs = 1;
-        config.train.batch_size = 2;
-        config.train.max_frames = 4;
-        config.voxel_rcnn.as_mut().unwrap().augment = fusiondet_voxel::AugmentConfig::none();
+        config.train.batch_size = batch_size;
+        config.train.max_frames = frames;
+        if let Some(voxel) = config.voxel_rcnn.as_mut() {
+            voxel.augment = fusiondet_voxel::AugmentConfig::none();
+        }
         // (first-step loss, two-step mean) of a run.
         let losses = |device: ComputeDevice, label: &str| {
             let run = dir.path().join(format!("{config_name}-{label}"));
@@ -99,6 +124,7 @@ fn training_parity(gpu: ComputeDevice, name: &str, both_steps: bool) {
             let metrics = std::fs::read_to_string(run.join("metrics.jsonl")).unwrap();
             let first: serde_json::Value =
                 serde_json::from_str(metrics.lines().next().unwrap()).unwrap();
+            assert_eq!(first["batches"], 2, "{config_name}: two batches");
             (
                 first["first_step_loss"].as_f64().unwrap(),
                 first["loss_total"].as_f64().unwrap(),
