@@ -41,6 +41,9 @@
 #                  (FUSIONDET_ROI_QUERY=check), a `detect` with the host query compared box
 #                  by box with the kernels' on the same device, and a bench, beside the
 #                  default (default: voxel-rcnn-car dasanet-car; empty to skip)
+#   TABLES_AB      the published configurations' benches also run with the sparse kernels'
+#                  tables built on the host (FUSIONDET_RULEBOOK_TABLES=host; by default the
+#                  device searches them): 1 or 0 (default: 1)
 #   SPARSE_AB      models also run on the device with the sparse convolution as a kernel
 #                  map of burn's operations (FUSIONDET_SPARSE_RULES=kernel-map; a GPU's
 #                  default is the CubeCL kernels): a `detect` compared box by box with the
@@ -55,7 +58,8 @@
 #              without reading files (as `bench` always measures), on each device.
 #   frames/s   of a published configuration: `bench` on the device of the model its device
 #              training run wrote (two epochs: the weights are untrained, the work per frame is
-#              the configuration's), with the default RoI grid query and with the kernels.
+#              the configuration's), with the defaults, the RoI grid query on the host, the
+#              sparse kernels' tables built on the host (TABLES_AB) and the kernel map (SPARSE_AB).
 #   s/step     a training run of two epochs of STEPS_FRAMES frames: the second epoch's seconds
 #              divided by its steps (the first holds kernel compilation and tuning), on each
 #              device (and on the device with the sparse kernels, SPARSE_AB); and the loss of the first step on both (`first_step_loss`), which must
@@ -104,6 +108,7 @@ repeats="${REPEATS:-3}"
 steps_frames="${STEPS_FRAMES:-8}"
 query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
 sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
+tables_ab="${TABLES_AB:-1}"
 
 for m in $models; do
     [ -f "$models_dir/$m.bpk" ] || {
@@ -150,11 +155,12 @@ timed() {
 }
 # `bench` of a checkpoint on a device into a log, with the RoI grid query where given (`host`,
 # `device`) or where the device runs it, and the sparse convolution's layout where given
-# (`kernels`, `kernel-map`); a failed bench shows as a missing frames/s figure, never stops
-# the script.
+# (`kernels`, `kernel-map`), and where the sparse kernels' tables are built where given
+# (`host`, `device`); a failed bench shows as a missing frames/s figure, never stops the script.
 bench_into() {
-    local log="$1" ckpt="$2" dev="$3" query="${4:-}" sparse="${5:-}"
+    local log="$1" ckpt="$2" dev="$3" query="${4:-}" sparse="${5:-}" tables="${6:-}"
     env ${query:+FUSIONDET_ROI_QUERY="$query"} ${sparse:+FUSIONDET_SPARSE_RULES="$sparse"} \
+        ${tables:+FUSIONDET_RULEBOOK_TABLES="$tables"} \
         "$bin" bench --checkpoint "$ckpt" --data "$data" \
         --repeats "$repeats" --device "$dev" >"$log" 2>&1 || true
 }
@@ -318,6 +324,11 @@ if [ "$train" = 1 ]; then
                         "$(frames_per_second "$run-bench.log" || echo '?')" \
                         "$(frames_per_second "$run-bench-host-query.log" || echo '?')")"
                     record "$(printf '%-26s stages on %s, ms a frame: %s' "$name" "$d" "$(stage_ms "$run-bench.log")")"
+                    if [ "$tables_ab" = 1 ]; then
+                        bench_into "$run-bench-host-tables.log" "$run/model.bpk" "$d" "" "" host
+                        record "$(printf '%-26s bench on %s with the sparse kernels'"'"' tables built on the host: %s frames/s; stages: %s' \
+                            "$name" "$d" "$(frames_per_second "$run-bench-host-tables.log" || echo '?')" "$(stage_ms "$run-bench-host-tables.log")")"
+                    fi
                     if [ -n "$sparse_ab" ]; then
                         bench_into "$run-bench-sparse.log" "$run/model.bpk" "$d" "" kernel-map
                         record "$(printf '%-26s bench on %s with the sparse convolution as a kernel map: %s frames/s; stages: %s' \

@@ -336,7 +336,7 @@ impl Rulebook {
         layout: RuleLayout,
         device: &Device,
     ) -> Rulebook {
-        Self::submanifold_built(sites, kernel, layout, device, TableBuild::Device)
+        Self::submanifold_built(sites, kernel, layout, device, TableBuild::for_process())
     }
 
     /// [`Rulebook::submanifold_in`], the kernels' tables built where `build` says.
@@ -419,7 +419,7 @@ impl Rulebook {
         layout: RuleLayout,
         device: &Device,
     ) -> Rulebook {
-        Self::strided_built(sites, geometry, layout, device, TableBuild::Device)
+        Self::strided_built(sites, geometry, layout, device, TableBuild::for_process())
     }
 
     /// [`Rulebook::strided_in`], the kernels' tables built where `build` says.
@@ -515,8 +515,26 @@ pub(crate) enum TableBuild {
     /// On the device by search (`rulebook_device`), where the grid's indices fit an i32.
     Device,
     /// On the host from the pairs, then uploaded (the device build's reference in tests).
-    #[cfg_attr(not(all(test, feature = "wgpu")), allow(dead_code))]
     Host,
+}
+
+impl TableBuild {
+    /// On the device, unless `FUSIONDET_RULEBOOK_TABLES=host` asks for the host for the whole
+    /// process (so that `scripts/gpu-check.sh` times both side by side on one GPU).
+    fn for_process() -> TableBuild {
+        static FORCED: OnceLock<TableBuild> = OnceLock::new();
+        *FORCED.get_or_init(|| match std::env::var("FUSIONDET_RULEBOOK_TABLES").as_deref() {
+            Err(_) | Ok("device") => TableBuild::Device,
+            Ok("host") => TableBuild::Host,
+            Ok(value) => {
+                eprintln!(
+                    "warning: FUSIONDET_RULEBOOK_TABLES={value:?} is neither \"device\" nor \"host\"; \
+                     the sparse kernels' tables are built on the device"
+                );
+                TableBuild::Device
+            }
+        })
+    }
 }
 
 /// The kernels' table and inverse built on the device, where `layout` is
