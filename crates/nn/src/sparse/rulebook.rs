@@ -432,9 +432,12 @@ impl Rulebook {
     ) -> Rulebook {
         let out_shape = geometry.output_shape(sites.spatial_shape());
         let volume = geometry.volume();
-        let outputs = StridedOutputs::new(sites, &geometry);
+        let StridedOutputs {
+            coords: outputs,
+            rows: row_of_output,
+        } = StridedOutputs::new(sites, &geometry);
         let output = Arc::new(SparseSites::from_sorted(
-            outputs.coords.clone(),
+            outputs,
             out_shape,
             sites.batch_size(),
         ));
@@ -462,7 +465,7 @@ impl Rulebook {
                     let c = &sites.coords()[i as usize];
                     if let Some(o) = geometry.target(c, k, out_shape) {
                         input.push(i as i64);
-                        out_rows.push(outputs.row(linear_key(o, out_shape)) as i64);
+                        out_rows.push(row_of_output.row(linear_key(o, out_shape)) as i64);
                     }
                 }
                 (k, input, out_rows)

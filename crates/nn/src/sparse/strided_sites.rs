@@ -23,11 +23,11 @@ pub(crate) const BITMAP_LIMIT_BITS: u64 = 1 << 30;
 pub(crate) struct StridedOutputs {
     /// (batch, z, y, x) of every output, batch-major: its row.
     pub coords: Vec<[i32; 4]>,
-    rows: RowOf,
+    pub rows: OutputRows,
 }
 
 /// An output's row from its linear index.
-enum RowOf {
+pub(crate) enum OutputRows {
     /// One bit per output cell, and the set bits before each word.
     Bitmap { words: Vec<u64>, before: Vec<u32> },
     /// The outputs' indices, ascending.
@@ -73,7 +73,7 @@ impl StridedOutputs {
             }
             StridedOutputs {
                 coords,
-                rows: RowOf::Bitmap { words, before },
+                rows: OutputRows::Bitmap { words, before },
             }
         } else {
             let mut keys: Vec<u64> = sites
@@ -91,20 +91,22 @@ impl StridedOutputs {
             keys.dedup();
             StridedOutputs {
                 coords: keys.iter().map(|&k| decode_key(k, out_shape)).collect(),
-                rows: RowOf::Sorted(keys),
+                rows: OutputRows::Sorted(keys),
             }
         }
     }
+}
 
+impl OutputRows {
     /// The row of the output at linear index `key`, which must be an output.
     pub fn row(&self, key: u64) -> u32 {
-        match &self.rows {
-            RowOf::Bitmap { words, before } => {
+        match self {
+            OutputRows::Bitmap { words, before } => {
                 let (w, bit) = ((key / 64) as usize, key % 64);
                 debug_assert!(words[w] >> bit & 1 == 1, "{key} is an output");
                 before[w] + (words[w] & ((1u64 << bit) - 1)).count_ones()
             }
-            RowOf::Sorted(keys) => {
+            OutputRows::Sorted(keys) => {
                 keys.binary_search(&key)
                     .unwrap_or_else(|_| panic!("{key} is an output")) as u32
             }
@@ -131,15 +133,15 @@ mod tests {
             ConvGeometry::strided([3, 1, 1], [2, 1, 1], [0; 3]),
         ] {
             let bitmap = StridedOutputs::new(&sites, &geometry);
-            assert!(matches!(bitmap.rows, RowOf::Bitmap { .. }));
+            assert!(matches!(bitmap.rows, OutputRows::Bitmap { .. }));
             let sorted = StridedOutputs::with_bitmap_limit(&sites, &geometry, 0);
-            assert!(matches!(sorted.rows, RowOf::Sorted(_)));
+            assert!(matches!(sorted.rows, OutputRows::Sorted(_)));
             assert_eq!(bitmap.coords, sorted.coords);
             let out_shape = geometry.output_shape(sites.spatial_shape());
             for (row, &c) in bitmap.coords.iter().enumerate() {
                 let key = linear_key(c, out_shape);
-                assert_eq!(bitmap.row(key), row as u32);
-                assert_eq!(sorted.row(key), row as u32);
+                assert_eq!(bitmap.rows.row(key), row as u32);
+                assert_eq!(sorted.rows.row(key), row as u32);
             }
         }
     }
