@@ -50,12 +50,7 @@ pub fn gather_rows(
     starts: &Tensor<1, Int>,
     readers: &Tensor<1, Int>,
 ) -> Tensor<2> {
-    Tensor::from_dispatch(<Dispatch as RowGatherOps>::gather_rows(
-        values.into_dispatch(),
-        index.clone().into_dispatch(),
-        starts.clone().into_dispatch(),
-        readers.clone().into_dispatch(),
-    ))
+    dispatch(Dispatch::gather_rows, values, [index, starts, readers])
 }
 
 /// [`RowGatherOps::sum_rows`] on burn tensors of a CubeCL device.
@@ -65,7 +60,25 @@ pub fn sum_rows(
     starts: &Tensor<1, Int>,
     readers: &Tensor<1, Int>,
 ) -> Tensor<2> {
-    Tensor::from_dispatch(<Dispatch as RowGatherOps>::sum_rows(
+    dispatch(Dispatch::sum_rows, values, [index, starts, readers])
+}
+
+/// An operation of [`RowGatherOps`] on burn's dispatch backend: (values, index, starts,
+/// readers) → rows.
+type RowsOp = fn(
+    FloatTensor<Dispatch>,
+    IntTensor<Dispatch>,
+    IntTensor<Dispatch>,
+    IntTensor<Dispatch>,
+) -> FloatTensor<Dispatch>;
+
+/// One of the operations on burn tensors.
+fn dispatch(
+    op: RowsOp,
+    values: Tensor<2>,
+    [index, starts, readers]: [&Tensor<1, Int>; 3],
+) -> Tensor<2> {
+    Tensor::from_dispatch(op(
         values.into_dispatch(),
         index.clone().into_dispatch(),
         starts.clone().into_dispatch(),
@@ -245,6 +258,20 @@ mod tests {
     use crate::gather::RowGather;
     use burn::prelude::*;
 
+    /// `len` input values in [−1, 1) from a fixed sequence.
+    fn inputs(len: usize) -> Vec<f32> {
+        (0..len)
+            .map(|v| ((v * 37) % 101) as f32 / 50.0 - 1.0)
+            .collect()
+    }
+
+    /// `len` upstream gradient values in [−1, 1) from another.
+    fn gradients(len: usize) -> Vec<f32> {
+        (0..len)
+            .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
+            .collect()
+    }
+
     /// Values and gradients of a gather of `m` rows from `n` on `device` (one in seven of
     /// them the zero row), through the [`RowGather`] or burn's `select`.
     fn run(n: usize, m: usize, c: usize, device: &Device, ours: bool) -> [Vec<f32>; 2] {
@@ -252,12 +279,7 @@ mod tests {
         let index: Vec<u32> = (0..m)
             .map(|i| if i % 7 == 3 { n } else { (i * 7919) % n } as u32)
             .collect();
-        let values: Vec<f32> = (0..n * c)
-            .map(|v| ((v * 37) % 101) as f32 / 50.0 - 1.0)
-            .collect();
-        let upstream: Vec<f32> = (0..m * c)
-            .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
-            .collect();
+        let (values, upstream) = (inputs(n * c), gradients(m * c));
         let gather = RowGather::new(&index, n, device);
         let x = Tensor::<2>::from_data(TensorData::new(values, [n, c]), device).require_grad();
         let y = if ours {
@@ -306,12 +328,7 @@ mod tests {
         };
         let run = |n: usize, m: usize, c: usize, device: &Device| {
             let index: Vec<u32> = (0..m).map(|i| ((i * 7919) % n) as u32).collect();
-            let values: Vec<f32> = (0..m * c)
-                .map(|v| ((v * 37) % 101) as f32 / 50.0 - 1.0)
-                .collect();
-            let upstream: Vec<f32> = (0..n * c)
-                .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
-                .collect();
+            let (values, upstream) = (inputs(m * c), gradients(n * c));
             let sums = RowGather::with_sums(&index, n, device);
             let x = Tensor::<2>::from_data(TensorData::new(values, [m, c]), device).require_grad();
             let y = sums.sum_by_source(x.clone());
