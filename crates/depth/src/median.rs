@@ -21,6 +21,7 @@
 
 use crate::scratch;
 use fusiondet_kitti::DepthMap;
+use rayon::prelude::*;
 use std::sync::OnceLock;
 
 /// What a gate writes: both sides, or only the one later steps read.
@@ -254,6 +255,9 @@ fn store(dst: &mut [f32], at: usize, lane: &Lane) {
     }
 }
 
+/// Output rows a task of [`median5`] computes.
+const BAND_ROWS: usize = 16;
+
 /// The 5×5 median, the border replicated (see the module documentation).
 pub fn median5(map: &DepthMap) -> DepthMap {
     let (w, h) = (map.width, map.height);
@@ -268,6 +272,7 @@ pub fn median5(map: &DepthMap) -> DepthMap {
         .map(|row| row.iter().any(|&d| d != 0.0))
         .collect();
     let clamp_row = |y: i64| y.clamp(0, h as i64 - 1) as usize;
+    let outputs = w.div_ceil(2);
     // Each source row with the border replicated by 2 on each side (padded x = x + 2),
     // its even and odd columns apart: a pixel pair (2j, 2j+1) shares the four columns
     // 2j+1 ..= 2j+4, and every stage then reads contiguous slices.
@@ -284,69 +289,78 @@ pub fn median5(map: &DepthMap) -> DepthMap {
             *o = at(2 * j + 1);
         }
     }
-    // Sorted columns by rank, even and odd; pairs (2j+1, 2j+2) merged, by rank.
-    let mut col_even = vec![vec![0f32; ne]; 5];
-    let mut col_odd = vec![vec![0f32; no]; 5];
-    let mut pairs = vec![vec![0f32; no]; 10];
-    let mut wires = vec![[0f32; LANES]; 20];
-    let mut tail = vec![[0f32; LANES]; FOUR_RANKS + 5];
-    let mut window = vec![[0f32; LANES]; FOUR_RANKS + 5];
-    let outputs = w.div_ceil(2);
-    for y in 0..h {
-        let rows: [usize; 5] = std::array::from_fn(|d| clamp_row(y as i64 + d as i64 - 2));
-        if !rows.iter().any(|&r| row_has_data[r]) {
-            out.data[y * w..(y + 1) * w].fill(0.0);
-            continue;
-        }
-        for (src, n, cols) in [(&even, ne, &mut col_even), (&odd, no, &mut col_odd)] {
-            for x0 in (0..n).step_by(LANES) {
-                for (k, &r) in rows.iter().enumerate() {
-                    load(&mut wires[k], &src[r * n..(r + 1) * n], x0);
+    // Bands of output rows in parallel (each row depends only on the source rows, so the
+    // result is the same whatever the threads): one frame's medians were the largest step
+    // of IP-Basic, on the data thread beside a GPU's network.
+    let (even_rows, odd_rows) = (&even[..], &odd[..]);
+    out.data
+        .par_chunks_mut(BAND_ROWS * w)
+        .enumerate()
+        .for_each(|(band, dst)| {
+            // Sorted columns by rank, even and odd; pairs (2j+1, 2j+2) merged, by rank.
+            let mut col_even = vec![vec![0f32; ne]; 5];
+            let mut col_odd = vec![vec![0f32; no]; 5];
+            let mut pairs = vec![vec![0f32; no]; 10];
+            let mut wires = vec![[0f32; LANES]; 20];
+            let mut tail = vec![[0f32; LANES]; FOUR_RANKS + 5];
+            let mut window = vec![[0f32; LANES]; FOUR_RANKS + 5];
+            for (dy, dst) in dst.chunks_exact_mut(w).enumerate() {
+                let y = band * BAND_ROWS + dy;
+                let rows: [usize; 5] = std::array::from_fn(|d| clamp_row(y as i64 + d as i64 - 2));
+                if !rows.iter().any(|&r| row_has_data[r]) {
+                    dst.fill(0.0);
+                    continue;
                 }
-                run(&net.column, &mut wires[..5]);
-                for k in (0..5).filter(|&k| net.col_ranks[k]) {
-                    store(&mut cols[k], x0, &wires[net.col_out[k]]);
+                for (src, n, cols) in [(even_rows, ne, &mut col_even), (odd_rows, no, &mut col_odd)]
+                {
+                    for x0 in (0..n).step_by(LANES) {
+                        for (k, &r) in rows.iter().enumerate() {
+                            load(&mut wires[k], &src[r * n..(r + 1) * n], x0);
+                        }
+                        run(&net.column, &mut wires[..5]);
+                        for k in (0..5).filter(|&k| net.col_ranks[k]) {
+                            store(&mut cols[k], x0, &wires[net.col_out[k]]);
+                        }
+                    }
                 }
-            }
-        }
-        // Pair j: columns 2j+1 (odd j) and 2j+2 (even j+1).
-        for x0 in (0..no).step_by(LANES) {
-            for k in (0..5).filter(|&k| net.col_ranks[k]) {
-                load(&mut wires[k], &col_odd[k], x0);
-                load(&mut wires[5 + k], &col_even[k], x0 + 1);
-            }
-            run(&net.pair, &mut wires[..10]);
-            for k in (0..10).filter(|&k| net.pair_ranks[k]) {
-                store(&mut pairs[k], x0, &wires[net.pair_out[k]]);
-            }
-        }
-        let dst = &mut out.data[y * w..(y + 1) * w];
-        for x0 in (0..outputs).step_by(LANES) {
-            // Columns 2j+1 ..= 2j+4: pairs j and j+1.
-            for k in (0..10).filter(|&k| net.pair_ranks[k]) {
-                load(&mut wires[k], &pairs[k], x0);
-                load(&mut wires[10 + k], &pairs[k], x0 + 1);
-            }
-            run(&net.four, &mut wires);
-            for k in (0..FOUR_RANKS).filter(|&k| net.four_ranks[k]) {
-                tail[k] = wires[net.four_out[k]];
-            }
-            // Pixel 2j adds column 2j (even j), pixel 2j+1 column 2j+5 (odd j+2).
-            for (cols, shift, parity) in [(&col_even, 0, 0), (&col_odd, 2, 1)] {
-                window[..FOUR_RANKS].copy_from_slice(&tail[..FOUR_RANKS]);
-                for k in (0..5).filter(|&k| net.col_ranks[k]) {
-                    load(&mut window[FOUR_RANKS + k], &cols[k], x0 + shift);
+                // Pair j: columns 2j+1 (odd j) and 2j+2 (even j+1).
+                for x0 in (0..no).step_by(LANES) {
+                    for k in (0..5).filter(|&k| net.col_ranks[k]) {
+                        load(&mut wires[k], &col_odd[k], x0);
+                        load(&mut wires[5 + k], &col_even[k], x0 + 1);
+                    }
+                    run(&net.pair, &mut wires[..10]);
+                    for k in (0..10).filter(|&k| net.pair_ranks[k]) {
+                        store(&mut pairs[k], x0, &wires[net.pair_out[k]]);
+                    }
                 }
-                run(&net.window, &mut window);
-                let median = &window[net.median_out];
-                for (i, &m) in median.iter().enumerate() {
-                    if let Some(d) = dst.get_mut(2 * (x0 + i) + parity) {
-                        *d = m;
+                for x0 in (0..outputs).step_by(LANES) {
+                    // Columns 2j+1 ..= 2j+4: pairs j and j+1.
+                    for k in (0..10).filter(|&k| net.pair_ranks[k]) {
+                        load(&mut wires[k], &pairs[k], x0);
+                        load(&mut wires[10 + k], &pairs[k], x0 + 1);
+                    }
+                    run(&net.four, &mut wires);
+                    for k in (0..FOUR_RANKS).filter(|&k| net.four_ranks[k]) {
+                        tail[k] = wires[net.four_out[k]];
+                    }
+                    // Pixel 2j adds column 2j (even j), pixel 2j+1 column 2j+5 (odd j+2).
+                    for (cols, shift, parity) in [(&col_even, 0, 0), (&col_odd, 2, 1)] {
+                        window[..FOUR_RANKS].copy_from_slice(&tail[..FOUR_RANKS]);
+                        for k in (0..5).filter(|&k| net.col_ranks[k]) {
+                            load(&mut window[FOUR_RANKS + k], &cols[k], x0 + shift);
+                        }
+                        run(&net.window, &mut window);
+                        let median = &window[net.median_out];
+                        for (i, &m) in median.iter().enumerate() {
+                            if let Some(d) = dst.get_mut(2 * (x0 + i) + parity) {
+                                *d = m;
+                            }
+                        }
                     }
                 }
             }
-        }
-    }
+        });
     scratch::give(even);
     scratch::give(odd);
     out
