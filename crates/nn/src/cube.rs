@@ -57,3 +57,13 @@ pub fn assert_close(got: &[f32], want: &[f32], tolerance: f32, what: &str) {
         );
     }
 }
+
+/// A fixed, varied upstream gradient for an output of `dims` on `device`: the loss
+/// `(output · upstream).sum()` sends it back (the GPU tests' gradients).
+#[cfg(feature = "wgpu")]
+pub fn upstream(dims: [usize; 2], device: &Device) -> Tensor<2> {
+    let values: Vec<f32> = (0..dims[0] * dims[1])
+        .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
+        .collect();
+    Tensor::from_data(TensorData::new(values, dims), device)
+}

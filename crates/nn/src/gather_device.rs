@@ -254,7 +254,7 @@ impl<C: CheckpointStrategy> RowGatherOps for Autodiff<CubeBackend, C> {
 
 #[cfg(all(test, feature = "wgpu"))]
 mod tests {
-    use crate::cube::{assert_close, working_wgpu_device};
+    use crate::cube::{assert_close, upstream, working_wgpu_device};
     use crate::gather::RowGather;
     use burn::prelude::*;
 
@@ -265,13 +265,6 @@ mod tests {
             .collect()
     }
 
-    /// `len` upstream gradient values in [−1, 1) from another.
-    fn gradients(len: usize) -> Vec<f32> {
-        (0..len)
-            .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
-            .collect()
-    }
-
     /// Values and gradients of a gather of `m` rows from `n` on `device` (one in seven of
     /// them the zero row), through the [`RowGather`] or burn's `select`.
     fn run(n: usize, m: usize, c: usize, device: &Device, ours: bool) -> [Vec<f32>; 2] {
@@ -279,7 +272,7 @@ mod tests {
         let index: Vec<u32> = (0..m)
             .map(|i| if i % 7 == 3 { n } else { (i * 7919) % n } as u32)
             .collect();
-        let (values, upstream) = (inputs(n * c), gradients(m * c));
+        let values = inputs(n * c);
         let gather = RowGather::new(&index, n, device);
         let x = Tensor::<2>::from_data(TensorData::new(values, [n, c]), device).require_grad();
         let y = if ours {
@@ -288,9 +281,7 @@ mod tests {
             Tensor::cat(vec![x.clone(), Tensor::zeros([1, c], device)], 0)
                 .select(0, gather.index().clone())
         };
-        let grads = (y.clone() * Tensor::from_data(TensorData::new(upstream, [m, c]), device))
-            .sum()
-            .backward();
+        let grads = (y.clone() * upstream([m, c], device)).sum().backward();
         [
             y.try_into_vec_as::<f32>().unwrap(),
             x.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap(),
@@ -328,13 +319,11 @@ mod tests {
         };
         let run = |n: usize, m: usize, c: usize, device: &Device| {
             let index: Vec<u32> = (0..m).map(|i| ((i * 7919) % n) as u32).collect();
-            let (values, upstream) = (inputs(m * c), gradients(n * c));
+            let values = inputs(m * c);
             let sums = RowGather::with_sums(&index, n, device);
             let x = Tensor::<2>::from_data(TensorData::new(values, [m, c]), device).require_grad();
             let y = sums.sum_by_source(x.clone());
-            let grads = (y.clone() * Tensor::from_data(TensorData::new(upstream, [n, c]), device))
-                .sum()
-                .backward();
+            let grads = (y.clone() * upstream([n, c], device)).sum().backward();
             [
                 y.try_into_vec_as::<f32>().unwrap(),
                 x.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap(),

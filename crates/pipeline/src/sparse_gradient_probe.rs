@@ -124,8 +124,9 @@ const TARGET_ROWS: usize = 20_001;
 const ADDS_PER_ROW: usize = 27;
 
 /// What the gather's backward does everywhere a network reads rows more than once through
-/// burn's `select` (PointNet's scales, the losses' row picks; RoI pooling, STCA, the BEV, LFA and CBAM take
-/// `fusiondet_nn::gather::RowGather` on GPUs, the sparse convolution its kernels): burn's
+/// burn's `select` (the losses' row picks; RoI pooling, STCA, the BEV, LFA, CBAM and the
+/// PointNet scales take `fusiondet_nn::gather::RowGather` on GPUs, the sparse convolution its
+/// kernels): burn's
 /// `select_assign` with `Add`, here 540,027 rows of 16 values added into 20,001 rows, 27 into
 /// each, in a fixed scattered order.
 #[derive(Debug, Clone, Copy, PartialEq)]

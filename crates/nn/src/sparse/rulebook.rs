@@ -720,14 +720,7 @@ fn interleave(columns: &[Vec<i32>], rows: usize) -> Vec<i32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn rows(t: &Tensor<1, Int>) -> Vec<i64> {
-        t.clone()
-            .into_data()
-            .convert::<i64>()
-            .try_to_vec::<i64>()
-            .unwrap()
-    }
+    use crate::sparse::test_data::ints;
 
     /// A per-offset rulebook's identity offset and (offset, inputs, outputs) lists.
     fn per_offset(book: &Rulebook) -> (Option<usize>, OffsetPairs) {
@@ -740,7 +733,7 @@ mod tests {
                 *identity_offset,
                 rules
                     .iter()
-                    .map(|r| (r.offset, rows(&r.input), rows(&r.output)))
+                    .map(|r| (r.offset, ints(&r.input), ints(&r.output)))
                     .collect(),
             ),
             RuleGather::KernelMap { .. } => panic!("a per-offset rulebook"),
@@ -749,7 +742,7 @@ mod tests {
 
     fn kernel_map(book: &Rulebook) -> Vec<i64> {
         match &book.gather {
-            RuleGather::KernelMap { table, .. } => rows(table),
+            RuleGather::KernelMap { table, .. } => ints(table),
             RuleGather::PerOffset { .. } => panic!("a kernel-map rulebook"),
         }
     }

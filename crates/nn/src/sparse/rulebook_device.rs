@@ -282,18 +282,10 @@ pub(crate) fn kernel_map(
 mod tests {
     use super::super::rulebook::{ConvGeometry, RuleGather, RuleLayout, Rulebook, TableBuild};
     use super::super::sites::SparseSites;
-    use super::super::test_data::sites;
+    use super::super::test_data::{ints, sites};
     use crate::cube::working_wgpu_device;
     use burn::prelude::*;
     use std::sync::Arc;
-
-    fn ints(t: &Tensor<1, Int>) -> Vec<i64> {
-        t.clone()
-            .into_data()
-            .convert::<i64>()
-            .try_to_vec::<i64>()
-            .unwrap()
-    }
 
     /// (table, inverse) of a rulebook in the kernels' layout.
     fn tables(book: &Rulebook) -> (Vec<i64>, Vec<i64>) {

@@ -2,6 +2,7 @@
 //! project's seeded `dataset::rng`).
 
 use super::sites::SparseSites;
+use burn::prelude::*;
 use std::sync::Arc;
 
 /// Distinct sites in a [2 frames, z, y, x] grid from a fixed sequence.
@@ -28,4 +29,13 @@ pub fn values(n: usize, salt: usize) -> Vec<f32> {
     (0..n)
         .map(|i| (((i * 7919 + salt * 104729) % 2003) as f32 / 1001.5) - 1.0)
         .collect()
+}
+
+/// An index tensor's values on the host.
+pub fn ints(t: &Tensor<1, Int>) -> Vec<i64> {
+    t.clone()
+        .into_data()
+        .convert::<i64>()
+        .try_to_vec::<i64>()
+        .unwrap()
 }
