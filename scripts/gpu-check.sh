@@ -44,6 +44,8 @@
 #   TABLES_AB      the published configurations' benches also run with the sparse kernels'
 #                  tables built on the host (FUSIONDET_RULEBOOK_TABLES=host; by default the
 #                  device searches them): 1 or 0 (default: 1)
+#   FUSIONDET_AUTOTUNE_LOG  where burn's autotune writes the kernel it kept for each tuned
+#                  shape (default: autotune.log in CHECK_OUT; see kernel_cache.rs)
 #   SPARSE_AB      models also run on the device with the sparse convolution as a kernel
 #                  map of burn's operations (FUSIONDET_SPARSE_RULES=kernel-map; a GPU's
 #                  default is the CubeCL kernels): a `detect` compared box by box with the
@@ -109,6 +111,7 @@ steps_frames="${STEPS_FRAMES:-8}"
 query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
 sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
 tables_ab="${TABLES_AB:-1}"
+export FUSIONDET_AUTOTUNE_LOG="${FUSIONDET_AUTOTUNE_LOG:-$out/autotune.log}"
 
 for m in $models; do
     [ -f "$models_dir/$m.bpk" ] || {
@@ -357,6 +360,9 @@ fi
 echo
 echo "== summary ($(($(date +%s) - started)) s, device $device, binary $bin)"
 printf '%s\n' "${summary[@]}"
+if [ -s "$FUSIONDET_AUTOTUNE_LOG" ]; then
+    echo "autotune's choices: $(wc -l <"$FUSIONDET_AUTOTUNE_LOG") lines in $FUSIONDET_AUTOTUNE_LOG"
+fi
 if [ "$failures" -gt 0 ]; then
     echo "$failures check(s) failed (logs under $out)"
     exit 1

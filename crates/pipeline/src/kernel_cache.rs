@@ -12,6 +12,10 @@
 //! `$XDG_CACHE_HOME/fusiondet/kernels`, else `$HOME/.cache/fusiondet/kernels`. A CubeCL
 //! configuration file the user wrote (`cubecl.toml`, or a `[cubecl]` section in `burn.toml`,
 //! in the current directory or above) is left to CubeCL, unchanged.
+//!
+//! `FUSIONDET_AUTOTUNE_LOG` names a file autotune appends its choices to (the kernel it kept
+//! for each tuned shape, with its timings): which convolution and product kernels a GPU
+//! ended up running, without CubeCL's full debug log.
 
 use std::path::{Path, PathBuf};
 
@@ -69,6 +73,10 @@ pub fn configure() {
                 config.environment.path = CacheConfig::Directory(dir);
             }
             None => config.autotune.disable_cache = true,
+        }
+        if let Some(log) = nonempty(env("FUSIONDET_AUTOTUNE_LOG").as_deref()) {
+            config.autotune.logger.file = Some(PathBuf::from(log));
+            config.autotune.logger.append = true;
         }
         // False when CubeCL already read its configuration: that one stays.
         CubeClRuntimeConfig::try_set(config);
