@@ -54,33 +54,45 @@ pub fn user_config_above(dir: &Path) -> Option<PathBuf> {
 pub fn configure() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
-        use cubecl_runtime::config::{CubeClRuntimeConfig, RuntimeConfig, cache::CacheConfig};
+        use cubecl_runtime::config::{CubeClRuntimeConfig, RuntimeConfig};
         let here = std::env::current_dir().unwrap_or_default();
         if user_config_above(&here).is_some() {
             return;
         }
-        let env = |k: &str| std::env::var(k).ok();
-        let dir = cache_dir(
-            env("FUSIONDET_KERNEL_CACHE").as_deref(),
-            env("XDG_CACHE_HOME").as_deref(),
-            env("HOME").as_deref(),
-        );
         // CUBECL_* variables still apply on top (autotune level, logging, ...).
-        let mut config = CubeClRuntimeConfig::default().override_from_env();
-        match dir {
-            Some(dir) => {
-                config.compilation.cache = true;
-                config.environment.path = CacheConfig::Directory(dir);
-            }
-            None => config.autotune.disable_cache = true,
-        }
-        if let Some(log) = nonempty(env("FUSIONDET_AUTOTUNE_LOG").as_deref()) {
-            config.autotune.logger.file = Some(PathBuf::from(log));
-            config.autotune.logger.append = true;
-        }
+        let config = runtime_config(CubeClRuntimeConfig::default().override_from_env(), |k| {
+            std::env::var(k).ok()
+        });
         // False when CubeCL already read its configuration: that one stays.
         CubeClRuntimeConfig::try_set(config);
     });
+}
+
+/// `config` with the cache folder and the autotune log that the environment (`env`, a
+/// variable's value by name) asks for.
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+fn runtime_config(
+    mut config: cubecl_runtime::config::CubeClRuntimeConfig,
+    env: impl Fn(&str) -> Option<String>,
+) -> cubecl_runtime::config::CubeClRuntimeConfig {
+    use cubecl_runtime::config::cache::CacheConfig;
+    let dir = cache_dir(
+        env("FUSIONDET_KERNEL_CACHE").as_deref(),
+        env("XDG_CACHE_HOME").as_deref(),
+        env("HOME").as_deref(),
+    );
+    match dir {
+        Some(dir) => {
+            config.compilation.cache = true;
+            config.environment.path = CacheConfig::Directory(dir);
+        }
+        None => config.autotune.disable_cache = true,
+    }
+    if let Some(log) = nonempty(env("FUSIONDET_AUTOTUNE_LOG").as_deref()) {
+        config.autotune.logger.file = Some(PathBuf::from(log));
+        config.autotune.logger.append = true;
+    }
+    config
 }
 
 #[cfg(test)]
@@ -120,5 +132,45 @@ mod tests {
             user_config_above(&deep),
             Some(root.path().join("burn.toml"))
         );
+    }
+
+    /// The folder and the autotune log reach CubeCL's configuration; without them the
+    /// tuning results stay in memory and nothing is logged to a file.
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    #[test]
+    fn kernel_cache_config_takes_the_folder_and_the_autotune_log() {
+        use cubecl_runtime::config::{CubeClRuntimeConfig, cache::CacheConfig};
+        let vars = |pairs: &'static [(&'static str, &'static str)]| {
+            move |k: &str| {
+                pairs
+                    .iter()
+                    .find(|(n, _)| *n == k)
+                    .map(|(_, v)| v.to_string())
+            }
+        };
+        let config = runtime_config(
+            CubeClRuntimeConfig::default(),
+            vars(&[
+                ("FUSIONDET_KERNEL_CACHE", "/k"),
+                ("FUSIONDET_AUTOTUNE_LOG", "/k/tune.log"),
+            ]),
+        );
+        assert!(config.compilation.cache && !config.autotune.disable_cache);
+        assert!(
+            matches!(&config.environment.path, CacheConfig::Directory(d) if d == Path::new("/k"))
+        );
+        assert_eq!(
+            config.autotune.logger.file,
+            Some(PathBuf::from("/k/tune.log"))
+        );
+        let config = runtime_config(
+            CubeClRuntimeConfig::default(),
+            vars(&[
+                ("FUSIONDET_KERNEL_CACHE", "off"),
+                ("FUSIONDET_AUTOTUNE_LOG", " "),
+            ]),
+        );
+        assert!(config.autotune.disable_cache);
+        assert_eq!(config.autotune.logger.file, None);
     }
 }
