@@ -361,7 +361,10 @@ echo
 echo "== summary ($(($(date +%s) - started)) s, device $device, binary $bin)"
 printf '%s\n' "${summary[@]}"
 if [ -s "$FUSIONDET_AUTOTUNE_LOG" ]; then
-    echo "autotune's choices: $(wc -l <"$FUSIONDET_AUTOTUNE_LOG") lines in $FUSIONDET_AUTOTUNE_LOG"
+    # CubeCL logs "Fastest result <kernel>-<shape key>. Top 3 times: …" for each shape it tunes
+    # (shapes tuned by an earlier process come from the cache and are not logged again).
+    echo "autotune kept (kernel × tuned shapes): $(grep -o 'Fastest result [A-Za-z0-9_:]*' "$FUSIONDET_AUTOTUNE_LOG" \
+        | cut -d' ' -f3 | sort | uniq -c | sort -rn | awk '{ printf "%s%s × %s", (n++ ? ", " : ""), $2, $1 }'); log $FUSIONDET_AUTOTUNE_LOG"
 fi
 if [ "$failures" -gt 0 ]; then
     echo "$failures check(s) failed (logs under $out)"
