@@ -44,6 +44,9 @@
 #   TABLES_AB      the published configurations' benches also run with the sparse kernels'
 #                  tables built on the host (FUSIONDET_RULEBOOK_TABLES=host; by default the
 #                  device searches them): 1 or 0 (default: 1)
+#   PREPARE_AB     the published configurations' benches also run with one thread preparing
+#                  frames beside the network (FUSIONDET_PREPARE_THREADS=1; beside a GPU the
+#                  default is a quarter of the cores, 1 to 4): 1 or 0 (default: 1)
 #   FUSIONDET_AUTOTUNE_LOG  where burn's autotune writes the kernel it kept for each tuned
 #                  shape (default: autotune.log in CHECK_OUT; see kernel_cache.rs)
 #   SPARSE_AB      models also run on the device with the sparse convolution as a kernel
@@ -61,7 +64,8 @@
 #   frames/s   of a published configuration: `bench` on the device of the model its device
 #              training run wrote (two epochs: the weights are untrained, the work per frame is
 #              the configuration's), with the defaults, the RoI grid query on the host, the
-#              sparse kernels' tables built on the host (TABLES_AB) and the kernel map (SPARSE_AB).
+#              sparse kernels' tables built on the host (TABLES_AB), one thread preparing frames
+#              (PREPARE_AB) and the kernel map (SPARSE_AB).
 #   s/step     a training run of two epochs of STEPS_FRAMES frames: the second epoch's seconds
 #              divided by its steps (the first holds kernel compilation and tuning), on each
 #              device (and on the device with the sparse kernels, SPARSE_AB); and the loss of the first step on both (`first_step_loss`), which must
@@ -111,6 +115,7 @@ steps_frames="${STEPS_FRAMES:-8}"
 query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
 sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
 tables_ab="${TABLES_AB:-1}"
+prepare_ab="${PREPARE_AB:-1}"
 export FUSIONDET_AUTOTUNE_LOG="${FUSIONDET_AUTOTUNE_LOG:-$out/autotune.log}"
 
 for m in $models; do
@@ -159,11 +164,12 @@ timed() {
 # `bench` of a checkpoint on a device into a log, with the RoI grid query where given (`host`,
 # `device`) or where the device runs it, and the sparse convolution's layout where given
 # (`kernels`, `kernel-map`), and where the sparse kernels' tables are built where given
-# (`host`, `device`); a failed bench shows as a missing frames/s figure, never stops the script.
+# (`host`, `device`), and how many threads prepare frames where given; a failed bench shows as a
+# missing frames/s figure, never stops the script.
 bench_into() {
-    local log="$1" ckpt="$2" dev="$3" query="${4:-}" sparse="${5:-}" tables="${6:-}"
+    local log="$1" ckpt="$2" dev="$3" query="${4:-}" sparse="${5:-}" tables="${6:-}" preparers="${7:-}"
     env ${query:+FUSIONDET_ROI_QUERY="$query"} ${sparse:+FUSIONDET_SPARSE_RULES="$sparse"} \
-        ${tables:+FUSIONDET_RULEBOOK_TABLES="$tables"} \
+        ${tables:+FUSIONDET_RULEBOOK_TABLES="$tables"} ${preparers:+FUSIONDET_PREPARE_THREADS="$preparers"} \
         "$bin" bench --checkpoint "$ckpt" --data "$data" \
         --repeats "$repeats" --device "$dev" >"$log" 2>&1 || true
 }
@@ -331,6 +337,11 @@ if [ "$train" = 1 ]; then
                         bench_into "$run-bench-host-tables.log" "$run/model.bpk" "$d" "" "" host
                         record "$(printf '%-26s bench on %s with the sparse kernels'"'"' tables built on the host: %s frames/s; stages: %s' \
                             "$name" "$d" "$(frames_per_second "$run-bench-host-tables.log" || echo '?')" "$(stage_ms "$run-bench-host-tables.log")")"
+                    fi
+                    if [ "$prepare_ab" = 1 ]; then
+                        bench_into "$run-bench-one-preparer.log" "$run/model.bpk" "$d" "" "" "" 1
+                        record "$(printf '%-26s bench on %s with one thread preparing frames: %s frames/s; stages: %s' \
+                            "$name" "$d" "$(frames_per_second "$run-bench-one-preparer.log" || echo '?')" "$(stage_ms "$run-bench-one-preparer.log")")"
                     fi
                     if [ -n "$sparse_ab" ]; then
                         bench_into "$run-bench-sparse.log" "$run/model.bpk" "$d" "" kernel-map

@@ -103,7 +103,7 @@ impl fmt::Display for DetectBench {
         if overlap > 0.0 {
             writeln!(
                 f,
-                "  (frames prepared on a second thread while the network runs: the stages add \
+                "  (frames prepared beside the network while it runs: the stages add \
                  up to {:.1} ms, {:.1} ms of it side by side)",
                 m.busy().as_secs_f64() * 1e3,
                 overlap * 1e3

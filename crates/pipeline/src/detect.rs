@@ -334,6 +334,8 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
     let mut summary = DetectSummary::default();
     let t = Instant::now();
     let device = options.device.device();
+    // A bad FUSIONDET_PREPARE_THREADS is refused before the result directory is made.
+    crate::prefetch::preparers(&device).map_err(PipelineError::Invalid)?;
     let detector = Detector::load(options.config.clone(), &options.checkpoint, &device)?;
     let SplitSide {
         detections,

@@ -142,7 +142,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     );
     if t.overlap() > std::time::Duration::ZERO {
         outln!(
-            "      {:.3} s in all: frames were prepared on a second thread while the network \
+            "      {:.3} s in all: frames were prepared beside the network while it \
              ran, {:.3} s of the stages side by side",
             t.compute().as_secs_f64(),
             t.overlap().as_secs_f64()

@@ -103,8 +103,9 @@ impl DasanetDetector {
 
     /// Detects on every frame; a frame without LiDAR or pseudo points in range gets no
     /// boxes. `depth_dir` holds completed maps to use instead of completing. Each frame's
-    /// pseudo cloud, voxels and rulebooks are prepared on a second thread while the network
-    /// runs on the frame before ([`crate::prefetch`]).
+    /// pseudo cloud, voxels and rulebooks are prepared on threads beside the network (one
+    /// beside the CPU, several beside a GPU) while it runs on the frames before
+    /// ([`crate::prefetch`]).
     pub fn detect_frames(
         &self,
         device: &Device,
@@ -115,8 +116,10 @@ impl DasanetDetector {
         let section = &self.data.voxel.section;
         let data = &self.data;
         let mut results = FrameResults::default();
+        let preparers = crate::prefetch::preparers(device).map_err(PipelineError::Invalid)?;
         crate::prefetch::prepared_in_order::<_, PipelineError>(
             frames.len(),
+            preparers,
             timing,
             |index, timing| {
                 let frame = frames.frame(index)?;

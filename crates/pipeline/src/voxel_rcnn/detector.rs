@@ -258,8 +258,9 @@ impl VoxelRcnnDetector {
     }
 
     /// Detects on every frame; a frame without a LiDAR point in range gets no boxes. Each
-    /// frame's voxels and rulebooks are prepared on a second thread while the network runs
-    /// on the frame before ([`crate::prefetch`]).
+    /// frame's voxels and rulebooks are prepared on threads beside the network (one beside
+    /// the CPU, several beside a GPU) while it runs on the frames before
+    /// ([`crate::prefetch`]).
     pub fn detect_frames(
         &self,
         device: &Device,
@@ -269,8 +270,10 @@ impl VoxelRcnnDetector {
         let section = &self.data.section;
         let data = &self.data;
         let mut results = FrameResults::default();
+        let preparers = crate::prefetch::preparers(device).map_err(PipelineError::Invalid)?;
         crate::prefetch::prepared_in_order::<_, PipelineError>(
             frames.len(),
+            preparers,
             timing,
             |index, timing| {
                 let frame = frames.frame(index)?;

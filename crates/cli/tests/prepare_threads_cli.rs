@@ -1,0 +1,72 @@
+//! How many threads prepare frames beside the network (`FUSIONDET_PREPARE_THREADS`; beside a
+//! GPU by default a quarter of the cores): the shipped DASANet writes the same result files,
+//! byte for byte, with three threads preparing its five bundled val frames as with the CPU's
+//! one, and a value out of range is refused before anything is written.
+
+mod common;
+
+use common::{all_output, repo_root, s};
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn detect(out: &Path, preparers: Option<&str>) -> Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_fusiondet"));
+    command.env_remove("FUSIONDET_PREPARE_THREADS");
+    if let Some(n) = preparers {
+        command.env("FUSIONDET_PREPARE_THREADS", n);
+    }
+    let checkpoint = repo_root().join("models/dasanet-car.bpk");
+    let data = repo_root().join("data/kitti-sample");
+    command
+        .args(["detect", "--checkpoint", s(&checkpoint), "--data", s(&data)])
+        .args(["--split", "val", "--out", s(out)])
+        .output()
+        .expect("run fusiondet")
+}
+
+/// The result files (`<id>.txt`) of a result directory with their bytes.
+fn result_files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "txt"))
+        .map(|p| {
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            (name, std::fs::read(&p).unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn three_preparers_write_the_same_results_as_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let one = dir.path().join("one");
+    let three = dir.path().join("three");
+    let o = detect(&one, None);
+    assert!(o.status.success(), "{}", all_output(&o));
+    let o = detect(&three, Some("3"));
+    assert!(o.status.success(), "{}", all_output(&o));
+    let (one, three) = (result_files(&one), result_files(&three));
+    assert_eq!(one.len(), 5, "{:?}", one.keys());
+    assert!(
+        one.values().any(|bytes| !bytes.is_empty()),
+        "the shipped DASANet found boxes"
+    );
+    assert_eq!(one, three);
+}
+
+#[test]
+fn a_number_of_threads_out_of_range_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let o = detect(&out, Some("0"));
+    let text = all_output(&o);
+    assert!(!o.status.success(), "{text}");
+    assert!(
+        text.contains("FUSIONDET_PREPARE_THREADS=\"0\"") && text.contains("from 1 to 8"),
+        "{text}"
+    );
+    assert!(!text.contains("panicked"), "{text}");
+    assert!(!out.exists(), "the result directory was made");
+}
