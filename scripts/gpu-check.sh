@@ -47,6 +47,11 @@
 #   PREPARE_AB     the published configurations' benches also run with one thread preparing
 #                  frames beside the network (FUSIONDET_PREPARE_THREADS=1; beside a GPU the
 #                  default is a quarter of the cores, 1 to 4): 1 or 0 (default: 1)
+#   PROFILE        the published configurations also train one more epoch and detect once with
+#                  every kernel launch timed on the device (FUSIONDET_KERNEL_PROFILE; slower,
+#                  so the step times and frames/s above are measured without it), summed per
+#                  kernel: 1 or 0 (default: 1); each profiled run is stopped after
+#                  PROFILE_SECONDS (default: 150)
 #   FUSIONDET_AUTOTUNE_LOG  where burn's autotune writes the kernel it kept for each tuned
 #                  shape (default: autotune.log in CHECK_OUT; see kernel_cache.rs)
 #   SPARSE_AB      models also run on the device with the sparse convolution as a kernel
@@ -116,6 +121,8 @@ query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
 sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
 tables_ab="${TABLES_AB:-1}"
 prepare_ab="${PREPARE_AB:-1}"
+profile="${PROFILE:-1}"
+profile_seconds="${PROFILE_SECONDS:-150}"
 export FUSIONDET_AUTOTUNE_LOG="${FUSIONDET_AUTOTUNE_LOG:-$out/autotune.log}"
 
 for m in $models; do
@@ -303,6 +310,24 @@ forward_parts() { # metrics.jsonl → the second epoch's forward pass per step, 
         awk -F: -v n="${batches:-0}" '{ gsub(/"/, "", $1); if (n > 0) printf "%s%s %.3f", (NR > 1 ? ", " : ""), $1, $2 / n }'
 }
 first_loss() { head -1 "$1" | grep -o '"first_step_loss":[0-9.e+-]*' | cut -d: -f2; }
+# A kernel profile (FUSIONDET_KERNEL_PROFILE: a "| 41.2µs | kind | op_hash" line per launch, e.g.
+# "| 19.7ms | KernelScalarBinop | AddOp_832f80fc") and a count of units (training steps, frames)
+# → launches and device time per unit, then the twelve kernels that took most, by kind and op
+# without generics or hash: "KernelScalarBinop:AddOp ×launches ms, …".
+kernel_profile() {
+    local log="$1" units="$2"
+    [ -s "$log" ] && [ "${units:-0}" -gt 0 ] || { echo "?"; return; }
+    awk -F'|' 'NF >= 3 {
+        d = $2; gsub(/ /, "", d); name = $3; if (NF > 3) name = name ":" $4
+        gsub(/ /, "", name); sub(/<.*/, "", name); sub(/_[0-9a-f]+$/, "", name)
+        ms = d + 0
+        if (d ~ /ns$/) ms /= 1e6; else if (d ~ /µs$/) ms /= 1e3; else if (d ~ /ms$/) ms += 0;
+        else if (d ~ /s$/) ms *= 1e3; else next
+        t[name] += ms; n[name]++
+    } END { for (k in t) printf "%.6f\t%d\t%s\n", t[k], n[k], k }' "$log" | sort -t"$(printf '\t')" -k1,1gr |
+        awk -F'\t' -v u="$units" '{ total += $1; count += $2; if (NR <= 12) top = top sprintf("%s%s ×%.1f %.2f ms", (NR > 1 ? ", " : ""), $3, $2 / u, $1 / u) }
+            END { printf "%.0f launches, %.1f ms of device time; by kernel: %s", count / u, total / u, top }'
+}
 if [ "$train" = 1 ]; then
     for config in $train_configs; do
         name="$(basename "$config" .toml)"
@@ -342,6 +367,31 @@ if [ "$train" = 1 ]; then
                         bench_into "$run-bench-one-preparer.log" "$run/model.bpk" "$d" "" "" "" 1
                         record "$(printf '%-26s bench on %s with one thread preparing frames: %s frames/s; stages: %s' \
                             "$name" "$d" "$(frames_per_second "$run-bench-one-preparer.log" || echo '?')" "$(stage_ms "$run-bench-one-preparer.log")")"
+                    fi
+                    if [ "$profile" = 1 ]; then
+                        # Every launch timed on its own: one more epoch, and a detection of the val
+                        # frames, each given at most PROFILE_SECONDS.
+                        prof="$run-profile"
+                        rm -rf "$prof" "$prof-train.kernels" "$prof-detect.kernels"
+                        if FUSIONDET_KERNEL_PROFILE="$prof-train.kernels" timeout "$profile_seconds" "$bin" train --config "$config" \
+                            --data "$data" --out "$prof" --epochs 1 --max-frames "$steps_frames" \
+                            --device "$d" >"$prof-train.log" 2>&1; then
+                            steps="$(head -1 "$prof/metrics.jsonl" | grep -o '"batches":[0-9]*' | cut -d: -f2 || true)"
+                            record "$(printf '%-26s kernels on %s a training step: %s' "$name" "$d" \
+                                "$(kernel_profile "$prof-train.kernels" "${steps:-0}")")"
+                        else
+                            rc=$?
+                            reason="$(tail -1 "$prof-train.log")"
+                            [ "$rc" = 124 ] && reason="stopped after $profile_seconds s"
+                            record "$(printf '%-26s kernel profile of training on %s failed: %s' "$name" "$d" "$reason")"
+                        fi
+                        # `detect` rather than `bench`, whose probes would be counted too.
+                        rm -rf "$prof-detect"
+                        FUSIONDET_KERNEL_PROFILE="$prof-detect.kernels" timeout "$profile_seconds" "$bin" detect --checkpoint "$run/model.bpk" \
+                            --data "$data" --out "$prof-detect" --device "$d" >"$prof-detect.log" 2>&1 || true
+                        detected="$(grep -c . "$data/ImageSets/val.txt" || true)"
+                        record "$(printf '%-26s kernels on %s a detected frame: %s' "$name" "$d" \
+                            "$(kernel_profile "$prof-detect.kernels" "${detected:-0}")")"
                     fi
                     if [ -n "$sparse_ab" ]; then
                         bench_into "$run-bench-sparse.log" "$run/model.bpk" "$d" "" kernel-map

@@ -16,6 +16,11 @@
 //! `FUSIONDET_AUTOTUNE_LOG` names a file autotune appends its choices to (the kernel it kept
 //! for each tuned shape, with its timings): which convolution and product kernels a GPU
 //! ended up running, without CubeCL's full debug log.
+//!
+//! `FUSIONDET_KERNEL_PROFILE` names a file CubeCL's profiler appends a line to for every
+//! kernel launch, with the time the device spent in it (`| 41.2µs | name`): where a GPU's
+//! time goes, kernel by kernel (`scripts/gpu-check.sh` sums it per kernel). Each launch is
+//! then timed on its own, so the process runs slower; time a run without it.
 
 use std::path::{Path, PathBuf};
 
@@ -68,8 +73,8 @@ pub fn configure() {
     });
 }
 
-/// `config` with the cache folder and the autotune log that the environment (`env`, a
-/// variable's value by name) asks for.
+/// `config` with the cache folder, the autotune log and the kernel profile that the
+/// environment (`env`, a variable's value by name) asks for.
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 fn runtime_config(
     mut config: cubecl_runtime::config::CubeClRuntimeConfig,
@@ -91,6 +96,12 @@ fn runtime_config(
     if let Some(log) = nonempty(env("FUSIONDET_AUTOTUNE_LOG").as_deref()) {
         config.autotune.logger.file = Some(PathBuf::from(log));
         config.autotune.logger.append = true;
+    }
+    if let Some(log) = nonempty(env("FUSIONDET_KERNEL_PROFILE").as_deref()) {
+        use cubecl_runtime::config::profiling::ProfilingLogLevel;
+        config.profiling.logger.file = Some(PathBuf::from(log));
+        config.profiling.logger.append = true;
+        config.profiling.logger.level = ProfilingLogLevel::Basic;
     }
     config
 }
@@ -138,7 +149,7 @@ mod tests {
     /// tuning results stay in memory and nothing is logged to a file.
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
     #[test]
-    fn kernel_cache_config_takes_the_folder_and_the_autotune_log() {
+    fn kernel_cache_config_takes_the_folder_the_autotune_log_and_the_profile() {
         use cubecl_runtime::config::{CubeClRuntimeConfig, cache::CacheConfig};
         let vars = |pairs: &'static [(&'static str, &'static str)]| {
             move |k: &str| {
@@ -153,6 +164,7 @@ mod tests {
             vars(&[
                 ("FUSIONDET_KERNEL_CACHE", "/k"),
                 ("FUSIONDET_AUTOTUNE_LOG", "/k/tune.log"),
+                ("FUSIONDET_KERNEL_PROFILE", "/k/profile.log"),
             ]),
         );
         assert!(config.compilation.cache && !config.autotune.disable_cache);
@@ -163,6 +175,15 @@ mod tests {
             config.autotune.logger.file,
             Some(PathBuf::from("/k/tune.log"))
         );
+        assert_eq!(
+            config.profiling.logger.file,
+            Some(PathBuf::from("/k/profile.log"))
+        );
+        assert!(config.profiling.logger.append);
+        assert!(matches!(
+            config.profiling.logger.level,
+            cubecl_runtime::config::profiling::ProfilingLogLevel::Basic
+        ));
         let config = runtime_config(
             CubeClRuntimeConfig::default(),
             vars(&[
@@ -172,5 +193,10 @@ mod tests {
         );
         assert!(config.autotune.disable_cache);
         assert_eq!(config.autotune.logger.file, None);
+        assert_eq!(config.profiling.logger.file, None);
+        assert!(matches!(
+            config.profiling.logger.level,
+            cubecl_runtime::config::profiling::ProfilingLogLevel::Disabled
+        ));
     }
 }
