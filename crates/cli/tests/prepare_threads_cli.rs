@@ -5,24 +5,13 @@
 
 mod common;
 
-use common::{all_output, repo_root, s};
+use common::all_output;
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 fn detect(out: &Path, preparers: Option<&str>) -> Output {
-    let mut command = Command::new(env!("CARGO_BIN_EXE_fusiondet"));
-    command.env_remove("FUSIONDET_PREPARE_THREADS");
-    if let Some(n) = preparers {
-        command.env("FUSIONDET_PREPARE_THREADS", n);
-    }
-    let checkpoint = repo_root().join("models/dasanet-car.bpk");
-    let data = repo_root().join("data/kitti-sample");
-    command
-        .args(["detect", "--checkpoint", s(&checkpoint), "--data", s(&data)])
-        .args(["--split", "val", "--out", s(out)])
-        .output()
-        .expect("run fusiondet")
+    common::detect_bundled_val("dasanet-car", out, "FUSIONDET_PREPARE_THREADS", preparers)
 }
 
 /// The result files (`<id>.txt`) of a result directory with their bytes.

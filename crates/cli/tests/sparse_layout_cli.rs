@@ -6,23 +6,12 @@
 
 mod common;
 
-use common::{all_output, repo_root, s};
+use common::{all_output, s};
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 fn detect(model: &str, out: &Path, layout: Option<&str>) -> Output {
-    let mut command = Command::new(env!("CARGO_BIN_EXE_fusiondet"));
-    command.env_remove("FUSIONDET_SPARSE_RULES");
-    if let Some(layout) = layout {
-        command.env("FUSIONDET_SPARSE_RULES", layout);
-    }
-    let checkpoint = repo_root().join(format!("models/{model}.bpk"));
-    let data = repo_root().join("data/kitti-sample");
-    command
-        .args(["detect", "--checkpoint", s(&checkpoint), "--data", s(&data)])
-        .args(["--split", "val", "--out", s(out)])
-        .output()
-        .expect("run fusiondet")
+    common::detect_bundled_val(model, out, "FUSIONDET_SPARSE_RULES", layout)
 }
 
 #[test]

@@ -14,6 +14,23 @@ pub fn run(subcommand: &str, args: &[&str]) -> Output {
         .expect("run fusiondet")
 }
 
+/// `fusiondet detect` of shipped model `model` on the bundled KITTI val frames into `out`,
+/// with the environment variable `var` set to `value`, or removed where `None`.
+pub fn detect_bundled_val(model: &str, out: &Path, var: &str, value: Option<&str>) -> Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_fusiondet"));
+    command.env_remove(var);
+    if let Some(value) = value {
+        command.env(var, value);
+    }
+    let checkpoint = repo_root().join(format!("models/{model}.bpk"));
+    let data = repo_root().join("data/kitti-sample");
+    command
+        .args(["detect", "--checkpoint", s(&checkpoint), "--data", s(&data)])
+        .args(["--split", "val", "--out", s(out)])
+        .output()
+        .expect("run fusiondet")
+}
+
 /// The repository root (for bundled data and configs).
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
