@@ -250,8 +250,22 @@ impl Dasanet {
         inputs: &DasanetRoiInputs,
         auxiliary: bool,
     ) -> DasanetRoiOutput {
-        let device = stage_one.anchors.cls.device();
         let supplemented = self.supplemented(config, stage_one, inputs);
+        self.stage_two_after_tdis(stage_one, inputs, supplemented, auxiliary)
+    }
+
+    /// Stage two from TDIS's F^T ([`Self::supplemented`]) on: STCA, the heads. Split from
+    /// [`Self::stage_two`] so that a caller can queue TDIS on a GPU before it crops STCA's
+    /// points on the host (`inputs.points`), the crops then running while the device works;
+    /// the same operations in the same order either way.
+    pub fn stage_two_after_tdis(
+        &self,
+        stage_one: &DasanetStageOne,
+        inputs: &DasanetRoiInputs,
+        supplemented: Option<Tensor<2>>,
+        auxiliary: bool,
+    ) -> DasanetRoiOutput {
+        let device = stage_one.anchors.cls.device();
         let attention = self.attention(inputs, &device);
         let aux = |head: &Option<RoiHead>, x: &Option<Tensor<2>>| match (head, x) {
             (Some(h), Some(x)) if auxiliary => Some(h.forward(x.clone())),

@@ -5,7 +5,7 @@
 
 use super::config::DasanetSection;
 use super::data::{DasanetBatch, DasanetData, collate};
-use super::detector::{roi_inputs, sections};
+use super::detector::{roi_grids, roi_points, sections};
 use super::pseudo::PseudoCloudMaker;
 use crate::config::ExperimentConfig;
 use crate::error::{PipelineError, Result};
@@ -23,7 +23,8 @@ use crate::voxel_rcnn::task::{
 use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
 use fusiondet_models::dasanet::{
-    Dasanet, DasanetShape, load_dasanet, rcnn_loss, save_dasanet, save_dasanet_for_inference,
+    Dasanet, DasanetRoiInputs, DasanetShape, load_dasanet, rcnn_loss, save_dasanet,
+    save_dasanet_for_inference,
 };
 use fusiondet_models::voxel_rcnn::anchor_loss;
 use fusiondet_voxel::{GtDatabase, GtSampler};
@@ -181,12 +182,17 @@ impl TrainingTask for DasanetTask<'_> {
         let (sampled, rois) = parts.time(PART_ROI_SAMPLING, || {
             sample_training_rois(section, &proposals, &batch.gts, roi_seed)
         })?;
-        // Both branches' grid queries and STCA's crops.
-        let inputs = parts.time(PART_ROI_QUERY, || {
-            roi_inputs(section, &self.shape.network, &out, &rois, &batch.clouds)
-        });
+        // Both branches' grid queries, then TDIS queued before STCA's crops on the host, so
+        // that on a GPU the crops run while the device pools and fuses.
+        let network = &self.shape.network;
+        let mut inputs = DasanetRoiInputs {
+            grids: parts.time(PART_ROI_QUERY, || roi_grids(section, network, &out, &rois)),
+            points: None,
+        };
+        let supplemented = parts.time(PART_STAGE_TWO, || net.supplemented(network, &out, &inputs));
+        inputs.points = parts.time(PART_ROI_QUERY, || roi_points(network, &rois, &batch.clouds));
         let pred = parts.time(PART_STAGE_TWO, || {
-            net.stage_two(&self.shape.network, &out, &inputs, true)
+            net.stage_two_after_tdis(&out, &inputs, supplemented, true)
         });
         if self.tdis_stats
             && let Some((ratio, largest)) = net.tdis_scale(&self.shape.network, &out, &inputs)
