@@ -148,18 +148,22 @@ impl RoiPoints {
             .iter()
             .map(|&(points, stride)| BevBuckets::new(points, stride))
             .collect();
-        // (voxel key, features) of every kept point, RoI by RoI (in parallel, joined in order).
+        // (voxel key, features) of every kept point, RoI by RoI (in parallel, joined in order),
+        // each RoI's sorted by voxel: a RoI's keys all lie above the RoI before's, so the
+        // joined list is sorted as a whole. Stable: points keep their cloud order within a
+        // voxel.
         let per_roi: Vec<Vec<(u64, [f32; POINT_FEATURES])>> = rois
             .par_iter()
             .enumerate()
             .map(|(r, roi)| {
                 let (points, stride) = clouds[batch_of_roi[r]];
-                crop(points, stride, &buckets[batch_of_roi[r]], r, roi, config)
+                let mut inside = crop(points, stride, &buckets[batch_of_roi[r]], r, roi, config);
+                inside.sort_by_key(|(key, _)| *key);
+                inside
             })
             .collect();
-        let mut kept: Vec<(u64, [f32; POINT_FEATURES])> = per_roi.into_iter().flatten().collect();
-        // Stable: points keep their cloud order within a voxel.
-        kept.sort_by_key(|(key, _)| *key);
+        let kept: Vec<(u64, [f32; POINT_FEATURES])> = per_roi.into_iter().flatten().collect();
+        debug_assert!(kept.is_sorted_by_key(|(key, _)| *key));
         let mut counts = Vec::new();
         let mut starts = Vec::new();
         let mut coords = Vec::new();
