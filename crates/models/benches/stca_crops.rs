@@ -6,6 +6,7 @@
 //! `cargo bench -p fusiondet-models --bench stca_crops`
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use fusiondet_frustum::rng::Sampler;
 use fusiondet_models::dasanet::stca::{RoiPoints, StcaConfig};
 use std::hint::black_box;
 use std::time::Duration;
@@ -13,13 +14,7 @@ use std::time::Duration;
 /// A seeded cloud (x, y, z, r, g, b) of `per_roi` points around each of `rois` car-sized
 /// boxes laid out on a grid, and the boxes turned by assorted headings.
 fn scene(rois: usize, per_roi: usize) -> (Vec<f32>, Vec<[f64; 7]>) {
-    let mut state = 29u64;
-    let mut unit = move || {
-        state = state
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = Sampler::new(29);
     let boxes: Vec<[f64; 7]> = (0..rois)
         .map(|r| {
             let (x, y) = (5.0 + (r % 16) as f64 * 4.0, -30.0 + (r / 16) as f64 * 2.0);
@@ -32,9 +27,9 @@ fn scene(rois: usize, per_roi: usize) -> (Vec<f32>, Vec<[f64; 7]>) {
             (0..per_roi)
                 .flat_map(|_| {
                     [
-                        (b[0] + (unit() - 0.5) * 5.0) as f32,
-                        (b[1] + (unit() - 0.5) * 3.0) as f32,
-                        (b[2] + (unit() - 0.5) * 2.0) as f32,
+                        (b[0] + rng.range(-2.5, 2.5)) as f32,
+                        (b[1] + rng.range(-1.5, 1.5)) as f32,
+                        (b[2] + rng.range(-1.0, 1.0)) as f32,
                         0.5,
                         0.5,
                         0.5,
