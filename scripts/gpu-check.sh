@@ -333,6 +333,14 @@ kernel_profile() {
         awk -F'\t' -v u="$units" '{ total += $1; count += $2; if (NR <= 12) top = top sprintf("%s%s ×%.1f %.2f ms", (NR > 1 ? ", " : ""), $3, $2 / u, $1 / u) }
             END { printf "%.0f launches, %.1f ms of device time; by kernel: %s", count / u, total / u, top }'
 }
+# A profiled run that failed (exit status, configuration, what, device, its log) → a summary
+# line: stopped at PROFILE_SECONDS (status 124), or its log's last line.
+profile_failed() {
+    local reason
+    reason="$(tail -1 "$5")"
+    [ "$1" = 124 ] && reason="stopped after $profile_seconds s"
+    record "$(printf '%-26s kernel profile of %s on %s failed: %s' "$2" "$3" "$4" "$reason")"
+}
 if [ "$train" = 1 ]; then
     for config in $train_configs; do
         name="$(basename "$config" .toml)"
@@ -385,18 +393,18 @@ if [ "$train" = 1 ]; then
                             record "$(printf '%-26s kernels on %s a training step: %s' "$name" "$d" \
                                 "$(kernel_profile "$prof-train.kernels" "${steps:-0}")")"
                         else
-                            rc=$?
-                            reason="$(tail -1 "$prof-train.log")"
-                            [ "$rc" = 124 ] && reason="stopped after $profile_seconds s"
-                            record "$(printf '%-26s kernel profile of training on %s failed: %s' "$name" "$d" "$reason")"
+                            profile_failed $? "$name" training "$d" "$prof-train.log"
                         fi
                         # `detect` rather than `bench`, whose probes would be counted too.
                         rm -rf "$prof-detect"
-                        FUSIONDET_KERNEL_PROFILE="$prof-detect.kernels" timeout "$profile_seconds" "$bin" detect --checkpoint "$run/model.bpk" \
-                            --data "$data" --out "$prof-detect" --device "$d" >"$prof-detect.log" 2>&1 || true
-                        detected="$(grep -c . "$data/ImageSets/val.txt" || true)"
-                        record "$(printf '%-26s kernels on %s a detected frame: %s' "$name" "$d" \
-                            "$(kernel_profile "$prof-detect.kernels" "${detected:-0}")")"
+                        if FUSIONDET_KERNEL_PROFILE="$prof-detect.kernels" timeout "$profile_seconds" "$bin" detect --checkpoint "$run/model.bpk" \
+                            --data "$data" --out "$prof-detect" --device "$d" >"$prof-detect.log" 2>&1; then
+                            detected="$(grep -c . "$data/ImageSets/val.txt" || true)"
+                            record "$(printf '%-26s kernels on %s a detected frame: %s' "$name" "$d" \
+                                "$(kernel_profile "$prof-detect.kernels" "${detected:-0}")")"
+                        else
+                            profile_failed $? "$name" detection "$d" "$prof-detect.log"
+                        fi
                     fi
                     if [ -n "$sparse_ab" ]; then
                         bench_into "$run-bench-sparse.log" "$run/model.bpk" "$d" "" kernel-map

@@ -145,8 +145,8 @@ mod tests {
         );
     }
 
-    /// The folder and the autotune log reach CubeCL's configuration; without them the
-    /// tuning results stay in memory and nothing is logged to a file.
+    /// The folder, the autotune log and the kernel profile reach CubeCL's configuration;
+    /// without them the tuning results stay in memory and nothing is logged to a file.
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
     #[test]
     fn kernel_cache_config_takes_the_folder_the_autotune_log_and_the_profile() {

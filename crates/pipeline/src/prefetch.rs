@@ -5,8 +5,8 @@
 //! an H200, Voxel R-CNN's host rulebooks alone were 20.6 of its 38.9 ms a frame, and
 //! DASANet's depth completion 41 of 166 ms). With one thread preparing beside a GPU the
 //! host is still the bound where a frame prepares slower than the network runs (the
-//! published DASANet on the H200: about 150 ms of host work a frame, 163 ms a frame in all), so beside a GPU several threads prepare frames at once
-//! ([`preparers_for`]). The preparation of a frame reads nothing the network or another
+//! published DASANet on the H200: about 150 ms of host work a frame, 163 ms a frame in
+//! all), so beside a GPU several threads prepare frames at once ([`preparers_for`]). The preparation of a frame reads nothing the network or another
 //! frame's preparation writes, so the results are the same bits in any order and with any
 //! number of threads; the trainer's data thread does the same for batches.
 

@@ -195,7 +195,7 @@ impl TrainingTask for DasanetTask<'_> {
             net.stage_two_after_tdis(&out, &inputs, supplemented, true)
         });
         if self.tdis_stats
-            && let Some((ratio, largest)) = net.tdis_scale(&self.shape.network, &out, &inputs)
+            && let Some((ratio, largest)) = net.tdis_scale(network, &out, &inputs)
         {
             eprintln!("tdis-scale rms_ratio {ratio:.6} max_abs_weight {largest:.6}");
         }
