@@ -88,6 +88,11 @@
 #              map gave an input gradient off by 1e0)
 #   repeated   burn's select_assign with Add over rows repeated 27 times (a gather's backward,
 #              in every training graph) on the device against the CPU (printed by `bench`)
+#   norm       training's largest batch norm + ReLU (RoI grid pooling's position layer in a
+#              published Voxel R-CNN step: 884,736 rows × 32) forward and backward on the
+#              device, through the project's kernels and through burn's generic operations
+#              (FUSIONDET_CUSTOM_OPS=off), ms each and their γ/β gradients against the CPU's
+#              (printed by `bench`)
 #   product    the largest relative error of one 512×512 f32 matrix product on each device
 #              (printed by `bench`): about 1e-7 where products run in f32, about 1e-4 where
 #              tensor cores round their inputs to TF32.
@@ -290,6 +295,8 @@ for m in $models; do
     if [ -z "${precision_recorded:-}" ]; then
         record "f32 matrix product, largest relative error: cpu $(product_error "$det/bench-cpu.log" || echo '?'), $device $(product_error "$det/bench-dev.log" || echo '?') (TF32 inputs: about 1e-4)"
         record "repeated-row additions (every gather's backward) on $device, largest relative difference from the cpu: $(grep -o 'repeated-row additions.*: [0-9.e+-]*$' "$det/bench-dev.log" | grep -o '[0-9.e+-]*$' || echo '?') (about 1e-7 where right; 1e0 on lavapipe), $(grep -o 'into 20001, [0-9.]* ms' "$det/bench-dev.log" | grep -o '[0-9.]* ms' || echo '?') a run"
+        norm="$(grep -o 'training batch norm + ReLU on this device.*' "$det/bench-dev.log" | head -1 || true)"
+        record "${norm:-training batch norm probe: not printed by the $device bench}"
         precision_recorded=1
     fi
 done

@@ -40,8 +40,9 @@ pub enum NormLayout {
     Maps,
 }
 
-/// The custom operation (see the module's documentation).
-#[backend_extension(Flex, Autodiff)]
+/// The custom operation (see the module's documentation; on a CubeCL device,
+/// [`crate::batch_norm_device`]'s kernels).
+#[backend_extension(Flex, Cube: cfg(any(feature = "wgpu", feature = "cuda")), Autodiff)]
 pub trait BatchNormOps: Backend {
     /// Training batch norm of `x` in `layout`, followed by a ReLU when `relu`: the output,
     /// and the batch's per-channel mean and biased variance ([C] each, constants).
@@ -55,8 +56,8 @@ pub trait BatchNormOps: Backend {
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 }
 
-/// [`BatchNormOps::batch_norm_train_fused`] on tensors on the flex device: (output, batch
-/// mean, batch variance).
+/// [`BatchNormOps::batch_norm_train_fused`] on tensors on the flex device or a CubeCL one:
+/// (output, batch mean, batch variance).
 pub fn batch_norm_train<const D: usize>(
     x: Tensor<D>,
     gamma: Tensor<1>,

@@ -8,6 +8,8 @@
 //! inference ([`host_max`]), custom operations with their own backward passes in training
 //! ([`ragged`]).
 
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod batch_norm_device;
 pub mod batch_norm_ops;
 pub mod buffers;
 pub mod conv2d;

@@ -40,8 +40,9 @@ pub fn batch_norm(channels: usize, config: &NormConfig, device: &Device) -> Batc
 /// `bn.forward(x)` on [rows, C]: in training on the flex CPU device the fused custom
 /// operation ([`batch_norm_train`] over rows: two passes for the statistics, one for the
 /// output, two backward, where burn's generic form transposes the rows and makes about
-/// eight passes each way), with the same running-statistics update as `BatchNorm`;
-/// elsewhere (inference, other devices) `bn.forward` itself.
+/// eight passes each way), with the same running-statistics update as `BatchNorm`; in
+/// training on a GPU the same operation as CubeCL kernels (`batch_norm_device`, whose
+/// reductions burn runs one thread a channel); in inference `bn.forward` itself.
 pub fn norm_rows(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
     fused_in_training(bn, x, NormLayout::Rows, false)
 }
@@ -57,7 +58,7 @@ pub fn norm_rows_relu(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
 /// sequences): in training on the flex CPU device the fused custom operation
 /// ([`batch_norm_train`] over maps: statistics read in place, where burn's generic form
 /// copies the map into [C, B·…] twice each way), with the same running-statistics update
-/// as `BatchNorm`; elsewhere (inference, other devices) `bn.forward` itself.
+/// as `BatchNorm`; on a GPU its kernels, as in [`norm_rows`]; in inference `bn.forward`.
 pub fn norm_maps<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
     fused_in_training(bn, x, NormLayout::Maps, false)
 }
@@ -68,14 +69,16 @@ pub fn norm_maps_relu<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D>
 }
 
 /// The fused operation in `layout` (with a ReLU when `relu`) where training runs on the flex
-/// device, with `BatchNorm`'s running-statistics update; `bn.forward` (and `relu`) elsewhere.
+/// device or a CubeCL one, with `BatchNorm`'s running-statistics update; `bn.forward` (and
+/// `relu`) elsewhere, or wherever the custom operations are off.
 fn fused_in_training<const D: usize>(
     bn: &BatchNorm,
     x: Tensor<D>,
     layout: NormLayout,
     relu: bool,
 ) -> Tensor<D> {
-    if !(x.device().is_autodiff() && bn.training.is_enabled() && ragged::custom_path(&x)) {
+    let fused = ragged::custom_path(&x) || ragged::custom_device_path(&x);
+    if !(x.device().is_autodiff() && bn.training.is_enabled() && fused) {
         let out = bn.forward(x);
         return if relu { activation::relu(out) } else { out };
     }

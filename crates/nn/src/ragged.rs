@@ -40,8 +40,9 @@ use std::sync::{Arc, OnceLock};
 /// Whether the custom operations are used where they apply (the default).
 static ENABLED: AtomicBool = AtomicBool::new(true);
 
-/// `FUSIONDET_CUSTOM_OPS=off` in the environment turns the custom operations (these and
-/// [`crate::conv2d`]) off for the whole process, so that a training or detection through
+/// `FUSIONDET_CUSTOM_OPS=off` in the environment turns the custom operations (these,
+/// [`crate::conv2d`] and the others on the flex device, and training's batch norm on a GPU,
+/// [`custom_device_path`]) off for the whole process, so that a training or detection through
 /// the binary can be timed, or its results compared, against burn's generic operations;
 /// `on` (or no variable) keeps them.
 fn enabled_by_environment() -> bool {
@@ -73,6 +74,20 @@ pub fn custom_path<const D: usize>(x: &Tensor<D>) -> bool {
     ENABLED.load(Ordering::Relaxed)
         && enabled_by_environment()
         && x.device().without_autodiff() == Device::flex()
+}
+
+/// Whether `x` takes the custom operations written for GPUs that replace burn's generic ones
+/// outright (training's batch norm, `batch_norm_device`): on a CubeCL device, unless
+/// [`set_custom_ops`] or the environment turned the custom operations off.
+pub fn custom_device_path<const D: usize>(x: &Tensor<D>) -> bool {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    let on_cube = crate::cube::cube_runtime(&x.device()).is_some();
+    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
+    let on_cube = {
+        let _ = x;
+        false
+    };
+    on_cube && ENABLED.load(Ordering::Relaxed) && enabled_by_environment()
 }
 
 /// Runs of rows: run s covers rows `starts[s]..starts[s] + counts[s]` of a [rows, C]

@@ -3,6 +3,7 @@
 //! on the checkpoint's family ([`detect`]) and its speed benchmark ([`bench`]); each
 //! family plugs in through a module of its own ([`frustum`]).
 
+pub mod batch_norm_probe;
 pub mod bench;
 pub mod compute_pool;
 pub mod config;

@@ -68,6 +68,22 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         added.seconds * 1e3,
         added.error
     );
+    // What a training step's largest batch norm costs here, through the kernels and burn's
+    // generic operations (GPUs only).
+    if let Some(norm) = fusiondet_pipeline::batch_norm_probe::batch_norm_timing(&device.device()) {
+        outln!(
+            "  training batch norm + ReLU on this device ({rows} rows × {channels}, forward and \
+             backward): kernels {:.1} ms, burn's generic operations {:.1} ms; γ and β gradients' \
+             largest difference from the CPU's, relative to its largest value: kernels {:.1e}, \
+             burn's {:.1e}",
+            norm.kernels * 1e3,
+            norm.generic * 1e3,
+            norm.kernels_error,
+            norm.generic_error,
+            rows = fusiondet_pipeline::batch_norm_probe::PROBE_ROWS,
+            channels = fusiondet_pipeline::batch_norm_probe::PROBE_CHANNELS,
+        );
+    }
     if kind != fusiondet_models::DetectorKind::Frustum {
         // Whether training on this device gets the sparse backbone's gradients right.
         let (layout, error) =

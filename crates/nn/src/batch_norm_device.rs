@@ -1,0 +1,746 @@
+//! Training batch norm ([`crate::batch_norm_ops::BatchNormOps`]) as CubeCL kernels on burn's
+//! GPU backends (cargo features `wgpu` and `cuda`), forward and backward, in both layouts.
+//!
+//! Why: burn 0.22's generic training batch norm takes its statistics with `mean_dim` over
+//! [C, B·…] (two forward, four backward: Σ g, Σ g·x̂ and their means), and burn-cubecl
+//! reduces an axis, unless kernel autotune is compiled in, with one thread per output value
+//! walking the whole axis ("a unit is responsible to reduce a full vector"). A batch norm's
+//! output is C values, so each reduction is C threads of up to a million serial steps: in a
+//! published Voxel R-CNN training step (batch 2), RoI grid pooling's position layer
+//! normalises 256 RoIs × 216 grid points × 16 neighbours = 884,736 rows of 32 channels, six
+//! times 32 threads walking 884,736 rows, and every layer of both backbones does the same
+//! over its voxels or its map. A GPU runs that as 32 of its ~16,000 lanes. Inference (running
+//! statistics) reduces nothing, which is why detection was near its target on an H200 while
+//! training steps were 5–6 times over theirs.
+//!
+//! Here each reduction is two launches: blocks of about √N samples per (block, channel)
+//! thread, the blocks' partial sums then added per channel in block order, so a sum is at
+//! most a few thousand serial steps and the same bits in every run on one device (autotune,
+//! where compiled in, may pick burn's reductions differently from run to run). The forward
+//! pass reads the input twice (mean, then centred squares) and writes the output once with
+//! the ReLU fused when asked; the backward pass reads once for Σ g and Σ g·x̂ (g through the
+//! ReLU's gate, recomputed from the input as the forward pass computed the output) and
+//! writes x' once. Sums are f32, where the CPU path sums in f64: tests on wgpu over lavapipe
+//! compare the two within rounding.
+//!
+//! Inputs are read by their strides as 3-D [B, C, S] views ([rows, C] as [rows, C, 1]), and
+//! outputs written to one-dimensional buffers, as in `sparse::device_kernels` (CUDA pads
+//! 2-D rows).
+
+use crate::batch_norm_ops::{BatchNormOps, NormLayout};
+use crate::cube::launch_shape;
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::ops::FloatTensorOps;
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Autodiff, AutodiffBackend};
+use burn::tensor::{DType, FloatDType};
+use burn_cubecl::CubeBackend;
+use burn_cubecl::kernel::untile;
+use burn_cubecl::ops::numeric::empty_device_dtype;
+use burn_cubecl::tensor::CubeTensor;
+
+mod kernels {
+    use cubecl::prelude::*;
+    use cubecl::std::FastDivmod;
+
+    /// Sample j's value of channel c in the [B, C, S] view `t` (j = b·S + s), given (b, s).
+    #[cube]
+    fn at(t: &Tensor<f32>, b: usize, c: usize, s: usize) -> f32 {
+        t[b * t.stride(0) + c * t.stride(1) + s * t.stride(2)]
+    }
+
+    /// Packed value `unit` of a [B, C, S] tensor as (b, c, s), the divisions by C and S
+    /// precomputed on the host (`FastDivmod`: a multiply and a shift each).
+    #[cube]
+    fn position(
+        unit: usize,
+        channels: FastDivmod<u32>,
+        spatial: FastDivmod<u32>,
+    ) -> (usize, usize, usize) {
+        let (rest, s) = spatial.div_mod(u32::cast_from(unit));
+        let (b, c) = channels.div_mod(rest);
+        (
+            usize::cast_from(b),
+            usize::cast_from(c),
+            usize::cast_from(s),
+        )
+    }
+
+    /// Packed value `unit` of the [B, C, S] view `t`, at (b, c, s): read by its index when
+    /// `packed` (the view's strides are a packed tensor's), else by its strides.
+    #[cube]
+    fn value_at(
+        t: &Tensor<f32>,
+        unit: usize,
+        b: usize,
+        c: usize,
+        s: usize,
+        #[comptime] packed: bool,
+    ) -> f32 {
+        if packed { t[unit] } else { at(t, b, c, s) }
+    }
+
+    /// Whether a ReLU keeps `v` (flex's: NaN passes).
+    #[cube]
+    fn kept(v: f32) -> bool {
+        v > 0.0 || f32::is_nan(v)
+    }
+
+    /// `value`'s output gradient `grad` through the ReLU's gate when `relu`, the norm's
+    /// output recomputed as the forward pass computed it (`value · scale + shift`).
+    #[cube]
+    fn gated(grad: f32, value: f32, scale: f32, shift: f32, #[comptime] relu: bool) -> f32 {
+        let mut keep = true;
+        if relu {
+            keep = kept(value * scale + shift);
+        }
+        select(keep, grad, 0.0f32)
+    }
+
+    /// One (block, channel) a thread: `partial[block · C + c]`, the sum over the block's
+    /// samples, in order, of x (`centred` false) or of (x − mean)² (`centred` true).
+    #[cube(launch_unchecked)]
+    pub fn partial_sums(
+        x: &Tensor<f32>,
+        mean: &Tensor<f32>,
+        partial: &mut Tensor<f32>,
+        samples: u32,
+        block_len: u32,
+        #[comptime] centred: bool,
+    ) {
+        let unit = ABSOLUTE_POS;
+        if unit >= partial.shape(0) {
+            terminate!();
+        }
+        let (channels, spatial) = (x.shape(1), x.shape(2));
+        let (block, c) = (unit / channels, unit % channels);
+        let first = block * block_len as usize;
+        let mut end = first + block_len as usize;
+        if end > samples as usize {
+            end = samples as usize;
+        }
+        let mut m = 0f32;
+        if centred {
+            m = mean[c];
+        }
+        let (mut b, mut s) = (first / spatial, first % spatial);
+        let mut sum = 0f32;
+        for _ in first..end {
+            let v = at(x, b, c, s);
+            if centred {
+                let d = v - m;
+                sum += d * d;
+            } else {
+                sum += v;
+            }
+            s += 1;
+            if s == spatial {
+                s = 0;
+                b += 1;
+            }
+        }
+        partial[unit] = sum;
+    }
+
+    /// One column a thread: `out[k] = scale · Σ_block partial[block · width + k]`, the
+    /// blocks in order.
+    #[cube(launch_unchecked)]
+    pub fn column_totals(partial: &Tensor<f32>, out: &mut Tensor<f32>, blocks: u32, scale: f32) {
+        let unit = ABSOLUTE_POS;
+        let width = out.shape(0);
+        if unit >= width {
+            terminate!();
+        }
+        let mut sum = 0f32;
+        for block in 0..blocks as usize {
+            sum += partial[block * width + unit];
+        }
+        out[unit] = sum * scale;
+    }
+
+    /// One channel a thread: `out` [3C] = γ/σ, β − mean·γ/σ and 1/σ, σ = √(σ² + ε): what the
+    /// forward pass multiplies and adds, and what x̂ takes backward.
+    #[cube(launch_unchecked)]
+    pub fn coefficients(
+        gamma: &Tensor<f32>,
+        beta: &Tensor<f32>,
+        mean: &Tensor<f32>,
+        variance: &Tensor<f32>,
+        out: &mut Tensor<f32>,
+        epsilon: f32,
+    ) {
+        let c = ABSOLUTE_POS;
+        let channels = mean.shape(0);
+        if c >= channels {
+            terminate!();
+        }
+        let inv_std = 1.0f32 / f32::sqrt(variance[c] + epsilon);
+        let scale = gamma[c * gamma.stride(0)] * inv_std;
+        out[c] = scale;
+        out[channels + c] = beta[c * beta.stride(0)] - mean[c] * scale;
+        out[2 * channels + c] = inv_std;
+    }
+
+    /// One output value a thread, `out[(b · C + c) · S + s]` = x·scale + shift, through a
+    /// ReLU when `relu`.
+    #[cube(launch_unchecked)]
+    pub fn normalise(
+        x: &Tensor<f32>,
+        coefficients: &Tensor<f32>,
+        out: &mut Tensor<f32>,
+        channels: FastDivmod<u32>,
+        spatial: FastDivmod<u32>,
+        #[comptime] relu: bool,
+        #[comptime] packed: bool,
+    ) {
+        let unit = ABSOLUTE_POS;
+        if unit >= out.shape(0) {
+            terminate!();
+        }
+        let (b, c, s) = position(unit, channels, spatial);
+        let v = value_at(x, unit, b, c, s, packed) * coefficients[c] + coefficients[x.shape(1) + c];
+        if relu && !kept(v) {
+            out[unit] = 0.0;
+        } else {
+            out[unit] = v;
+        }
+    }
+
+    /// One (block, channel) a thread: `partial[block · 2C + c]` = Σ g and
+    /// `partial[block · 2C + C + c]` = Σ g·x̂ over the block's samples in order (g through the
+    /// ReLU's gate when `relu`).
+    #[cube(launch_unchecked)]
+    pub fn gradient_partial_sums(
+        x: &Tensor<f32>,
+        g: &Tensor<f32>,
+        mean: &Tensor<f32>,
+        coefficients: &Tensor<f32>,
+        partial: &mut Tensor<f32>,
+        samples: u32,
+        block_len: u32,
+        #[comptime] relu: bool,
+    ) {
+        let (channels, spatial) = (x.shape(1), x.shape(2));
+        let unit = ABSOLUTE_POS;
+        if unit * 2 >= partial.shape(0) {
+            terminate!();
+        }
+        let (block, c) = (unit / channels, unit % channels);
+        let first = block * block_len as usize;
+        let mut end = first + block_len as usize;
+        if end > samples as usize {
+            end = samples as usize;
+        }
+        let m = mean[c];
+        let (scale, shift) = (coefficients[c], coefficients[channels + c]);
+        let inv_std = coefficients[2 * channels + c];
+        let (mut b, mut s) = (first / spatial, first % spatial);
+        let mut sum_g = 0f32;
+        let mut sum_gx = 0f32;
+        for _ in first..end {
+            let v = at(x, b, c, s);
+            let grad = gated(at(g, b, c, s), v, scale, shift, relu);
+            sum_g += grad;
+            sum_gx += grad * ((v - m) * inv_std);
+            s += 1;
+            if s == spatial {
+                s = 0;
+                b += 1;
+            }
+        }
+        let row = block * 2 * channels;
+        partial[row + c] = sum_g;
+        partial[row + channels + c] = sum_gx;
+    }
+
+    /// One input value a thread, `dx[(b · C + c) · S + s]` = γ/σ · ((g − Σg/N) − x̂·Σgx̂/N),
+    /// `sums` [2C] holding Σ g then Σ g·x̂; the divisors C and S.
+    #[cube(launch_unchecked)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn input_gradient(
+        x: &Tensor<f32>,
+        g: &Tensor<f32>,
+        mean: &Tensor<f32>,
+        coefficients: &Tensor<f32>,
+        sums: &Tensor<f32>,
+        dx: &mut Tensor<f32>,
+        samples: f32,
+        channel_divisor: FastDivmod<u32>,
+        spatial_divisor: FastDivmod<u32>,
+        #[comptime] relu: bool,
+        #[comptime] packed: bool,
+    ) {
+        let unit = ABSOLUTE_POS;
+        if unit >= dx.shape(0) {
+            terminate!();
+        }
+        let channels = x.shape(1);
+        let (b, c, s) = position(unit, channel_divisor, spatial_divisor);
+        let v = value_at(x, unit, b, c, s, packed);
+        let (scale, shift) = (coefficients[c], coefficients[channels + c]);
+        let x_hat = (v - mean[c]) * coefficients[2 * channels + c];
+        let grad = gated(value_at(g, unit, b, c, s, packed), v, scale, shift, relu);
+        let mean_g = sums[c] / samples;
+        let mean_gx = sums[channels + c] / samples;
+        dx[unit] = scale * ((grad - mean_g) - x_hat * mean_gx);
+    }
+}
+
+/// Inputs as the kernels read them: f32, rows (not storage tiles).
+fn float_rows(t: CubeTensor) -> CubeTensor {
+    untile(CubeBackend::float_cast(t, FloatDType::F32))
+}
+
+/// `t` as the kernels' [B, C, S] view: [rows, C] → [rows, C, 1], [B, C, …] → [B, C, Π …].
+fn view3(t: CubeTensor) -> CubeTensor {
+    let shape = t.meta.shape().clone();
+    assert!(shape.num_dims() >= 2, "a [rows, C] or [B, C, …] tensor");
+    let spatial = (2..shape.num_dims()).map(|d| shape[d]).product::<usize>();
+    CubeBackend::float_reshape(float_rows(t), [shape[0], shape[1], spatial].into())
+}
+
+/// A one-dimensional f32 buffer of `len` values on `like`'s device.
+fn buffer(like: &CubeTensor, len: usize) -> CubeTensor {
+    empty_device_dtype(
+        like.client.clone(),
+        like.device.clone(),
+        [len].into(),
+        DType::F32,
+    )
+}
+
+/// How a reduction over `samples` samples of `channels` channels is split: (blocks, samples
+/// a block). About √N samples a block, so that neither a block's thread nor a channel's
+/// total walks more than a few thousand values, with at least 16,384 threads in all where
+/// there are samples enough to give them work.
+fn blocks_of(samples: usize, channels: usize) -> (usize, usize) {
+    let root = (samples as f64).sqrt().ceil() as usize;
+    let wide = (1usize << 14).div_ceil(channels.max(1));
+    let blocks = root.max(wide).clamp(1, samples.max(1));
+    let block_len = samples.div_ceil(blocks).max(1);
+    (samples.div_ceil(block_len).max(1), block_len)
+}
+
+/// The per-column totals of `partial` [blocks · width] times `scale` → [width].
+fn totals(partial: CubeTensor, blocks: usize, width: usize, scale: f32) -> CubeTensor {
+    let out = buffer(&partial, width);
+    let client = partial.client.clone();
+    let (count, dim) = launch_shape(&client, width);
+    // SAFETY: threads past the last column return first; block · width + k < blocks · width,
+    // the partial sums' length.
+    unsafe {
+        kernels::column_totals::launch_unchecked(
+            &client,
+            count,
+            dim,
+            partial.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            blocks as u32,
+            scale,
+        );
+    }
+    out
+}
+
+/// Per channel, the mean of x (`mean` None) or of (x − mean)² over the [B, C, S] view's
+/// samples → [C].
+fn channel_means(x: &CubeTensor, mean: Option<&CubeTensor>) -> CubeTensor {
+    let [batch, channels, spatial] = dims3(x);
+    let samples = batch * spatial;
+    let (blocks, block_len) = blocks_of(samples, channels);
+    let partial = buffer(x, blocks * channels);
+    let client = x.client.clone();
+    let (count, dim) = launch_shape(&client, blocks * channels);
+    // SAFETY: threads past the last partial sum return first; a block's samples are clipped
+    // to B·S, so (b, s) stays within the view; c < C; the mean, when read, has C values.
+    unsafe {
+        kernels::partial_sums::launch_unchecked(
+            &client,
+            count,
+            dim,
+            x.clone().into_tensor_arg(),
+            mean.unwrap_or(x).clone().into_tensor_arg(),
+            partial.clone().into_tensor_arg(),
+            samples as u32,
+            block_len as u32,
+            mean.is_some(),
+        );
+    }
+    totals(partial, blocks, channels, 1.0 / samples.max(1) as f32)
+}
+
+/// Whether the [B, C, S] view `t` lies as a packed tensor (value (b, c, s) at (b·C + c)·S
+/// + s), so that the element-wise kernels can read it by index.
+fn is_packed(t: &CubeTensor) -> bool {
+    let [_, channels, spatial] = dims3(t);
+    let strides = t.meta.strides();
+    strides[0] == channels * spatial
+        && (channels <= 1 || strides[1] == spatial)
+        && (spatial <= 1 || strides[2] == 1)
+}
+
+fn dims3(t: &CubeTensor) -> [usize; 3] {
+    let shape = t.meta.shape();
+    assert_eq!(shape.num_dims(), 3, "a [B, C, S] view");
+    [shape[0], shape[1], shape[2]]
+}
+
+/// What a forward pass leaves for its backward pass: the input, the batch mean [C], the
+/// per-channel coefficients [3C] (γ/σ, β − mean·γ/σ, 1/σ) and whether a ReLU followed.
+type BatchNormState = (CubeTensor, CubeTensor, CubeTensor, bool);
+
+/// (output in `x`'s shape, mean [C], biased variance [C], what the backward pass reads).
+fn forward(
+    x: CubeTensor,
+    gamma: CubeTensor,
+    beta: CubeTensor,
+    epsilon: f64,
+    relu: bool,
+) -> (CubeTensor, CubeTensor, CubeTensor, BatchNormState) {
+    let shape = x.meta.shape().clone();
+    let view = view3(x.clone());
+    let [batch, channels, spatial] = dims3(&view);
+    let mean = channel_means(&view, None);
+    let variance = channel_means(&view, Some(&mean));
+    let coefficients = buffer(&view, 3 * channels);
+    let client = view.client.clone();
+    if channels > 0 {
+        let (count, dim) = launch_shape(&client, channels);
+        // SAFETY: threads past the last channel return first; γ, β, mean and variance hold C
+        // values, the coefficients 3C.
+        unsafe {
+            kernels::coefficients::launch_unchecked(
+                &client,
+                count,
+                dim,
+                float_rows(gamma).into_tensor_arg(),
+                float_rows(beta).into_tensor_arg(),
+                mean.clone().into_tensor_arg(),
+                variance.clone().into_tensor_arg(),
+                coefficients.clone().into_tensor_arg(),
+                epsilon as f32,
+            );
+        }
+    }
+    let len = batch * channels * spatial;
+    let out = buffer(&view, len);
+    let packed = is_packed(&view);
+    if len > 0 {
+        let (count, dim) = launch_shape(&client, len);
+        // SAFETY: threads past the last value return first; a unit below B·C·S addresses the
+        // view within its shape; the coefficients hold 3C values.
+        unsafe {
+            kernels::normalise::launch_unchecked(
+                &client,
+                count,
+                dim,
+                view.into_tensor_arg(),
+                coefficients.clone().into_tensor_arg(),
+                out.clone().into_tensor_arg(),
+                channels as u32,
+                spatial as u32,
+                relu,
+                packed,
+            );
+        }
+    }
+    let state = (x, mean.clone(), coefficients, relu);
+    (
+        CubeBackend::float_reshape(out, shape),
+        mean,
+        variance,
+        state,
+    )
+}
+
+/// (x', γ', β') from the output gradient `grad`.
+fn backward((x, mean, coefficients, relu): BatchNormState, grad: CubeTensor) -> [CubeTensor; 3] {
+    let shape = x.meta.shape().clone();
+    let (view, g) = (view3(x), view3(grad));
+    let [batch, channels, spatial] = dims3(&view);
+    assert_eq!(
+        dims3(&g),
+        [batch, channels, spatial],
+        "a gradient per output"
+    );
+    let samples = batch * spatial;
+    let (blocks, block_len) = blocks_of(samples, channels);
+    let partial = buffer(&view, blocks * 2 * channels);
+    let client = view.client.clone();
+    let (count, dim) = launch_shape(&client, blocks * channels);
+    // SAFETY: threads past the last (block, channel) return first; a block's samples are
+    // clipped to B·S; the two sums of (block, c) lie below blocks · 2C; the mean holds C
+    // values, the coefficients 3C.
+    unsafe {
+        kernels::gradient_partial_sums::launch_unchecked(
+            &client,
+            count,
+            dim,
+            view.clone().into_tensor_arg(),
+            g.clone().into_tensor_arg(),
+            mean.clone().into_tensor_arg(),
+            coefficients.clone().into_tensor_arg(),
+            partial.clone().into_tensor_arg(),
+            samples as u32,
+            block_len as u32,
+            relu,
+        );
+    }
+    let sums = totals(partial, blocks, 2 * channels, 1.0);
+    let len = batch * channels * spatial;
+    let dx = buffer(&view, len);
+    let packed = is_packed(&view) && is_packed(&g);
+    if len > 0 {
+        let (count, dim) = launch_shape(&client, len);
+        // SAFETY: threads past the last value return first; a unit below B·C·S addresses
+        // both views within their shapes; `sums` holds 2C values, the coefficients 3C.
+        unsafe {
+            kernels::input_gradient::launch_unchecked(
+                &client,
+                count,
+                dim,
+                view.into_tensor_arg(),
+                g.into_tensor_arg(),
+                mean.into_tensor_arg(),
+                coefficients.into_tensor_arg(),
+                sums.clone().into_tensor_arg(),
+                dx.clone().into_tensor_arg(),
+                samples.max(1) as f32,
+                channels as u32,
+                spatial as u32,
+                relu,
+                packed,
+            );
+        }
+    }
+    let half = |range: std::ops::Range<usize>| {
+        CubeBackend::float_slice(sums.clone(), &[burn::tensor::Slice::from(range)])
+    };
+    [
+        CubeBackend::float_reshape(dx, shape),
+        half(channels..2 * channels),
+        half(0..channels),
+    ]
+}
+
+impl BatchNormOps for CubeBackend {
+    fn batch_norm_train_fused(
+        x: CubeTensor,
+        gamma: CubeTensor,
+        beta: CubeTensor,
+        epsilon: f64,
+        _layout: NormLayout,
+        relu: bool,
+    ) -> (CubeTensor, CubeTensor, CubeTensor) {
+        let (out, mean, variance, _) = forward(x, gamma, beta, epsilon, relu);
+        (out, mean, variance)
+    }
+}
+
+/// The backward step of [`BatchNormOps::batch_norm_train_fused`] on a CubeCL device.
+#[derive(Debug)]
+struct BatchNormDeviceBackward;
+
+impl Backward<CubeBackend, 3> for BatchNormDeviceBackward {
+    type State = BatchNormState;
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let grad = grads.consume::<CubeBackend>(&ops.node);
+        let gradients = backward(ops.state, grad);
+        for (node, g) in ops.parents.into_iter().zip(gradients) {
+            if let Some(node) = node {
+                grads.register::<CubeBackend>(node.id, g);
+            }
+        }
+    }
+}
+
+impl<C: CheckpointStrategy> BatchNormOps for Autodiff<CubeBackend, C> {
+    fn batch_norm_train_fused(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        epsilon: f64,
+        _layout: NormLayout,
+        relu: bool,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        let (x, a) = x.into_parts();
+        let (gamma, b) = gamma.into_parts();
+        let (beta, c) = beta.into_parts();
+        let (out, mean, variance, state) = forward(x, gamma, beta, epsilon, relu);
+        let out = match BatchNormDeviceBackward
+            .prepare::<C>([a, b, c])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish(state, out),
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        };
+        // The statistics are constants (the running statistics' update detaches them).
+        (out, Self::from_inner(mean), Self::from_inner(variance))
+    }
+}
+
+#[cfg(all(test, feature = "wgpu"))]
+mod tests {
+    use crate::batch_norm_ops::{NormLayout, batch_norm_train};
+    use crate::cube::{assert_close, working_wgpu_device};
+    use crate::norm::{NormConfig, batch_norm, norm_maps_relu, norm_rows};
+    use crate::ragged;
+    use burn::prelude::*;
+
+    fn flat<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.try_into_vec_as::<f32>().unwrap()
+    }
+
+    /// Inputs with a mean well away from zero per channel (so a one-pass variance would
+    /// lose digits) and a varied upstream gradient.
+    fn input(len: usize, channel: impl Fn(usize) -> usize, seed: usize) -> (Vec<f32>, Vec<f32>) {
+        let x = (0..len)
+            .map(|i| ((i * 7919 + seed) % 613) as f32 * 0.0137 + 3.0 + channel(i) as f32)
+            .collect();
+        let g = (0..len)
+            .map(|i| ((i * 104_729 + seed) % 211) as f32 / 50.0 - 2.0)
+            .collect();
+        (x, g)
+    }
+
+    /// (output, mean, variance, x', γ', β') of a training batch norm on `device`;
+    /// `transposed` hands a [rows, C] input over as a transposed view of [C, rows].
+    fn run<const D: usize>(
+        (x, g): &(Vec<f32>, Vec<f32>),
+        shape: [usize; D],
+        (layout, relu, transposed): (NormLayout, bool, bool),
+        device: &Device,
+    ) -> [Vec<f32>; 6] {
+        let channels = shape[1];
+        let x = if transposed {
+            let [rows, c] = [shape[0], shape[1]];
+            let by_channel: Vec<f32> = (0..c * rows)
+                .map(|j| x[(j % rows) * c + j / rows])
+                .collect();
+            Tensor::<2>::from_data(TensorData::new(by_channel, [c, rows]), device)
+                .transpose()
+                .reshape(shape)
+        } else {
+            Tensor::<D>::from_data(TensorData::new(x.clone(), shape), device)
+        }
+        .require_grad();
+        let per_channel = |f: fn(usize) -> f32| {
+            let v: Vec<f32> = (0..channels).map(f).collect();
+            Tensor::<1>::from_data(TensorData::new(v, [channels]), device).require_grad()
+        };
+        let gamma = per_channel(|c| 0.75 + c as f32 * 0.125);
+        let beta = per_channel(|c| c as f32 * 0.25 - 0.5);
+        let (out, mean, variance) =
+            batch_norm_train(x.clone(), gamma.clone(), beta.clone(), 1e-3, layout, relu);
+        let upstream = Tensor::<D>::from_data(TensorData::new(g.clone(), shape), device);
+        let grads = (out.clone() * upstream).sum().backward();
+        [
+            flat(out),
+            flat(mean),
+            flat(variance),
+            flat(x.grad(&grads).unwrap()),
+            flat(gamma.grad(&grads).unwrap()),
+            flat(beta.grad(&grads).unwrap()),
+        ]
+    }
+
+    /// Within rounding of the CPU's f64 sums: 2e-5 of the largest value for the output, the
+    /// statistics and x'; γ' and β' are sums of `samples` f32 terms of either sign, good to
+    /// about `samples` units of rounding of the terms.
+    fn compare(case: &str, samples: usize, got: &[Vec<f32>; 6], want: &[Vec<f32>; 6]) {
+        let names = ["output", "mean", "variance", "x'", "γ'", "β'"];
+        let sums = (samples as f32 * 1e-7).max(2e-5);
+        for (k, (name, (got, want))) in names.iter().zip(got.iter().zip(want)).enumerate() {
+            let tolerance = if k < 4 { 2e-5 } else { sums };
+            assert_close(got, want, tolerance, &format!("{case}: {name}"));
+        }
+    }
+
+    /// The kernels against the flex CPU path (f64 sums): outputs, statistics and all three
+    /// gradients within rounding, rows and maps (3-D and 4-D), with and without the ReLU, at
+    /// sizes below one block and across many; the same bits for a transposed view of the
+    /// rows and in a second run.
+    #[test]
+    fn device_batch_norm_matches_the_cpu() {
+        let Some(gpu) = working_wgpu_device("the batch norm's kernels") else {
+            return;
+        };
+        let gpu = gpu.autodiff();
+        let cpu = Device::flex().autodiff();
+        for (seed, [rows, c]) in [[5, 3], [700, 37], [20_000, 16]].into_iter().enumerate() {
+            let data = input(rows * c, |i| i % c, seed);
+            for relu in [false, true] {
+                let case = format!("rows {rows}×{c}, ReLU {relu}");
+                let options = (NormLayout::Rows, relu, false);
+                let want = run(&data, [rows, c], options, &cpu);
+                let got = run(&data, [rows, c], options, &gpu);
+                compare(&case, rows, &got, &want);
+                let transposed = run(&data, [rows, c], (NormLayout::Rows, relu, true), &gpu);
+                assert_eq!(transposed, got, "{case}: a transposed view");
+                let again = run(&data, [rows, c], options, &gpu);
+                assert_eq!(again, got, "{case}: a second run");
+            }
+        }
+        for relu in [false, true] {
+            let options = (NormLayout::Maps, relu, false);
+            let shape = [3, 4, 35];
+            let data = input(shape.iter().product(), |i| i / 35 % 4, 7);
+            let want = run(&data, shape, options, &cpu);
+            let got = run(&data, shape, options, &gpu);
+            compare(&format!("maps {shape:?}, ReLU {relu}"), 3 * 35, &got, &want);
+            let shape = [2, 8, 30, 26];
+            let data = input(shape.iter().product(), |i| i / (30 * 26) % 8, 11);
+            let want = run(&data, shape, options, &cpu);
+            let got = run(&data, shape, options, &gpu);
+            compare(
+                &format!("maps {shape:?}, ReLU {relu}"),
+                2 * 30 * 26,
+                &got,
+                &want,
+            );
+        }
+    }
+
+    /// Training's norms take the kernels on a CubeCL device (unless the custom operations
+    /// are off) and update the running statistics as on the CPU; a norm over no rows gives
+    /// an empty output and zero statistics.
+    #[test]
+    fn training_norms_take_the_kernels() {
+        let Some(gpu) = working_wgpu_device("the batch norm's kernels") else {
+            return;
+        };
+        let gpu = gpu.autodiff();
+        let cpu = Device::flex().autodiff();
+        let (x, _) = input(300 * 6, |i| i % 6, 3);
+        let on = |device: &Device| {
+            let bn = batch_norm(6, &NormConfig::default(), device);
+            let rows = Tensor::<2>::from_data(TensorData::new(x.clone(), [300, 6]), device);
+            assert!(ragged::custom_device_path(&rows) == (*device == gpu));
+            let out = norm_rows(&bn, rows);
+            let maps = Tensor::<4>::from_data(TensorData::new(x.clone(), [2, 6, 10, 15]), device);
+            let maps_out = norm_maps_relu(&bn, maps);
+            [
+                flat(out),
+                flat(maps_out),
+                flat(bn.running_mean.value()),
+                flat(bn.running_var.value()),
+            ]
+        };
+        let (want, got) = (on(&cpu), on(&gpu));
+        for (what, (got, want)) in ["rows", "maps", "running mean", "running variance"]
+            .iter()
+            .zip(got.iter().zip(&want))
+        {
+            assert_close(got, want, 2e-5, what);
+        }
+        let bn = batch_norm(3, &NormConfig::default(), &gpu);
+        let out = norm_rows(&bn, Tensor::<2>::zeros([0, 3], &gpu));
+        assert_eq!(out.dims(), [0, 3]);
+        assert_eq!(flat(bn.running_mean.value()), vec![0.0; 3]);
+    }
+}
