@@ -89,13 +89,27 @@ mod kernels {
         v > 0.0 || f32::is_nan(v)
     }
 
-    /// `value`'s output gradient `grad` through the ReLU's gate when `relu`, the norm's
-    /// output recomputed as the forward pass computed it (`value · scale + shift`).
+    /// The norm's output before the activation, `(x − mean)·scale + β` (the CPU's order of
+    /// operations), the same forward and in the ReLU's gate backward.
     #[cube]
-    fn gated(grad: f32, value: f32, scale: f32, shift: f32, #[comptime] relu: bool) -> f32 {
+    fn affine(value: f32, mean: f32, scale: f32, beta: f32) -> f32 {
+        (value - mean) * scale + beta
+    }
+
+    /// `value`'s output gradient `grad` through the ReLU's gate when `relu`, the norm's
+    /// output recomputed as the forward pass computed it.
+    #[cube]
+    fn gated(
+        grad: f32,
+        value: f32,
+        mean: f32,
+        scale: f32,
+        beta: f32,
+        #[comptime] relu: bool,
+    ) -> f32 {
         let mut keep = true;
         if relu {
-            keep = kept(value * scale + shift);
+            keep = kept(affine(value, mean, scale, beta));
         }
         select(keep, grad, 0.0f32)
     }
@@ -103,7 +117,7 @@ mod kernels {
     /// One (block, channel) a thread: `partial[block · C + c]`, the sum over the block's
     /// samples, in order, of x (`centred` false) or of (x − mean)² (`centred` true).
     #[cube(launch_unchecked)]
-    pub fn partial_sums(
+    pub fn norm_partial_sums(
         x: &Tensor<f32>,
         mean: &Tensor<f32>,
         partial: &mut Tensor<f32>,
@@ -148,7 +162,12 @@ mod kernels {
     /// One column a thread: `out[k] = scale · Σ_block partial[block · width + k]`, the
     /// blocks in order.
     #[cube(launch_unchecked)]
-    pub fn column_totals(partial: &Tensor<f32>, out: &mut Tensor<f32>, blocks: u32, scale: f32) {
+    pub fn norm_column_totals(
+        partial: &Tensor<f32>,
+        out: &mut Tensor<f32>,
+        blocks: u32,
+        scale: f32,
+    ) {
         let unit = ABSOLUTE_POS;
         let width = out.shape(0);
         if unit >= width {
@@ -161,10 +180,10 @@ mod kernels {
         out[unit] = sum * scale;
     }
 
-    /// One channel a thread: `out` [3C] = γ/σ, β − mean·γ/σ and 1/σ, σ = √(σ² + ε): what the
-    /// forward pass multiplies and adds, and what x̂ takes backward.
+    /// One channel a thread: `out` [3C] = γ/σ, β and 1/σ, σ = √(σ² + ε): what the forward
+    /// pass multiplies and adds, and what x̂ takes backward.
     #[cube(launch_unchecked)]
-    pub fn coefficients(
+    pub fn norm_coefficients(
         gamma: &Tensor<f32>,
         beta: &Tensor<f32>,
         mean: &Tensor<f32>,
@@ -180,15 +199,17 @@ mod kernels {
         let inv_std = 1.0f32 / f32::sqrt(variance[c] + epsilon);
         let scale = gamma[c * gamma.stride(0)] * inv_std;
         out[c] = scale;
-        out[channels + c] = beta[c * beta.stride(0)] - mean[c] * scale;
+        out[channels + c] = beta[c * beta.stride(0)];
         out[2 * channels + c] = inv_std;
     }
 
-    /// One output value a thread, `out[(b · C + c) · S + s]` = x·scale + shift, through a
-    /// ReLU when `relu`.
+    /// One output value a thread, `out[(b · C + c) · S + s]` = (x − mean)·scale + β, through
+    /// a ReLU when `relu`.
     #[cube(launch_unchecked)]
-    pub fn normalise(
+    #[allow(clippy::too_many_arguments)]
+    pub fn norm_output(
         x: &Tensor<f32>,
+        mean: &Tensor<f32>,
         coefficients: &Tensor<f32>,
         out: &mut Tensor<f32>,
         channels: FastDivmod<u32>,
@@ -201,7 +222,12 @@ mod kernels {
             terminate!();
         }
         let (b, c, s) = position(unit, channels, spatial);
-        let v = value_at(x, unit, b, c, s, packed) * coefficients[c] + coefficients[x.shape(1) + c];
+        let v = affine(
+            value_at(x, unit, b, c, s, packed),
+            mean[c],
+            coefficients[c],
+            coefficients[x.shape(1) + c],
+        );
         if relu && !kept(v) {
             out[unit] = 0.0;
         } else {
@@ -213,7 +239,7 @@ mod kernels {
     /// `partial[block · 2C + C + c]` = Σ g·x̂ over the block's samples in order (g through the
     /// ReLU's gate when `relu`).
     #[cube(launch_unchecked)]
-    pub fn gradient_partial_sums(
+    pub fn norm_gradient_sums(
         x: &Tensor<f32>,
         g: &Tensor<f32>,
         mean: &Tensor<f32>,
@@ -235,14 +261,14 @@ mod kernels {
             end = samples as usize;
         }
         let m = mean[c];
-        let (scale, shift) = (coefficients[c], coefficients[channels + c]);
+        let (scale, beta) = (coefficients[c], coefficients[channels + c]);
         let inv_std = coefficients[2 * channels + c];
         let (mut b, mut s) = (first / spatial, first % spatial);
         let mut sum_g = 0f32;
         let mut sum_gx = 0f32;
         for _ in first..end {
             let v = at(x, b, c, s);
-            let grad = gated(at(g, b, c, s), v, scale, shift, relu);
+            let grad = gated(at(g, b, c, s), v, m, scale, beta, relu);
             sum_g += grad;
             sum_gx += grad * ((v - m) * inv_std);
             s += 1;
@@ -260,7 +286,7 @@ mod kernels {
     /// `sums` [2C] holding Σ g then Σ g·x̂; the divisors C and S.
     #[cube(launch_unchecked)]
     #[allow(clippy::too_many_arguments)]
-    pub fn input_gradient(
+    pub fn norm_input_gradient(
         x: &Tensor<f32>,
         g: &Tensor<f32>,
         mean: &Tensor<f32>,
@@ -280,9 +306,9 @@ mod kernels {
         let channels = x.shape(1);
         let (b, c, s) = position(unit, channel_divisor, spatial_divisor);
         let v = value_at(x, unit, b, c, s, packed);
-        let (scale, shift) = (coefficients[c], coefficients[channels + c]);
-        let x_hat = (v - mean[c]) * coefficients[2 * channels + c];
-        let grad = gated(value_at(g, unit, b, c, s, packed), v, scale, shift, relu);
+        let (m, scale, beta) = (mean[c], coefficients[c], coefficients[channels + c]);
+        let x_hat = (v - m) * coefficients[2 * channels + c];
+        let grad = gated(value_at(g, unit, b, c, s, packed), v, m, scale, beta, relu);
         let mean_g = sums[c] / samples;
         let mean_gx = sums[channels + c] / samples;
         dx[unit] = scale * ((grad - mean_g) - x_hat * mean_gx);
@@ -332,7 +358,7 @@ fn totals(partial: CubeTensor, blocks: usize, width: usize, scale: f32) -> CubeT
     // SAFETY: threads past the last column return first; block · width + k < blocks · width,
     // the partial sums' length.
     unsafe {
-        kernels::column_totals::launch_unchecked(
+        kernels::norm_column_totals::launch_unchecked(
             &client,
             count,
             dim,
@@ -357,7 +383,7 @@ fn channel_means(x: &CubeTensor, mean: Option<&CubeTensor>) -> CubeTensor {
     // SAFETY: threads past the last partial sum return first; a block's samples are clipped
     // to B·S, so (b, s) stays within the view; c < C; the mean, when read, has C values.
     unsafe {
-        kernels::partial_sums::launch_unchecked(
+        kernels::norm_partial_sums::launch_unchecked(
             &client,
             count,
             dim,
@@ -389,7 +415,7 @@ fn dims3(t: &CubeTensor) -> [usize; 3] {
 }
 
 /// What a forward pass leaves for its backward pass: the input, the batch mean [C], the
-/// per-channel coefficients [3C] (γ/σ, β − mean·γ/σ, 1/σ) and whether a ReLU followed.
+/// per-channel coefficients [3C] (γ/σ, β, 1/σ) and whether a ReLU followed.
 type BatchNormState = (CubeTensor, CubeTensor, CubeTensor, bool);
 
 /// (output in `x`'s shape, mean [C], biased variance [C], what the backward pass reads).
@@ -412,7 +438,7 @@ fn forward(
         // SAFETY: threads past the last channel return first; γ, β, mean and variance hold C
         // values, the coefficients 3C.
         unsafe {
-            kernels::coefficients::launch_unchecked(
+            kernels::norm_coefficients::launch_unchecked(
                 &client,
                 count,
                 dim,
@@ -433,11 +459,12 @@ fn forward(
         // SAFETY: threads past the last value return first; a unit below B·C·S addresses the
         // view within its shape; the coefficients hold 3C values.
         unsafe {
-            kernels::normalise::launch_unchecked(
+            kernels::norm_output::launch_unchecked(
                 &client,
                 count,
                 dim,
                 view.into_tensor_arg(),
+                mean.clone().into_tensor_arg(),
                 coefficients.clone().into_tensor_arg(),
                 out.clone().into_tensor_arg(),
                 channels as u32,
@@ -475,7 +502,7 @@ fn backward((x, mean, coefficients, relu): BatchNormState, grad: CubeTensor) -> 
     // clipped to B·S; the two sums of (block, c) lie below blocks · 2C; the mean holds C
     // values, the coefficients 3C.
     unsafe {
-        kernels::gradient_partial_sums::launch_unchecked(
+        kernels::norm_gradient_sums::launch_unchecked(
             &client,
             count,
             dim,
@@ -498,7 +525,7 @@ fn backward((x, mean, coefficients, relu): BatchNormState, grad: CubeTensor) -> 
         // SAFETY: threads past the last value return first; a unit below B·C·S addresses
         // both views within their shapes; `sums` holds 2C values, the coefficients 3C.
         unsafe {
-            kernels::input_gradient::launch_unchecked(
+            kernels::norm_input_gradient::launch_unchecked(
                 &client,
                 count,
                 dim,
