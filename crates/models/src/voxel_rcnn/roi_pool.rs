@@ -382,6 +382,51 @@ pub(super) fn scan_reach(level: &PoolLevelConfig, size: [f64; 3]) -> [usize; 3] 
     })
 }
 
+thread_local! {
+    /// The dense cell → row table of [`query_level`], kept between queries: all −1 between
+    /// them, its sites' cells set for one query and cleared after it.
+    static CELL_TABLE: std::cell::RefCell<Vec<i32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// `query(table)` over a dense table of `cells` cells holding each of `sites`' rows at its
+/// cell (linear index by [`SparseSites`]' batch-major layout) and −1 elsewhere.
+///
+/// Why kept: a published level is tens of millions of cells (stage 2 of the KITTI grid,
+/// [21, 800, 704], is 11.8 M a frame: 95 MB of i32 for a batch of two), and allocating and
+/// filling it anew for every query was a serial pass and a page fault per 4 KiB on each
+/// training step and each detected frame, beside a parallel query of a few milliseconds. The
+/// table stays with the thread (the largest level's size), and only the sites' cells are
+/// written and cleared per query.
+fn with_cell_table<R>(
+    cells: usize,
+    sites: impl Iterator<Item = (usize, i32)> + Clone,
+    query: impl FnOnce(&[i32]) -> R,
+) -> R {
+    /// Clears the cells it set, also when the query panics, so that the table stays all −1.
+    struct Cleared<'a, I: Iterator<Item = (usize, i32)> + Clone> {
+        table: std::cell::RefMut<'a, Vec<i32>>,
+        sites: I,
+    }
+    impl<I: Iterator<Item = (usize, i32)> + Clone> Drop for Cleared<'_, I> {
+        fn drop(&mut self) {
+            for (cell, _) in self.sites.clone() {
+                self.table[cell] = -1;
+            }
+        }
+    }
+    CELL_TABLE.with(|table| {
+        let mut table = table.borrow_mut();
+        if table.len() < cells {
+            table.resize(cells, -1);
+        }
+        for (cell, row) in sites.clone() {
+            table[cell] = row;
+        }
+        let guard = Cleared { table, sites };
+        query(&guard.table[..cells])
+    })
+}
+
 /// The voxel query of every grid point at one level, over a dense lookup table of the
 /// level's active sites (a table read per visited cell is several times faster than a
 /// hash lookup, and a level's grid is at most tens of millions of cells).
@@ -392,14 +437,28 @@ fn query_level(
     geometry: &VoxelGeometry,
 ) -> HostLevelIndex {
     let [nz, ny, nx] = sites.spatial_shape();
+    let cells = nz * ny * nx;
+    let site_cells = sites.coords().iter().enumerate().map(|(row, c)| {
+        let [b, z, y, x] = c.map(|v| v as usize);
+        (b * cells + (z * ny + y) * nx + x, row as i32)
+    });
+    with_cell_table(sites.batch_size() * cells, site_cells, |table| {
+        query_level_in(points, sites, level, geometry, table)
+    })
+}
+
+/// [`query_level`] given its table.
+fn query_level_in(
+    points: &[(usize, [f64; 3])],
+    sites: &SparseSites,
+    level: &PoolLevelConfig,
+    geometry: &VoxelGeometry,
+    table: &[i32],
+) -> HostLevelIndex {
+    let [nz, ny, nx] = sites.spatial_shape();
     let stride = stage_stride(level.stage);
     let size = geometry.level_voxel_size(stride);
     let cells = nz * ny * nx;
-    let mut table = vec![-1i32; sites.batch_size() * cells];
-    for (row, c) in sites.coords().iter().enumerate() {
-        let [b, z, y, x] = c.map(|v| v as usize);
-        table[b * cells + (z * ny + y) * nx + x] = row as i32;
-    }
     let centres: Vec<[f64; 3]> = sites
         .coords()
         .iter()
@@ -715,6 +774,55 @@ mod tests {
                 (y - mean[o]) / (var[o] + eps).sqrt() * gamma[o] + beta[o]
             })
             .collect()
+    }
+
+    /// The kept cell table: a query sees exactly its own sites (a second query on the same
+    /// thread, over other sites and a smaller grid, gets what a fresh thread gets), and the
+    /// table is all −1 again after a query, also one that panicked.
+    #[test]
+    fn the_kept_cell_table_holds_only_the_current_sites() {
+        let (geometry, level) = test_level();
+        let sites = |seed: u64, count: usize, shape: [usize; 3]| {
+            let mut state = seed;
+            let mut coords = Vec::new();
+            while coords.len() < count {
+                let c = [
+                    0,
+                    (unit(&mut state) * shape[0] as f64) as i32,
+                    (unit(&mut state) * shape[1] as f64) as i32,
+                    (unit(&mut state) * shape[2] as f64) as i32,
+                ];
+                if !coords.contains(&c) {
+                    coords.push(c);
+                }
+            }
+            SparseSites::new(coords, shape, 1).unwrap()
+        };
+        let rois = vec![vec![[1.0, 0.0, 0.2, 1.6, 1.0, 0.8, 0.4]]];
+        let points: Vec<(usize, [f64; 3])> = rois[0]
+            .iter()
+            .flat_map(|r| roi_grid_points(r, 3).into_iter().map(|p| (0, p)))
+            .collect();
+        let (many, few) = (sites(3, 400, [6, 20, 20]), sites(5, 60, [5, 16, 18]));
+        let query = |s: &SparseSites| query_level(&points, s, &level, &geometry).rows;
+        let fresh = {
+            let (few, points, level, geometry) =
+                (few.clone(), points.clone(), level.clone(), geometry);
+            std::thread::spawn(move || query_level(&points, &few, &level, &geometry).rows)
+                .join()
+                .unwrap()
+        };
+        query(&many);
+        assert_eq!(query(&few), fresh);
+        let panicked = std::panic::catch_unwind(|| {
+            with_cell_table(8, [(3, 7), (5, 1)].into_iter(), |_| {
+                panic!("a failed query")
+            })
+        });
+        assert!(panicked.is_err());
+        with_cell_table(20, std::iter::empty(), |table| {
+            assert!(table.iter().all(|&row| row == -1), "{table:?}");
+        });
     }
 
     /// The query and the pooled features by brute force: every site of the level tested
