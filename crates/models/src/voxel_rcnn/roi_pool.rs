@@ -798,10 +798,10 @@ mod tests {
             }
             SparseSites::new(coords, shape, 1).unwrap()
         };
-        let rois = vec![vec![[1.0, 0.0, 0.2, 1.6, 1.0, 0.8, 0.4]]];
-        let points: Vec<(usize, [f64; 3])> = rois[0]
-            .iter()
-            .flat_map(|r| roi_grid_points(r, 3).into_iter().map(|p| (0, p)))
+        let roi = [1.0, 0.0, 0.2, 1.6, 1.0, 0.8, 0.4];
+        let points: Vec<(usize, [f64; 3])> = roi_grid_points(&roi, 3)
+            .into_iter()
+            .map(|p| (0, p))
             .collect();
         let (many, few) = (sites(3, 400, [6, 20, 20]), sites(5, 60, [5, 16, 18]));
         let query = |s: &SparseSites| query_level(&points, s, &level, &geometry).rows;
