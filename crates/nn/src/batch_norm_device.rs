@@ -452,6 +452,10 @@ fn forward(
         }
     }
     let len = batch * channels * spatial;
+    assert!(
+        len <= u32::MAX as usize,
+        "a batch norm over {len} values: the kernels index them in 32 bits"
+    );
     let out = buffer(&view, len);
     let packed = is_packed(&view);
     if len > 0 {
@@ -518,6 +522,10 @@ fn backward((x, mean, coefficients, relu): BatchNormState, grad: CubeTensor) -> 
     }
     let sums = totals(partial, blocks, 2 * channels, 1.0);
     let len = batch * channels * spatial;
+    assert!(
+        len <= u32::MAX as usize,
+        "a batch norm over {len} values: the kernels index them in 32 bits"
+    );
     let dx = buffer(&view, len);
     let packed = is_packed(&view) && is_packed(&g);
     if len > 0 {
