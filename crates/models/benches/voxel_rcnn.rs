@@ -101,6 +101,43 @@ fn stage_one(c: &mut Criterion) {
             )
         })
     });
+    // At a published training step's size: two frames (the sweep twice) of 128 RoIs each.
+    let twice: Vec<fusiondet_nn::sparse::SparseSites> = level_sites
+        .iter()
+        .map(|sites| {
+            let coords = (0..2)
+                .flat_map(|b| sites.coords().iter().map(move |c| [b, c[1], c[2], c[3]]))
+                .collect();
+            fusiondet_nn::sparse::SparseSites::new(coords, sites.spatial_shape(), 2)
+                .expect("the sweep's sites, twice")
+        })
+        .collect();
+    let twice: Vec<&fusiondet_nn::sparse::SparseSites> = twice.iter().collect();
+    let training_rois: Vec<Vec<RoiBox>> = (0..2)
+        .map(|_| {
+            (0..128)
+                .map(|i| {
+                    let mut roi = cars[i % cars.len()];
+                    roi[0] += 0.3 * (i / cars.len()) as f64;
+                    roi
+                })
+                .collect()
+        })
+        .collect();
+    g.bench_function(
+        "roi_grid_index (2 frames × 128 RoIs, 6^3 points, 3 levels)",
+        |b| {
+            b.iter(|| {
+                RoiGridIndex::new(
+                    black_box(&training_rois),
+                    &twice,
+                    levels,
+                    config.roi.grid_size,
+                    &geometry,
+                )
+            })
+        },
+    );
     g.finish();
 
     // The machine's matrix-multiply rate, for the ratio in the notes.

@@ -469,77 +469,81 @@ fn query_level_in(
     let reach = scan_reach(level, size).map(|r| r as i64);
     let sentinel = sites.len() as i64;
     let s = level.samples;
-    let per_point: Vec<(Vec<i64>, Vec<f32>)> = points
-        .par_iter()
-        .map(|&(b, p)| {
-            let centre_cell = [
-                ((p[2] - geometry.origin[2]) / size[2]).floor() as i64,
-                ((p[1] - geometry.origin[1]) / size[1]).floor() as i64,
-                ((p[0] - geometry.origin[0]) / size[0]).floor() as i64,
-            ];
-            let mut found: Vec<usize> = Vec::with_capacity(s);
-            'scan: for dz in -reach[0]..=reach[0] {
-                let z = centre_cell[0] + dz;
-                if z < 0 || z >= nz as i64 {
-                    continue;
-                }
-                for dy in -reach[1]..=reach[1] {
-                    let y = centre_cell[1] + dy;
-                    if y < 0 || y >= ny as i64 {
+    // Each grid point writes its own s rows and 3s offsets in place (no per-point vectors
+    // gathered and copied together after, which was a serial pass over every output).
+    let mut rows = vec![0i64; points.len() * s];
+    let mut offsets = vec![0f32; points.len() * s * 3];
+    rows.par_chunks_mut(s.max(1))
+        .zip(offsets.par_chunks_mut(3 * s.max(1)))
+        .zip(points.par_iter())
+        .for_each_init(
+            || Vec::with_capacity(s),
+            |found: &mut Vec<usize>, ((rows, offsets), &(b, p))| {
+                found.clear();
+                let centre_cell = [
+                    ((p[2] - geometry.origin[2]) / size[2]).floor() as i64,
+                    ((p[1] - geometry.origin[1]) / size[1]).floor() as i64,
+                    ((p[0] - geometry.origin[0]) / size[0]).floor() as i64,
+                ];
+                'scan: for dz in -reach[0]..=reach[0] {
+                    let z = centre_cell[0] + dz;
+                    if z < 0 || z >= nz as i64 {
                         continue;
                     }
-                    let base = b * cells + (z as usize * ny + y as usize) * nx;
-                    for dx in -reach[2]..=reach[2] {
-                        let x = centre_cell[2] + dx;
-                        if x < 0 || x >= nx as i64 {
+                    for dy in -reach[1]..=reach[1] {
+                        let y = centre_cell[1] + dy;
+                        if y < 0 || y >= ny as i64 {
                             continue;
                         }
-                        let row = table[base + x as usize];
-                        if row < 0 {
-                            continue;
-                        }
-                        let c = centres[row as usize];
-                        let d2 =
-                            (c[0] - p[0]).powi(2) + (c[1] - p[1]).powi(2) + (c[2] - p[2]).powi(2);
-                        if d2 <= r2 {
-                            found.push(row as usize);
-                            if found.len() == s {
-                                break 'scan;
+                        let base = b * cells + (z as usize * ny + y as usize) * nx;
+                        for dx in -reach[2]..=reach[2] {
+                            let x = centre_cell[2] + dx;
+                            if x < 0 || x >= nx as i64 {
+                                continue;
+                            }
+                            let row = table[base + x as usize];
+                            if row < 0 {
+                                continue;
+                            }
+                            let c = centres[row as usize];
+                            let d2 = (c[0] - p[0]).powi(2)
+                                + (c[1] - p[1]).powi(2)
+                                + (c[2] - p[2]).powi(2);
+                            if d2 <= r2 {
+                                found.push(row as usize);
+                                if found.len() == s {
+                                    break 'scan;
+                                }
                             }
                         }
                     }
                 }
-            }
-            let mut rows = Vec::with_capacity(s);
-            let mut offsets = Vec::with_capacity(3 * s);
-            for j in 0..s {
-                // Unfilled slots repeat the first neighbour (a repeat does not change a max).
-                match found.get(j).or(found.first()) {
-                    Some(&row) => {
-                        rows.push(row as i64);
-                        let c = centres[row];
-                        offsets.extend([
-                            (c[0] - p[0]) as f32,
-                            (c[1] - p[1]) as f32,
-                            (c[2] - p[2]) as f32,
-                        ]);
-                    }
-                    None => {
-                        rows.push(sentinel);
-                        offsets.extend([0.0; 3]);
+                for (j, (slot, offset)) in
+                    rows.iter_mut().zip(offsets.chunks_exact_mut(3)).enumerate()
+                {
+                    // Unfilled slots repeat the first neighbour (a repeat does not change a max).
+                    match found.get(j).or(found.first()) {
+                        Some(&row) => {
+                            *slot = row as i64;
+                            let c = centres[row];
+                            offset.copy_from_slice(&[
+                                (c[0] - p[0]) as f32,
+                                (c[1] - p[1]) as f32,
+                                (c[2] - p[2]) as f32,
+                            ]);
+                        }
+                        None => {
+                            *slot = sentinel;
+                            offset.fill(0.0);
+                        }
                     }
                 }
-            }
-            (rows, offsets)
-        })
-        .collect();
-    let empty = per_point.iter().filter(|(r, _)| r[0] == sentinel).count();
-    let mut rows = Vec::with_capacity(points.len() * s);
-    let mut offsets = Vec::with_capacity(points.len() * s * 3);
-    for (r, o) in per_point {
-        rows.extend(r);
-        offsets.extend(o);
-    }
+            },
+        );
+    let empty = rows
+        .par_chunks(s.max(1))
+        .filter(|r| r[0] == sentinel)
+        .count();
     HostLevelIndex {
         rows,
         offsets,
