@@ -10,8 +10,9 @@
 //! normalises 256 RoIs × 216 grid points × 16 neighbours = 884,736 rows of 32 channels, six
 //! times 32 threads walking 884,736 rows, and every layer of both backbones does the same
 //! over its voxels or its map. A GPU runs that as 32 of its ~16,000 lanes. Inference (running
-//! statistics) reduces nothing, which is why detection was near its target on an H200 while
-//! training steps were 5–6 times over theirs.
+//! statistics) reduces nothing, which fits an H200 running detection near its target while
+//! training steps were 5–6 times over theirs (a reading of those figures, not yet a per-kernel
+//! measurement).
 //!
 //! Here each reduction is two launches: blocks of about √N samples per (block, channel)
 //! thread, the blocks' partial sums then added per channel in block order, so a sum is at
