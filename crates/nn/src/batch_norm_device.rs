@@ -29,7 +29,7 @@
 //! 2-D rows).
 
 use crate::batch_norm_ops::{BatchNormOps, NormLayout};
-use crate::cube::launch_shape;
+use crate::cube::{f32_buffer as buffer, float_rows, launch_shape};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
@@ -37,10 +37,7 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, AutodiffBackend};
-use burn::tensor::{DType, FloatDType};
 use burn_cubecl::CubeBackend;
-use burn_cubecl::kernel::untile;
-use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
 
 mod kernels {
@@ -316,27 +313,12 @@ mod kernels {
     }
 }
 
-/// Inputs as the kernels read them: f32, rows (not storage tiles).
-fn float_rows(t: CubeTensor) -> CubeTensor {
-    untile(CubeBackend::float_cast(t, FloatDType::F32))
-}
-
 /// `t` as the kernels' [B, C, S] view: [rows, C] → [rows, C, 1], [B, C, …] → [B, C, Π …].
 fn view3(t: CubeTensor) -> CubeTensor {
     let shape = t.meta.shape().clone();
     assert!(shape.num_dims() >= 2, "a [rows, C] or [B, C, …] tensor");
     let spatial = (2..shape.num_dims()).map(|d| shape[d]).product::<usize>();
     CubeBackend::float_reshape(float_rows(t), [shape[0], shape[1], spatial].into())
-}
-
-/// A one-dimensional f32 buffer of `len` values on `like`'s device.
-fn buffer(like: &CubeTensor, len: usize) -> CubeTensor {
-    empty_device_dtype(
-        like.client.clone(),
-        like.device.clone(),
-        [len].into(),
-        DType::F32,
-    )
 }
 
 /// How a reduction over `samples` samples of `channels` channels is split: (blocks, samples

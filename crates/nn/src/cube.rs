@@ -1,7 +1,13 @@
 //! What every CubeCL kernel of the project shares (cargo features `wgpu` and `cuda`): which
 //! runtime a device is, and the launch shape of one thread per unit of work.
 
+use burn::backend::ops::{FloatTensorOps, IntTensorOps};
 use burn::prelude::*;
+use burn::tensor::{DType, FloatDType, IntDType};
+use burn_cubecl::CubeBackend;
+use burn_cubecl::kernel::untile;
+use burn_cubecl::ops::numeric::empty_device_dtype;
+use burn_cubecl::tensor::CubeTensor;
 use cubecl::prelude::{CubeCount, CubeDim};
 
 /// The CubeCL runtime `device` runs on (wgpu, CUDA, …), or `None` for another backend (the
@@ -12,6 +18,29 @@ pub fn cube_runtime(device: &Device) -> Option<cubecl::RuntimeId> {
         #[allow(unreachable_patterns)]
         _ => None,
     }
+}
+
+/// A float input as the kernels read it: f32, in rows (a matrix product's output may be
+/// storage-tiled; its strides then order tiles, not rows).
+pub fn float_rows(t: CubeTensor) -> CubeTensor {
+    untile(CubeBackend::float_cast(t, FloatDType::F32))
+}
+
+/// An index input as the kernels read it: i32.
+pub fn int_rows(t: CubeTensor) -> CubeTensor {
+    CubeBackend::int_cast(t, IntDType::I32)
+}
+
+/// A one-dimensional f32 buffer of `len` values on `like`'s device, for a kernel's output:
+/// no runtime pads a one-dimensional buffer (CUDA pads the rows of 2-D ones), so a kernel
+/// can write it by index and relabel it with a reshape.
+pub fn f32_buffer(like: &CubeTensor, len: usize) -> CubeTensor {
+    empty_device_dtype(
+        like.client.clone(),
+        like.device.clone(),
+        [len].into(),
+        DType::F32,
+    )
 }
 
 /// A one-dimensional launch over `units` threads.

@@ -4,19 +4,16 @@
 //! Inputs are indexed by their strides and the gradient written one-dimensional, as the
 //! sparse convolution's kernels do (`sparse::device_kernels`: CUDA pads 2-D rows).
 
-use crate::cube::launch_shape;
+use crate::cube::{f32_buffer, float_rows, int_rows, launch_shape};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-use burn::backend::ops::{FloatTensorOps, IntTensorOps};
+use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::{FloatTensor, IntTensor};
 use burn::backend::{Autodiff, Backend, Dispatch, backend_extension};
 use burn::prelude::*;
-use burn::tensor::{DType, FloatDType, IntDType};
 use burn_cubecl::CubeBackend;
-use burn_cubecl::kernel::untile;
-use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
 
 /// The gather (see the module's documentation).
@@ -123,16 +120,11 @@ fn dims2(t: &CubeTensor) -> [usize; 2] {
 /// The gradient of the source rows, [N, C], from the gathered rows' `grad` [M, C]; the
 /// forward pass of the sums (the same additions).
 fn backward(grad: CubeTensor, starts: CubeTensor, readers: CubeTensor) -> CubeTensor {
-    let grad = untile(CubeBackend::float_cast(grad, FloatDType::F32));
+    let grad = float_rows(grad);
     let [_, channels] = dims2(&grad);
     let source_rows = starts.meta.shape()[0] - 1;
     let units = source_rows * channels;
-    let dx = empty_device_dtype(
-        grad.client.clone(),
-        grad.device.clone(),
-        [units].into(),
-        DType::F32,
-    );
+    let dx = f32_buffer(&grad, units);
     if units > 0 {
         let client = grad.client.clone();
         let (count, dim) = launch_shape(&client, units);
@@ -154,10 +146,6 @@ fn backward(grad: CubeTensor, starts: CubeTensor, readers: CubeTensor) -> CubeTe
         }
     }
     CubeBackend::float_reshape(dx, [source_rows, channels].into())
-}
-
-fn int_rows(t: CubeTensor) -> CubeTensor {
-    CubeBackend::int_cast(t, IntDType::I32)
 }
 
 impl RowGatherOps for CubeBackend {

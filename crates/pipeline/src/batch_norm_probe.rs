@@ -11,6 +11,7 @@
 //! on a GPU says what that costs each way.
 
 use crate::matmul_precision::probe_values;
+use crate::sparse_gradient_probe::relative_difference;
 use burn::prelude::*;
 use fusiondet_nn::ragged::{custom_device_path, set_custom_ops};
 use fusiondet_nn::{NormConfig, batch_norm, norm_rows_relu};
@@ -84,16 +85,6 @@ fn run(x: &Tensor<2>) -> Vec<f32> {
         .into_data()
         .try_to_vec::<f32>()
         .expect("f32 gradients")
-}
-
-/// The largest |a − b| relative to the largest |b| (absolute where b is all zeros).
-fn relative_difference(a: &[f32], b: &[f32]) -> f64 {
-    let scale = b.iter().fold(0f64, |m, v| m.max(v.abs() as f64));
-    let worst = a
-        .iter()
-        .zip(b)
-        .fold(0f64, |m, (x, y)| m.max((x - y).abs() as f64));
-    if scale > 0.0 { worst / scale } else { worst }
 }
 
 #[cfg(test)]

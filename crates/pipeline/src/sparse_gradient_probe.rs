@@ -52,7 +52,7 @@ pub fn sparse_gradient_error(device: &Device, layout: RuleLayout) -> SparseGradi
 
 /// The largest |got − want| over the values, relative to the largest |want| (absolute where
 /// every wanted value is zero).
-fn relative_difference(got: &[f32], want: &[f32]) -> f64 {
+pub(crate) fn relative_difference(got: &[f32], want: &[f32]) -> f64 {
     let scale = want.iter().fold(0f64, |m, v| m.max(v.abs() as f64));
     let worst = got
         .iter()

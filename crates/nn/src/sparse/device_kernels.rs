@@ -27,19 +27,16 @@
 //! output may be) are un-tiled first. The kernels are launched unchecked, as burn launches
 //! its own: every index is in bounds by construction (the `SAFETY` notes below).
 
-use crate::cube::launch_shape;
+use crate::cube::{f32_buffer as buffer, float_rows, int_rows, launch_shape};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-use burn::backend::ops::{FloatTensorOps, IntTensorOps};
+use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::{FloatTensor, IntTensor};
 use burn::backend::{Autodiff, Backend, Dispatch, backend_extension};
 use burn::prelude::*;
-use burn::tensor::{DType, FloatDType, IntDType};
 use burn_cubecl::CubeBackend;
-use burn_cubecl::kernel::untile;
-use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
 
 /// The convolution (see the module's documentation).
@@ -196,29 +193,10 @@ mod kernels {
 /// sums stay a few megabytes).
 const WEIGHT_GRADIENT_THREADS: usize = 1 << 20;
 
-/// Inputs as the kernels read them: f32 / i32, rows (not storage tiles).
-fn float_rows(t: CubeTensor) -> CubeTensor {
-    untile(CubeBackend::float_cast(t, FloatDType::F32))
-}
-
-fn int_rows(t: CubeTensor) -> CubeTensor {
-    CubeBackend::int_cast(t, IntDType::I32)
-}
-
 fn dims<const D: usize>(t: &CubeTensor) -> [usize; D] {
     let shape = t.meta.shape();
     assert_eq!(shape.num_dims(), D, "a {D}-dimensional tensor");
     std::array::from_fn(|d| shape[d])
-}
-
-/// A one-dimensional f32 buffer of `len` values on `like`'s device.
-fn buffer(like: &CubeTensor, len: usize) -> CubeTensor {
-    empty_device_dtype(
-        like.client.clone(),
-        like.device.clone(),
-        [len].into(),
-        DType::F32,
-    )
 }
 
 fn forward(features: CubeTensor, weight: CubeTensor, table: CubeTensor) -> CubeTensor {
