@@ -382,48 +382,89 @@ pub(super) fn scan_reach(level: &PoolLevelConfig, size: [f64; 3]) -> [usize; 3] 
     })
 }
 
-thread_local! {
-    /// The dense cell → row table of [`query_level`], kept between queries: all −1 between
-    /// them, its sites' cells set for one query and cleared after it.
-    static CELL_TABLE: std::cell::RefCell<Vec<i32>> = const { std::cell::RefCell::new(Vec::new()) };
+/// The dense cell tables of [`query_level`]: each cell's row (−1 where none) and a bit a cell,
+/// set where a row is. Kept with the thread between queries, all empty between them.
+#[derive(Default)]
+struct CellTable {
+    rows: Vec<i32>,
+    occupied: Vec<u64>,
 }
 
-/// `query(table)` over a dense table of `cells` cells holding each of `sites`' rows at its
-/// cell (linear index by [`SparseSites`]' batch-major layout) and −1 elsewhere.
+thread_local! {
+    static CELL_TABLE: std::cell::RefCell<CellTable> =
+        std::cell::RefCell::new(CellTable::default());
+}
+
+/// One query's view of the kept tables (see [`with_cell_table`]).
+struct Cells<'a> {
+    rows: &'a [i32],
+    occupied: &'a [u64],
+}
+
+impl Cells<'_> {
+    /// `visit(row)` for every occupied cell of `first..=last`, ascending, until it returns
+    /// false (then false). Empty cells cost a bit each, not a read of the row table.
+    fn each_occupied(&self, first: usize, last: usize, mut visit: impl FnMut(i32) -> bool) -> bool {
+        for word in first / 64..=last / 64 {
+            let low = if word == first / 64 { first % 64 } else { 0 };
+            let high = if word == last / 64 { last % 64 } else { 63 };
+            let mask = (u64::MAX >> (63 - high)) & (u64::MAX << low);
+            let mut bits = self.occupied[word] & mask;
+            while bits != 0 {
+                let cell = word * 64 + bits.trailing_zeros() as usize;
+                if !visit(self.rows[cell]) {
+                    return false;
+                }
+                bits &= bits - 1;
+            }
+        }
+        true
+    }
+}
+
+/// `query(cells)` over dense tables of `cells` cells holding each of `sites`' rows at its
+/// cell (linear index by [`SparseSites`]' batch-major layout) and nothing elsewhere.
 ///
 /// Why kept: a published level is tens of millions of cells (stage 2 of the KITTI grid,
 /// [21, 800, 704], is 11.8 M a frame: 95 MB of i32 for a batch of two), and allocating and
 /// filling it anew for every query was a serial pass and a page fault per 4 KiB on each
 /// training step and each detected frame, beside a parallel query of a few milliseconds. The
-/// table stays with the thread (the largest level's size), and only the sites' cells are
-/// written and cleared per query.
+/// tables stay with the thread (the largest level's size), and only the sites' cells are
+/// written and cleared per query. The bit a cell lets the scan pass over empty cells (most
+/// of a grid point's neighbourhood) without reading the row table.
 fn with_cell_table<R>(
     cells: usize,
     sites: impl Iterator<Item = (usize, i32)> + Clone,
-    query: impl FnOnce(&[i32]) -> R,
+    query: impl FnOnce(Cells<'_>) -> R,
 ) -> R {
-    /// Clears the cells it set, also when the query panics, so that the table stays all −1.
+    /// Clears the cells it set, also when the query panics, so that the tables stay empty.
     struct Cleared<'a, I: Iterator<Item = (usize, i32)> + Clone> {
-        table: std::cell::RefMut<'a, Vec<i32>>,
+        table: std::cell::RefMut<'a, CellTable>,
         sites: I,
     }
     impl<I: Iterator<Item = (usize, i32)> + Clone> Drop for Cleared<'_, I> {
         fn drop(&mut self) {
             for (cell, _) in self.sites.clone() {
-                self.table[cell] = -1;
+                self.table.rows[cell] = -1;
+                self.table.occupied[cell / 64] &= !(1u64 << (cell % 64));
             }
         }
     }
     CELL_TABLE.with(|table| {
         let mut table = table.borrow_mut();
-        if table.len() < cells {
-            table.resize(cells, -1);
+        if table.rows.len() < cells {
+            table.rows.resize(cells, -1);
+            table.occupied.resize(cells.div_ceil(64), 0);
         }
         for (cell, row) in sites.clone() {
-            table[cell] = row;
+            table.rows[cell] = row;
+            table.occupied[cell / 64] |= 1u64 << (cell % 64);
         }
         let guard = Cleared { table, sites };
-        query(&guard.table[..cells])
+        query(Cells {
+            rows: &guard.table.rows[..cells],
+            occupied: &guard.table.occupied[..cells.div_ceil(64)],
+        })
     })
 }
 
@@ -453,7 +494,7 @@ fn query_level_in(
     sites: &SparseSites,
     level: &PoolLevelConfig,
     geometry: &VoxelGeometry,
-    table: &[i32],
+    table: Cells<'_>,
 ) -> HostLevelIndex {
     let [nz, ny, nx] = sites.spatial_shape();
     let stride = stage_stride(level.stage);
@@ -495,26 +536,29 @@ fn query_level_in(
                         if y < 0 || y >= ny as i64 {
                             continue;
                         }
+                        let first_x = (centre_cell[2] - reach[2]).max(0);
+                        let last_x = (centre_cell[2] + reach[2]).min(nx as i64 - 1);
+                        if first_x > last_x {
+                            continue;
+                        }
                         let base = b * cells + (z as usize * ny + y as usize) * nx;
-                        for dx in -reach[2]..=reach[2] {
-                            let x = centre_cell[2] + dx;
-                            if x < 0 || x >= nx as i64 {
-                                continue;
-                            }
-                            let row = table[base + x as usize];
-                            if row < 0 {
-                                continue;
-                            }
-                            let c = centres[row as usize];
-                            let d2 = (c[0] - p[0]).powi(2)
-                                + (c[1] - p[1]).powi(2)
-                                + (c[2] - p[2]).powi(2);
-                            if d2 <= r2 {
-                                found.push(row as usize);
-                                if found.len() == s {
-                                    break 'scan;
+                        // The row's cells in x order, as a walk over dx would meet them.
+                        let go_on = table.each_occupied(
+                            base + first_x as usize,
+                            base + last_x as usize,
+                            |row| {
+                                let c = centres[row as usize];
+                                let d2 = (c[0] - p[0]).powi(2)
+                                    + (c[1] - p[1]).powi(2)
+                                    + (c[2] - p[2]).powi(2);
+                                if d2 <= r2 {
+                                    found.push(row as usize);
                                 }
-                            }
+                                found.len() < s
+                            },
+                        );
+                        if !go_on {
+                            break 'scan;
                         }
                     }
                 }
@@ -825,7 +869,37 @@ mod tests {
         });
         assert!(panicked.is_err());
         with_cell_table(20, std::iter::empty(), |table| {
-            assert!(table.iter().all(|&row| row == -1), "{table:?}");
+            assert!(table.rows.iter().all(|&row| row == -1), "{:?}", table.rows);
+            assert!(table.occupied.iter().all(|&bits| bits == 0));
+        });
+    }
+
+    /// The occupied cells of a range in ascending order across word boundaries, and the
+    /// walk stopped when asked.
+    #[test]
+    fn occupied_cells_are_met_in_order() {
+        let set = [(0, 10), (63, 11), (64, 12), (130, 13), (199, 14)];
+        with_cell_table(200, set.into_iter(), |cells| {
+            let within = |first, last| {
+                let mut rows = Vec::new();
+                cells.each_occupied(first, last, |row| {
+                    rows.push(row);
+                    true
+                });
+                rows
+            };
+            assert_eq!(within(0, 199), [10, 11, 12, 13, 14]);
+            assert_eq!(within(1, 63), [11]);
+            assert_eq!(within(64, 64), [12]);
+            assert_eq!(within(65, 129), Vec::<i32>::new());
+            assert_eq!(within(63, 130), [11, 12, 13]);
+            let mut met = Vec::new();
+            let finished = cells.each_occupied(0, 199, |row| {
+                met.push(row);
+                met.len() < 2
+            });
+            assert!(!finished);
+            assert_eq!(met, [10, 11]);
         });
     }
 
