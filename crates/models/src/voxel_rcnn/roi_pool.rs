@@ -383,17 +383,23 @@ pub(super) fn scan_reach(level: &PoolLevelConfig, size: [f64; 3]) -> [usize; 3] 
 }
 
 /// The dense cell tables of [`query_level`]: each cell's row (−1 where none) and a bit a cell,
-/// set where a row is. Kept with the thread between queries, all empty between them.
-#[derive(Default)]
+/// set where a row is. One set is kept for the process between queries, all empty between
+/// them (one, not one a thread: a table of a published level is tens of megabytes).
 struct CellTable {
     rows: Vec<i32>,
     occupied: Vec<u64>,
 }
 
-thread_local! {
-    static CELL_TABLE: std::cell::RefCell<CellTable> =
-        std::cell::RefCell::new(CellTable::default());
+impl CellTable {
+    const fn empty() -> Self {
+        CellTable {
+            rows: Vec::new(),
+            occupied: Vec::new(),
+        }
+    }
 }
+
+static CELL_TABLE: std::sync::Mutex<CellTable> = std::sync::Mutex::new(CellTable::empty());
 
 /// One query's view of the kept tables (see [`with_cell_table`]).
 struct Cells<'a> {
@@ -429,17 +435,37 @@ impl Cells<'_> {
 /// [21, 800, 704], is 11.8 M a frame: 95 MB of i32 for a batch of two), and allocating and
 /// filling it anew for every query was a serial pass and a page fault per 4 KiB on each
 /// training step and each detected frame, beside a parallel query of a few milliseconds. The
-/// tables stay with the thread (the largest level's size), and only the sites' cells are
-/// written and cleared per query. The bit a cell lets the scan pass over empty cells (most
+/// tables stay (the largest level's size), and only the sites' cells are written and cleared
+/// per query. The bit a cell lets the scan pass over empty cells (most
 /// of a grid point's neighbourhood) without reading the row table.
 fn with_cell_table<R>(
     cells: usize,
     sites: impl Iterator<Item = (usize, i32)> + Clone,
     query: impl FnOnce(Cells<'_>) -> R,
 ) -> R {
+    // A query that panicked left the tables cleared (its guard ran), so a poisoned lock's
+    // tables are good; a second query at the same time builds tables of its own.
+    match CELL_TABLE.try_lock() {
+        Ok(mut kept) => with_cells_in(&mut kept, cells, sites, query),
+        Err(std::sync::TryLockError::Poisoned(poisoned)) => {
+            with_cells_in(&mut poisoned.into_inner(), cells, sites, query)
+        }
+        Err(std::sync::TryLockError::WouldBlock) => {
+            with_cells_in(&mut CellTable::empty(), cells, sites, query)
+        }
+    }
+}
+
+/// [`with_cell_table`] on the tables `table` (empty before, empty after).
+fn with_cells_in<R>(
+    table: &mut CellTable,
+    cells: usize,
+    sites: impl Iterator<Item = (usize, i32)> + Clone,
+    query: impl FnOnce(Cells<'_>) -> R,
+) -> R {
     /// Clears the cells it set, also when the query panics, so that the tables stay empty.
     struct Cleared<'a, I: Iterator<Item = (usize, i32)> + Clone> {
-        table: std::cell::RefMut<'a, CellTable>,
+        table: &'a mut CellTable,
         sites: I,
     }
     impl<I: Iterator<Item = (usize, i32)> + Clone> Drop for Cleared<'_, I> {
@@ -450,21 +476,18 @@ fn with_cell_table<R>(
             }
         }
     }
-    CELL_TABLE.with(|table| {
-        let mut table = table.borrow_mut();
-        if table.rows.len() < cells {
-            table.rows.resize(cells, -1);
-            table.occupied.resize(cells.div_ceil(64), 0);
-        }
-        for (cell, row) in sites.clone() {
-            table.rows[cell] = row;
-            table.occupied[cell / 64] |= 1u64 << (cell % 64);
-        }
-        let guard = Cleared { table, sites };
-        query(Cells {
-            rows: &guard.table.rows[..cells],
-            occupied: &guard.table.occupied[..cells.div_ceil(64)],
-        })
+    if table.rows.len() < cells {
+        table.rows.resize(cells, -1);
+        table.occupied.resize(cells.div_ceil(64), 0);
+    }
+    for (cell, row) in sites.clone() {
+        table.rows[cell] = row;
+        table.occupied[cell / 64] |= 1u64 << (cell % 64);
+    }
+    let guard = Cleared { table, sites };
+    query(Cells {
+        rows: &guard.table.rows[..cells],
+        occupied: &guard.table.occupied[..cells.div_ceil(64)],
     })
 }
 
@@ -484,6 +507,26 @@ fn query_level(
         (b * cells + (z * ny + y) * nx + x, row as i32)
     });
     with_cell_table(sites.batch_size() * cells, site_cells, |table| {
+        query_level_in(points, sites, level, geometry, table)
+    })
+}
+
+/// [`query_level`] over the tables `table` instead of the kept ones (the tests').
+#[cfg(test)]
+fn query_level_with(
+    table: &mut CellTable,
+    points: &[(usize, [f64; 3])],
+    sites: &SparseSites,
+    level: &PoolLevelConfig,
+    geometry: &VoxelGeometry,
+) -> HostLevelIndex {
+    let [nz, ny, nx] = sites.spatial_shape();
+    let cells = nz * ny * nx;
+    let site_cells = sites.coords().iter().enumerate().map(|(row, c)| {
+        let [b, z, y, x] = c.map(|v| v as usize);
+        (b * cells + (z * ny + y) * nx + x, row as i32)
+    });
+    with_cells_in(table, sites.batch_size() * cells, site_cells, |table| {
         query_level_in(points, sites, level, geometry, table)
     })
 }
@@ -824,9 +867,9 @@ mod tests {
             .collect()
     }
 
-    /// The kept cell table: a query sees exactly its own sites (a second query on the same
-    /// thread, over other sites and a smaller grid, gets what a fresh thread gets), and the
-    /// table is all −1 again after a query, also one that panicked.
+    /// The kept cell tables: a query sees exactly its own sites (a second query over other
+    /// sites and a smaller grid gets what fresh tables give), and the tables are empty again
+    /// after a query, also one that panicked.
     #[test]
     fn the_kept_cell_table_holds_only_the_current_sites() {
         let (geometry, level) = test_level();
@@ -852,26 +895,23 @@ mod tests {
             .map(|p| (0, p))
             .collect();
         let (many, few) = (sites(3, 400, [6, 20, 20]), sites(5, 60, [5, 16, 18]));
-        let query = |s: &SparseSites| query_level(&points, s, &level, &geometry).rows;
-        let fresh = {
-            let (few, points, level, geometry) =
-                (few.clone(), points.clone(), level.clone(), geometry);
-            std::thread::spawn(move || query_level(&points, &few, &level, &geometry).rows)
-                .join()
-                .unwrap()
+        let mut kept = CellTable::empty();
+        let query = |table: &mut CellTable, s: &SparseSites| {
+            query_level_with(table, &points, s, &level, &geometry).rows
         };
-        query(&many);
-        assert_eq!(query(&few), fresh);
-        let panicked = std::panic::catch_unwind(|| {
-            with_cell_table(8, [(3, 7), (5, 1)].into_iter(), |_| {
+        let fresh = query(&mut CellTable::empty(), &few);
+        query(&mut kept, &many);
+        assert_eq!(query(&mut kept, &few), fresh);
+        // The kept tables themselves, as the process-wide ones are used.
+        assert_eq!(query_level(&points, &few, &level, &geometry).rows, fresh);
+        let panicked = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            with_cells_in(&mut kept, 8, [(3, 7), (5, 1)].into_iter(), |_| {
                 panic!("a failed query")
             })
-        });
+        }));
         assert!(panicked.is_err());
-        with_cell_table(20, std::iter::empty(), |table| {
-            assert!(table.rows.iter().all(|&row| row == -1), "{:?}", table.rows);
-            assert!(table.occupied.iter().all(|&bits| bits == 0));
-        });
+        assert!(kept.rows.iter().all(|&row| row == -1), "{:?}", kept.rows);
+        assert!(kept.occupied.iter().all(|&bits| bits == 0));
     }
 
     /// The occupied cells of a range in ascending order across word boundaries, and the
@@ -879,7 +919,7 @@ mod tests {
     #[test]
     fn occupied_cells_are_met_in_order() {
         let set = [(0, 10), (63, 11), (64, 12), (130, 13), (199, 14)];
-        with_cell_table(200, set.into_iter(), |cells| {
+        with_cells_in(&mut CellTable::empty(), 200, set.into_iter(), |cells| {
             let within = |first, last| {
                 let mut rows = Vec::new();
                 cells.each_occupied(first, last, |row| {
