@@ -500,15 +500,21 @@ fn query_level(
     level: &PoolLevelConfig,
     geometry: &VoxelGeometry,
 ) -> HostLevelIndex {
+    let (cells, site_cells) = cells_of(sites);
+    with_cell_table(cells, site_cells, |table| {
+        query_level_in(points, sites, level, geometry, table)
+    })
+}
+
+/// The tables' size for `sites` (every batch item's grid) and each site's (cell, row).
+fn cells_of(sites: &SparseSites) -> (usize, impl Iterator<Item = (usize, i32)> + Clone + '_) {
     let [nz, ny, nx] = sites.spatial_shape();
     let cells = nz * ny * nx;
-    let site_cells = sites.coords().iter().enumerate().map(|(row, c)| {
+    let site_cells = sites.coords().iter().enumerate().map(move |(row, c)| {
         let [b, z, y, x] = c.map(|v| v as usize);
         (b * cells + (z * ny + y) * nx + x, row as i32)
     });
-    with_cell_table(sites.batch_size() * cells, site_cells, |table| {
-        query_level_in(points, sites, level, geometry, table)
-    })
+    (sites.batch_size() * cells, site_cells)
 }
 
 /// [`query_level`] over the tables `table` instead of the kept ones (the tests').
@@ -520,13 +526,8 @@ fn query_level_with(
     level: &PoolLevelConfig,
     geometry: &VoxelGeometry,
 ) -> HostLevelIndex {
-    let [nz, ny, nx] = sites.spatial_shape();
-    let cells = nz * ny * nx;
-    let site_cells = sites.coords().iter().enumerate().map(|(row, c)| {
-        let [b, z, y, x] = c.map(|v| v as usize);
-        (b * cells + (z * ny + y) * nx + x, row as i32)
-    });
-    with_cells_in(table, sites.batch_size() * cells, site_cells, |table| {
+    let (cells, site_cells) = cells_of(sites);
+    with_cells_in(table, cells, site_cells, |table| {
         query_level_in(points, sites, level, geometry, table)
     })
 }
