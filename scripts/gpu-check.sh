@@ -182,12 +182,14 @@ timed() {
 # `device`) or where the device runs it, and the sparse convolution's layout where given
 # (`kernels`, `kernel-map`), and where the sparse kernels' tables are built where given
 # (`host`, `device`), and how many threads prepare frames where given; a failed bench shows as a
-# missing frames/s figure, never stops the script.
+# missing frames/s figure, never stops the script. With `no_probes=1` in its environment the
+# bench prints its speed only (`--no-probes`): the arithmetic probes after it take seconds of
+# the lent machine each time, and the summary reads them from the default benches alone.
 bench_into() {
     local log="$1" ckpt="$2" dev="$3" query="${4:-}" sparse="${5:-}" tables="${6:-}" preparers="${7:-}"
     env ${query:+FUSIONDET_ROI_QUERY="$query"} ${sparse:+FUSIONDET_SPARSE_RULES="$sparse"} \
         ${tables:+FUSIONDET_RULEBOOK_TABLES="$tables"} ${preparers:+FUSIONDET_PREPARE_THREADS="$preparers"} \
-        "$bin" bench --checkpoint "$ckpt" --data "$data" \
+        "$bin" bench --checkpoint "$ckpt" --data "$data" ${no_probes:+--no-probes} \
         --repeats "$repeats" --device "$dev" >"$log" 2>&1 || true
 }
 frames_per_second() { grep -o '[0-9.]* frames/s' "$1" | head -1 | cut -d' ' -f1; }
@@ -235,7 +237,8 @@ for m in $models; do
         first=0
     fi
     stamp "$m: bench on cpu and $device"
-    bench_into "$det/bench-cpu.log" "$ckpt" cpu
+    # The CPU's probes are read from the first model's bench only.
+    no_probes="${precision_recorded:-}" bench_into "$det/bench-cpu.log" "$ckpt" cpu
     bench_into "$det/bench-dev.log" "$ckpt" "$device"
     fps_cpu=$(frames_per_second "$det/bench-cpu.log" || true)
     fps_dev=$(frames_per_second "$det/bench-dev.log" || true)
@@ -262,7 +265,7 @@ for m in $models; do
             record "$m: detect with the host RoI query failed: $(tail -1 "$det/dev-host-query.log")"
             failures=$((failures + 1))
         fi
-        bench_into "$det/bench-dev-host-query.log" "$ckpt" "$device" host
+        no_probes=1 bench_into "$det/bench-dev-host-query.log" "$ckpt" "$device" host
         host_query=" (host RoI query $(frames_per_second "$det/bench-dev-host-query.log" || echo '?'))"
     fi
     if [[ " $sparse_ab " == *" $m "* ]]; then
@@ -372,19 +375,19 @@ if [ "$train" = 1 ]; then
                 if [ "$d" != cpu ] && [ -z "$sparse" ] && [ -f "$run/model.bpk" ]; then
                     # The configuration's detection speed on the device: the defaults, the
                     # RoI query on the host, the sparse convolution as a kernel map.
-                    bench_into "$run-bench.log" "$run/model.bpk" "$d"
-                    bench_into "$run-bench-host-query.log" "$run/model.bpk" "$d" host
+                    no_probes=1 bench_into "$run-bench.log" "$run/model.bpk" "$d"
+                    no_probes=1 bench_into "$run-bench-host-query.log" "$run/model.bpk" "$d" host
                     record "$(printf '%-26s bench on %s: %s frames/s (host RoI query %s)' "$name" "$d" \
                         "$(frames_per_second "$run-bench.log" || echo '?')" \
                         "$(frames_per_second "$run-bench-host-query.log" || echo '?')")"
                     record "$(printf '%-26s stages on %s, ms a frame: %s' "$name" "$d" "$(stage_ms "$run-bench.log")")"
                     if [ "$tables_ab" = 1 ]; then
-                        bench_into "$run-bench-host-tables.log" "$run/model.bpk" "$d" "" "" host
+                        no_probes=1 bench_into "$run-bench-host-tables.log" "$run/model.bpk" "$d" "" "" host
                         record "$(printf '%-26s bench on %s with the sparse kernels'"'"' tables built on the host: %s frames/s; stages: %s' \
                             "$name" "$d" "$(frames_per_second "$run-bench-host-tables.log" || echo '?')" "$(stage_ms "$run-bench-host-tables.log")")"
                     fi
                     if [ "$prepare_ab" = 1 ]; then
-                        bench_into "$run-bench-one-preparer.log" "$run/model.bpk" "$d" "" "" "" 1
+                        no_probes=1 bench_into "$run-bench-one-preparer.log" "$run/model.bpk" "$d" "" "" "" 1
                         record "$(printf '%-26s bench on %s with one thread preparing frames: %s frames/s; stages: %s' \
                             "$name" "$d" "$(frames_per_second "$run-bench-one-preparer.log" || echo '?')" "$(stage_ms "$run-bench-one-preparer.log")")"
                     fi
@@ -414,7 +417,7 @@ if [ "$train" = 1 ]; then
                         fi
                     fi
                     if [ -n "$sparse_ab" ]; then
-                        bench_into "$run-bench-sparse.log" "$run/model.bpk" "$d" "" kernel-map
+                        no_probes=1 bench_into "$run-bench-sparse.log" "$run/model.bpk" "$d" "" kernel-map
                         record "$(printf '%-26s bench on %s with the sparse convolution as a kernel map: %s frames/s; stages: %s' \
                             "$name" "$d" "$(frames_per_second "$run-bench-sparse.log" || echo '?')" "$(stage_ms "$run-bench-sparse.log")")"
                     fi

@@ -579,6 +579,24 @@ fn train_then_detect_from_the_command_line() {
     let t = text(&o);
     assert!(t.contains("2 timed runs") && t.contains("frames/s"), "{t}");
     assert!(t.contains("f32 matrix product on this device"), "{t}");
+    // The speed alone: no probe after it.
+    let o = fusiondet(&[
+        "bench",
+        "--checkpoint",
+        run.join("model.bpk").to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--repeats",
+        "1",
+        "--no-probes",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    assert!(t.contains("frames/s"), "{t}");
+    assert!(
+        !t.contains("on this device") && !t.contains("repeated-row"),
+        "{t}"
+    );
     let o = fusiondet(&[
         "bench",
         "--checkpoint",

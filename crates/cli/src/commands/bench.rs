@@ -15,6 +15,11 @@ pub struct BenchArgs {
     /// Use at most this many frames of the split (0 = all).
     #[arg(long, default_value_t = 0)]
     pub max_frames: usize,
+    /// Print the speed only: skip the device's arithmetic probes that follow it (matrix-product
+    /// precision, repeated-row additions, training's batch norm, the sparse convolution's
+    /// gradients), which take seconds of a lent GPU for every bench that repeats them.
+    #[arg(long)]
+    pub no_probes: bool,
 }
 
 /// The most timed runs `bench` takes (a median of a thousand is as good as of more).
@@ -52,6 +57,9 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             "  at 8 frustums a frame: {:.2} frames/s",
             bench.inputs_per_second() / 8.0
         );
+    }
+    if args.no_probes {
+        return Ok(());
     }
     // Why a device's boxes may part from the CPU's by more than float noise.
     let error = fusiondet_pipeline::matmul_precision::matmul_relative_error(&device.device());
