@@ -37,6 +37,7 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, AutodiffBackend};
+use burn::tensor::Shape;
 use burn_cubecl::CubeBackend;
 use burn_cubecl::tensor::CubeTensor;
 
@@ -397,9 +398,10 @@ fn dims3(t: &CubeTensor) -> [usize; 3] {
     [shape[0], shape[1], shape[2]]
 }
 
-/// What a forward pass leaves for its backward pass: the input, the batch mean [C], the
-/// per-channel coefficients [3C] (γ/σ, β, 1/σ) and whether a ReLU followed.
-type BatchNormState = (CubeTensor, CubeTensor, CubeTensor, bool);
+/// What a forward pass leaves for its backward pass: the input as the kernels' [B, C, S] view
+/// and its own shape, the batch mean [C], the per-channel coefficients [3C] (γ/σ, β, 1/σ) and
+/// whether a ReLU followed.
+type BatchNormState = (CubeTensor, Shape, CubeTensor, CubeTensor, bool);
 
 /// (output in `x`'s shape, mean [C], biased variance [C], what the backward pass reads).
 fn forward(
@@ -410,7 +412,7 @@ fn forward(
     relu: bool,
 ) -> (CubeTensor, CubeTensor, CubeTensor, BatchNormState) {
     let shape = x.meta.shape().clone();
-    let view = view3(x.clone());
+    let view = view3(x);
     let [batch, channels, spatial] = dims3(&view);
     let mean = channel_means(&view, None);
     let variance = channel_means(&view, Some(&mean));
@@ -450,7 +452,7 @@ fn forward(
                 &client,
                 count,
                 dim,
-                view.into_tensor_arg(),
+                view.clone().into_tensor_arg(),
                 mean.clone().into_tensor_arg(),
                 coefficients.clone().into_tensor_arg(),
                 out.clone().into_tensor_arg(),
@@ -461,7 +463,7 @@ fn forward(
             );
         }
     }
-    let state = (x, mean.clone(), coefficients, relu);
+    let state = (view, shape.clone(), mean.clone(), coefficients, relu);
     (
         CubeBackend::float_reshape(out, shape),
         mean,
@@ -471,9 +473,11 @@ fn forward(
 }
 
 /// (x', γ', β') from the output gradient `grad`.
-fn backward((x, mean, coefficients, relu): BatchNormState, grad: CubeTensor) -> [CubeTensor; 3] {
-    let shape = x.meta.shape().clone();
-    let (view, g) = (view3(x), view3(grad));
+fn backward(
+    (view, shape, mean, coefficients, relu): BatchNormState,
+    grad: CubeTensor,
+) -> [CubeTensor; 3] {
+    let g = view3(grad);
     let [batch, channels, spatial] = dims3(&view);
     assert_eq!(
         dims3(&g),
@@ -504,11 +508,8 @@ fn backward((x, mean, coefficients, relu): BatchNormState, grad: CubeTensor) -> 
         );
     }
     let sums = totals(partial, blocks, 2 * channels, 1.0);
+    // The forward pass checked that this many values fit 32-bit indices.
     let len = batch * channels * spatial;
-    assert!(
-        len <= u32::MAX as usize,
-        "a batch norm over {len} values: the kernels index them in 32 bits"
-    );
     let dx = buffer(&view, len);
     let packed = is_packed(&view) && is_packed(&g);
     if len > 0 {
