@@ -566,30 +566,25 @@ fn train_then_detect_from_the_command_line() {
     assert!(o.status.success(), "{}", text(&o));
     assert!(eval_results().status.success());
 
-    let o = fusiondet(&[
-        "bench",
-        "--checkpoint",
-        run.join("model.bpk").to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--repeats",
-        "2",
-    ]);
+    // `fusiondet bench` of the run's model on the frames, with EXTRA… after.
+    let model = run.join("model.bpk");
+    let bench = |extra: &[&str]| {
+        let common = [
+            "bench",
+            "--checkpoint",
+            model.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+        ];
+        fusiondet(&[&common[..], extra].concat())
+    };
+    let o = bench(&["--repeats", "2"]);
     assert!(o.status.success(), "{}", text(&o));
     let t = text(&o);
     assert!(t.contains("2 timed runs") && t.contains("frames/s"), "{t}");
     assert!(t.contains("f32 matrix product on this device"), "{t}");
     // The speed alone: no probe after it.
-    let o = fusiondet(&[
-        "bench",
-        "--checkpoint",
-        run.join("model.bpk").to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--repeats",
-        "1",
-        "--no-probes",
-    ]);
+    let o = bench(&["--repeats", "1", "--no-probes"]);
     assert!(o.status.success(), "{}", text(&o));
     let t = text(&o);
     assert!(t.contains("frames/s"), "{t}");
@@ -597,29 +592,13 @@ fn train_then_detect_from_the_command_line() {
         !t.contains("on this device") && !t.contains("repeated-row"),
         "{t}"
     );
-    let o = fusiondet(&[
-        "bench",
-        "--checkpoint",
-        run.join("model.bpk").to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--repeats",
-        "0",
-    ]);
+    let o = bench(&["--repeats", "0"]);
     assert!(!o.status.success());
     assert!(text(&o).contains("--repeats"), "{}", text(&o));
     // No 2D detection, no frustum: nothing to time (it reported millions of frames/s).
     let empty = dir.path().join("no_detections.txt");
     std::fs::write(&empty, "").unwrap();
-    let o = fusiondet(&[
-        "bench",
-        "--checkpoint",
-        run.join("model.bpk").to_str().unwrap(),
-        "--data",
-        data.to_str().unwrap(),
-        "--detections",
-        empty.to_str().unwrap(),
-    ]);
+    let o = bench(&["--detections", empty.to_str().unwrap()]);
     assert!(!o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("no speed to measure"), "{}", text(&o));
 }
