@@ -8,6 +8,9 @@
 //! inference ([`host_max`]), custom operations with their own backward passes in training
 //! ([`ragged`]).
 
+pub mod adam;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod adam_device;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 pub mod batch_norm_device;
 pub mod batch_norm_ops;

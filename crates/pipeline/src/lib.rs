@@ -17,6 +17,7 @@ pub mod grad_clip;
 pub mod kernel_cache;
 pub mod matmul_precision;
 pub mod metrics_log;
+pub mod optimizer;
 pub mod prefetch;
 pub mod result_dir;
 pub mod run_dir;

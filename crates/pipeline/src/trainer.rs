@@ -8,11 +8,10 @@ use crate::config::{ExperimentConfig, GradClipScope, OptimizerKind};
 use crate::device::ComputeDevice;
 use crate::error::{PipelineError, Result};
 use crate::metrics_log::MetricsLog;
+use crate::optimizer::TrainingOptimizer;
 use crate::run_dir::{RunDir, RunLock, RunState};
 use burn::module::Module;
-use burn::optim::decay::WeightDecayConfig;
-use burn::optim::grad_clipping::GradientClippingConfig;
-use burn::optim::{AdamConfig, AdamWConfig, GradientsParams, OptimizerRecord};
+use burn::optim::{GradientsParams, OptimizerRecord};
 use burn::prelude::*;
 use fusiondet_models::DetectorKind;
 use serde_json::json;
@@ -301,7 +300,7 @@ pub fn run_training<T: TrainingTask>(
     }
 
     let ad = options.device.device().autodiff();
-    // Per parameter: burn's clipping inside the optimizer; global: before the step.
+    // Per parameter: clipped inside the optimizer; global: before the step.
     let global_clip = cfg
         .train
         .grad_clip_norm
@@ -310,17 +309,13 @@ pub fn run_training<T: TrainingTask>(
         .train
         .grad_clip_norm
         .filter(|_| global_clip.is_none())
-        .map(|n| GradientClippingConfig::Norm(n as f32));
-    let mut optim = match cfg.train.optimizer {
-        OptimizerKind::Adam => AdamConfig::new()
-            .with_weight_decay(Some(WeightDecayConfig::new(cfg.train.weight_decay as f32)))
-            .with_grad_clipping(clipping)
-            .init(),
-        OptimizerKind::AdamW => AdamWConfig::new()
-            .with_weight_decay(cfg.train.weight_decay as f32)
-            .with_grad_clipping(clipping)
-            .init(),
-    };
+        .map(|n| n as f32);
+    let mut optim = TrainingOptimizer::new(
+        cfg.train.optimizer == OptimizerKind::AdamW,
+        cfg.train.weight_decay as f32,
+        clipping,
+    )
+    .into_module_optimizer();
     let (mut model, start_epoch) = match &resumed {
         Some(state) => {
             let model = task.load_model(&run.root.join(&state.model), &ad)?;
