@@ -15,14 +15,17 @@
 //! measurement).
 //!
 //! Here each reduction is two launches: blocks of about √N samples per (block, channel)
-//! thread, the blocks' partial sums then added per channel in block order, so a sum is at
-//! most a few thousand serial steps and the same bits in every run on one device (autotune,
-//! where compiled in, may pick burn's reductions differently from run to run). The forward
-//! pass reads the input twice (mean, then centred squares) and writes the output once with
-//! the ReLU fused when asked; the backward pass reads once for Σ g and Σ g·x̂ (g through the
-//! ReLU's gate, recomputed from the input as the forward pass computed the output) and
-//! writes x' once. Sums are f32, where the CPU path sums in f64: tests on wgpu over lavapipe
-//! compare the two within rounding.
+//! thread, the blocks' partial results then combined per channel in block order, so a sum is
+//! at most a few thousand serial steps and the same bits in every run on one device
+//! (autotune, where compiled in, may pick burn's reductions differently from run to run).
+//! The forward pass is three launches: each block's mean and sum of squared deviations (its
+//! thread reads its block twice), their combination per channel (Chan, Golub and LeVeque's
+//! pairwise update) with the coefficients the output takes, and the output, written once
+//! with the ReLU fused when asked; the backward pass reads once for Σ g and Σ g·x̂ (g through
+//! the ReLU's gate, recomputed from the input as the forward pass computed the output) and
+//! writes x' once, three launches too. The running statistics' update is one more
+//! ([`RunningStatisticsOps`]; burn's operations take six). Sums are f32, where the CPU path
+//! sums in f64: tests on wgpu over lavapipe compare the two within rounding.
 //!
 //! Inputs are read by their strides as 3-D [B, C, S] views ([rows, C] as [rows, C, 1]), and
 //! outputs written to one-dimensional buffers, as in `sparse::device_kernels` (CUDA pads
@@ -36,7 +39,8 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{Autodiff, AutodiffBackend};
+use burn::backend::{Autodiff, AutodiffBackend, Backend, Dispatch, backend_extension};
+use burn::prelude::*;
 use burn::tensor::Shape;
 use burn_cubecl::CubeBackend;
 use burn_cubecl::tensor::CubeTensor;
@@ -113,49 +117,52 @@ mod kernels {
         select(keep, grad, 0.0f32)
     }
 
-    /// One (block, channel) a thread: `partial[block · C + c]`, the sum over the block's
-    /// samples, in order, of x (`centred` false) or of (x − mean)² (`centred` true).
+    /// One (block, channel) a thread: the block's mean at `partial[block · 2C + c]` and its
+    /// sum of squared deviations from it at `partial[block · 2C + C + c]`, over the block's
+    /// samples in order (two passes over the block).
     #[cube(launch_unchecked)]
-    pub fn norm_partial_sums(
+    pub fn norm_block_moments(
         x: &Tensor<f32>,
-        mean: &Tensor<f32>,
         partial: &mut Tensor<f32>,
         samples: u32,
         block_len: u32,
-        #[comptime] centred: bool,
     ) {
+        let (channels, spatial) = (x.shape(1), x.shape(2));
         let unit = ABSOLUTE_POS;
-        if unit >= partial.shape(0) {
+        if unit * 2 >= partial.shape(0) {
             terminate!();
         }
-        let (channels, spatial) = (x.shape(1), x.shape(2));
         let (block, c) = (unit / channels, unit % channels);
         let first = block * block_len as usize;
         let mut end = first + block_len as usize;
         if end > samples as usize {
             end = samples as usize;
         }
-        let mut m = 0f32;
-        if centred {
-            m = mean[c];
-        }
         let (mut b, mut s) = (first / spatial, first % spatial);
         let mut sum = 0f32;
         for _ in first..end {
-            let v = at(x, b, c, s);
-            if centred {
-                let d = v - m;
-                sum += d * d;
-            } else {
-                sum += v;
-            }
+            sum += at(x, b, c, s);
             s += 1;
             if s == spatial {
                 s = 0;
                 b += 1;
             }
         }
-        partial[unit] = sum;
+        let m = sum / f32::cast_from(end - first);
+        (b, s) = (first / spatial, first % spatial);
+        let mut squares = 0f32;
+        for _ in first..end {
+            let d = at(x, b, c, s) - m;
+            squares += d * d;
+            s += 1;
+            if s == spatial {
+                s = 0;
+                b += 1;
+            }
+        }
+        let row = block * 2 * channels;
+        partial[row + c] = m;
+        partial[row + channels + c] = squares;
     }
 
     /// One column a thread: `out[k] = scale · Σ_block partial[block · width + k]`, the
@@ -179,15 +186,22 @@ mod kernels {
         out[unit] = sum * scale;
     }
 
-    /// One channel a thread: `out` [3C] = γ/σ, β and 1/σ, σ = √(σ² + ε): what the forward
-    /// pass multiplies and adds, and what x̂ takes backward.
+    /// One channel a thread: the blocks' moments (`norm_block_moments`) combined in block
+    /// order (Chan, Golub and LeVeque's pairwise update: no sum of squares of raw values, so no
+    /// cancellation), the batch `mean` and biased `variance` [C], and `out` [3C] = γ/σ, β and
+    /// 1/σ, σ = √(σ² + ε): what the forward pass multiplies and adds, and what x̂ takes
+    /// backward.
     #[cube(launch_unchecked)]
-    pub fn norm_coefficients(
+    #[allow(clippy::too_many_arguments)]
+    pub fn norm_statistics(
+        partial: &Tensor<f32>,
         gamma: &Tensor<f32>,
         beta: &Tensor<f32>,
-        mean: &Tensor<f32>,
-        variance: &Tensor<f32>,
+        mean: &mut Tensor<f32>,
+        variance: &mut Tensor<f32>,
         out: &mut Tensor<f32>,
+        samples: u32,
+        block_len: u32,
         epsilon: f32,
     ) {
         let c = ABSOLUTE_POS;
@@ -195,11 +209,59 @@ mod kernels {
         if c >= channels {
             terminate!();
         }
-        let inv_std = 1.0f32 / f32::sqrt(variance[c] + epsilon);
+        let blocks = partial.shape(0) / (2 * channels);
+        let mut count = 0f32;
+        let mut m = 0f32;
+        let mut squares = 0f32;
+        for block in 0..blocks {
+            let first = block * block_len as usize;
+            let mut end = first + block_len as usize;
+            if end > samples as usize {
+                end = samples as usize;
+            }
+            // An empty batch has one block of no samples, whose moments were not written.
+            if end > first {
+                let n_b = f32::cast_from(end - first);
+                let row = block * 2 * channels;
+                let delta = partial[row + c] - m;
+                let n = count + n_b;
+                m += delta * (n_b / n);
+                squares += partial[row + channels + c] + delta * delta * (count * n_b / n);
+                count = n;
+            }
+        }
+        let var = squares / f32::max(count, 1.0f32);
+        mean[c] = m;
+        variance[c] = var;
+        let inv_std = 1.0f32 / f32::sqrt(var + epsilon);
         let scale = gamma[c * gamma.stride(0)] * inv_std;
         out[c] = scale;
         out[channels + c] = beta[c * beta.stride(0)];
         out[2 * channels + c] = inv_std;
+    }
+
+    /// One channel a thread: burn's running-statistics update, `r · keep + batch · take`
+    /// (keep = 1 − momentum, take = momentum) for the mean and the variance.
+    #[cube(launch_unchecked)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn norm_running_statistics(
+        running_mean: &Tensor<f32>,
+        running_variance: &Tensor<f32>,
+        mean: &Tensor<f32>,
+        variance: &Tensor<f32>,
+        new_mean: &mut Tensor<f32>,
+        new_variance: &mut Tensor<f32>,
+        keep: f32,
+        take: f32,
+    ) {
+        let c = ABSOLUTE_POS;
+        if c >= new_mean.shape(0) {
+            terminate!();
+        }
+        new_mean[c] =
+            running_mean[c * running_mean.stride(0)] * keep + mean[c * mean.stride(0)] * take;
+        new_variance[c] = running_variance[c * running_variance.stride(0)] * keep
+            + variance[c * variance.stride(0)] * take;
     }
 
     /// One output value a thread, `out[(b · C + c) · S + s]` = (x − mean)·scale + β, through
@@ -355,31 +417,62 @@ fn totals(partial: CubeTensor, blocks: usize, width: usize, scale: f32) -> CubeT
     out
 }
 
-/// Per channel, the mean of x (`mean` None) or of (x − mean)² over the [B, C, S] view's
-/// samples → [C].
-fn channel_means(x: &CubeTensor, mean: Option<&CubeTensor>) -> CubeTensor {
+/// Per channel, the batch mean and biased variance [C] of the [B, C, S] view's samples, and
+/// the coefficients [3C] (γ/σ, β, 1/σ) from γ and β: two launches, the blocks' moments then
+/// their combination per channel.
+fn statistics(
+    x: &CubeTensor,
+    gamma: CubeTensor,
+    beta: CubeTensor,
+    epsilon: f64,
+) -> (CubeTensor, CubeTensor, CubeTensor) {
     let [batch, channels, spatial] = dims3(x);
     let samples = batch * spatial;
     let (blocks, block_len) = blocks_of(samples, channels);
-    let partial = buffer(x, blocks * channels);
+    let partial = buffer(x, blocks * 2 * channels);
     let client = x.client.clone();
-    let (count, dim) = launch_shape(&client, blocks * channels);
-    // SAFETY: threads past the last partial sum return first; a block's samples are clipped
-    // to B·S, so (b, s) stays within the view; c < C; the mean, when read, has C values.
-    unsafe {
-        kernels::norm_partial_sums::launch_unchecked(
-            &client,
-            count,
-            dim,
-            x.clone().into_tensor_arg(),
-            mean.unwrap_or(x).clone().into_tensor_arg(),
-            partial.clone().into_tensor_arg(),
-            samples as u32,
-            block_len as u32,
-            mean.is_some(),
-        );
+    if samples > 0 && channels > 0 {
+        let (count, dim) = launch_shape(&client, blocks * channels);
+        // SAFETY: threads past the last (block, channel) return first; a block's samples are
+        // clipped to B·S (at least one each: blocks ≤ samples), so (b, s) stays within the
+        // view; the two moments of (block, c) lie below blocks · 2C.
+        unsafe {
+            kernels::norm_block_moments::launch_unchecked(
+                &client,
+                count,
+                dim,
+                x.clone().into_tensor_arg(),
+                partial.clone().into_tensor_arg(),
+                samples as u32,
+                block_len as u32,
+            );
+        }
     }
-    totals(partial, blocks, channels, 1.0 / samples.max(1) as f32)
+    let mean = buffer(x, channels);
+    let variance = buffer(x, channels);
+    let coefficients = buffer(x, 3 * channels);
+    if channels > 0 {
+        let (count, dim) = launch_shape(&client, channels);
+        // SAFETY: threads past the last channel return first; the partial moments hold
+        // blocks · 2C values, γ and β C each, the outputs C, C and 3C.
+        unsafe {
+            kernels::norm_statistics::launch_unchecked(
+                &client,
+                count,
+                dim,
+                partial.into_tensor_arg(),
+                float_rows(gamma).into_tensor_arg(),
+                float_rows(beta).into_tensor_arg(),
+                mean.clone().into_tensor_arg(),
+                variance.clone().into_tensor_arg(),
+                coefficients.clone().into_tensor_arg(),
+                samples as u32,
+                block_len as u32,
+                epsilon as f32,
+            );
+        }
+    }
+    (mean, variance, coefficients)
 }
 
 /// Whether the [B, C, S] view `t` lies as a packed tensor (value (b, c, s) at (b·C + c)·S
@@ -414,28 +507,8 @@ fn forward(
     let shape = x.meta.shape().clone();
     let view = view3(x);
     let [batch, channels, spatial] = dims3(&view);
-    let mean = channel_means(&view, None);
-    let variance = channel_means(&view, Some(&mean));
-    let coefficients = buffer(&view, 3 * channels);
+    let (mean, variance, coefficients) = statistics(&view, gamma, beta, epsilon);
     let client = view.client.clone();
-    if channels > 0 {
-        let (count, dim) = launch_shape(&client, channels);
-        // SAFETY: threads past the last channel return first; γ, β, mean and variance hold C
-        // values, the coefficients 3C.
-        unsafe {
-            kernels::norm_coefficients::launch_unchecked(
-                &client,
-                count,
-                dim,
-                float_rows(gamma).into_tensor_arg(),
-                float_rows(beta).into_tensor_arg(),
-                mean.clone().into_tensor_arg(),
-                variance.clone().into_tensor_arg(),
-                coefficients.clone().into_tensor_arg(),
-                epsilon as f32,
-            );
-        }
-    }
     let len = batch * channels * spatial;
     assert!(
         len <= u32::MAX as usize,
@@ -600,6 +673,95 @@ impl<C: CheckpointStrategy> BatchNormOps for Autodiff<CubeBackend, C> {
         };
         // The statistics are constants (the running statistics' update detaches them).
         (out, Self::from_inner(mean), Self::from_inner(variance))
+    }
+}
+
+/// Training's running-statistics update, `r ← r · (1 − momentum) + batch · momentum` for the
+/// mean and the variance, as one launch on a CubeCL device (burn's tensor operations take
+/// six: two scalar products and an addition each).
+#[backend_extension(Cube, Autodiff)]
+pub trait RunningStatisticsOps: Backend {
+    /// (running mean, running variance) after the batch's `mean` and `variance` ([C] each).
+    fn running_statistics(
+        running_mean: FloatTensor<Self>,
+        running_variance: FloatTensor<Self>,
+        mean: FloatTensor<Self>,
+        variance: FloatTensor<Self>,
+        momentum: f64,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
+}
+
+/// [`RunningStatisticsOps::running_statistics`] on tensors of a CubeCL device (constants:
+/// nothing is differentiated through them).
+pub fn running_statistics(
+    running_mean: Tensor<1>,
+    running_variance: Tensor<1>,
+    mean: Tensor<1>,
+    variance: Tensor<1>,
+    momentum: f64,
+) -> (Tensor<1>, Tensor<1>) {
+    let (m, v) = <Dispatch as RunningStatisticsOps>::running_statistics(
+        running_mean.into_dispatch(),
+        running_variance.into_dispatch(),
+        mean.into_dispatch(),
+        variance.into_dispatch(),
+        momentum,
+    );
+    (Tensor::from_dispatch(m), Tensor::from_dispatch(v))
+}
+
+impl RunningStatisticsOps for CubeBackend {
+    fn running_statistics(
+        running_mean: CubeTensor,
+        running_variance: CubeTensor,
+        mean: CubeTensor,
+        variance: CubeTensor,
+        momentum: f64,
+    ) -> (CubeTensor, CubeTensor) {
+        let channels = mean.meta.shape().num_elements();
+        let outputs = [buffer(&mean, channels), buffer(&mean, channels)];
+        if channels > 0 {
+            let client = mean.client.clone();
+            let (count, dim) = launch_shape(&client, channels);
+            // SAFETY: threads past the last channel return first; every input holds C
+            // values (read by its stride), each output C.
+            unsafe {
+                kernels::norm_running_statistics::launch_unchecked(
+                    &client,
+                    count,
+                    dim,
+                    float_rows(running_mean).into_tensor_arg(),
+                    float_rows(running_variance).into_tensor_arg(),
+                    float_rows(mean).into_tensor_arg(),
+                    float_rows(variance).into_tensor_arg(),
+                    outputs[0].clone().into_tensor_arg(),
+                    outputs[1].clone().into_tensor_arg(),
+                    (1.0 - momentum) as f32,
+                    momentum as f32,
+                );
+            }
+        }
+        let [m, v] = outputs;
+        (m, v)
+    }
+}
+
+impl<C: CheckpointStrategy> RunningStatisticsOps for Autodiff<CubeBackend, C> {
+    fn running_statistics(
+        running_mean: FloatTensor<Self>,
+        running_variance: FloatTensor<Self>,
+        mean: FloatTensor<Self>,
+        variance: FloatTensor<Self>,
+        momentum: f64,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        let (m, v) = CubeBackend::running_statistics(
+            Self::inner(running_mean),
+            Self::inner(running_variance),
+            Self::inner(mean),
+            Self::inner(variance),
+            momentum,
+        );
+        (Self::from_inner(m), Self::from_inner(v))
     }
 }
 

@@ -98,6 +98,21 @@ fn fused_in_training<const D: usize>(
 /// (detached): r ← (1 − momentum)·r + momentum·batch.
 fn update_running_statistics(bn: &BatchNorm, mean: Tensor<1>, variance: Tensor<1>) {
     let momentum = bn.momentum;
+    // On a GPU one launch for both (`batch_norm_device`), where burn's operations take six.
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if ragged::custom_device_path(&mean) {
+        let device = mean.device();
+        let (running_mean, running_variance) = crate::batch_norm_device::running_statistics(
+            bn.running_mean.value_sync().to_device(&device),
+            bn.running_var.value_sync().to_device(&device),
+            mean.detach(),
+            variance.detach(),
+            momentum,
+        );
+        bn.running_mean.update(running_mean.detach());
+        bn.running_var.update(running_variance.detach());
+        return;
+    }
     let update = |state: &burn::module::RunningState<Tensor<1>>, batch: Tensor<1>| {
         let device = batch.device();
         let old = state.value_sync().to_device(&device);

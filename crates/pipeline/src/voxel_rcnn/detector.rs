@@ -17,6 +17,7 @@ use fusiondet_models::voxel_rcnn::{
     VoxelRcnn, load_voxel_rcnn, pooled_maps,
 };
 use fusiondet_voxel::{LidarBox, Proposal, decode_roi};
+use rayon::prelude::*;
 use std::path::Path;
 use std::time::Instant;
 
@@ -60,7 +61,9 @@ pub fn batch_proposals(
         values(&anchors.boxes),
         values(&anchors.direction),
     );
+    // Frames in parallel (each its own NMS), collected in frame order.
     (0..b)
+        .into_par_iter()
         .map(|f| {
             decode_proposals(
                 data.assigner.anchors(),
