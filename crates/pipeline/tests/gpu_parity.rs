@@ -55,7 +55,8 @@ const VOXEL_FAMILY: &[(&str, usize, usize)] = &[("tiny-voxel-rcnn", 4, 2), ("tin
 
 /// The frustum family's: FCAM's improved CBAM and SAF (depth-guided slicing, LFA, the
 /// projection loss), two batches of the first simulated frame's 18 frustums (its cars, each
-/// twice: `augment.copies`).
+/// twice: `augment.copies`). Checked on wgpu (the CUDA test runs the voxel family only).
+#[cfg(feature = "wgpu")]
 const FRUSTUM_FAMILY: &[(&str, usize, usize)] = &[("tiny-fcam", 1, 9), ("tiny-saf", 1, 9)];
 
 /// One backbone-sized sparse layer (20,000 sites) through the CubeCL kernels on wgpu
