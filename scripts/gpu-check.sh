@@ -46,6 +46,9 @@
 #                  (FUSIONDET_ROI_QUERY=check), a `detect` with the host query compared box
 #                  by box with the kernels' on the same device, and a bench, beside the
 #                  default (default: voxel-rcnn-car dasanet-car; empty to skip)
+#   TRAIN_QUERY_AB the published configurations also train with the RoI grid query on the host
+#                  (FUSIONDET_ROI_QUERY=host; a GPU's default in training, as in detection, is
+#                  its kernels, the index turned around on the device): 1 or 0 (default: 1)
 #   TABLES_AB      the published configurations' benches also run with the sparse kernels'
 #                  tables built on the host (FUSIONDET_RULEBOOK_TABLES=host; by default the
 #                  device searches them): 1 or 0 (default: 1)
@@ -128,6 +131,7 @@ frames="${FRAMES:-48}"
 repeats="${REPEATS:-3}"
 steps_frames="${STEPS_FRAMES:-8}"
 query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
+train_query_ab="${TRAIN_QUERY_AB:-1}"
 sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
 tables_ab="${TABLES_AB:-1}"
 prepare_ab="${PREPARE_AB:-1}"
@@ -359,20 +363,26 @@ if [ "$train" = 1 ]; then
         runs=("$device")
         [ "$train_cpu" = 1 ] && runs=(cpu "$device")
         [ -n "$sparse_ab" ] && runs+=("$device+kernel-map")
+        [ "$train_query_ab" = 1 ] && runs+=("$device+host-query")
         for r in "${runs[@]}"; do
-            d="${r%+kernel-map}"
+            # A run is a device, or a device and one former default (+kernel-map, +host-query).
+            d="${r%%+*}"
+            variant="${r#"$d"}"
+            variant="${variant#+}"
             sparse=""
-            [ "$r" != "$d" ] && sparse=kernel-map
+            query=""
+            [ "$variant" = kernel-map ] && sparse=kernel-map
+            [ "$variant" = host-query ] && query=host
             run="$out/train/$name-${r//:/-}"
             rm -rf "$run"
             mkdir -p "$out/train"
             stamp "$name: two epochs of $steps_frames frames on $r"
-            if env ${sparse:+FUSIONDET_SPARSE_RULES="$sparse"} "$bin" train --config "$config" \
+            if env ${sparse:+FUSIONDET_SPARSE_RULES="$sparse"} ${query:+FUSIONDET_ROI_QUERY="$query"} "$bin" train --config "$config" \
                 --data "$data" --out "$run" --epochs 2 \
                 --max-frames "$steps_frames" --device "$d" >"$run.log" 2>&1; then
                 row+=("$r $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
                 losses+=("$(first_loss "$run/metrics.jsonl")")
-                if [ "$d" != cpu ] && [ -z "$sparse" ] && [ -f "$run/model.bpk" ]; then
+                if [ "$d" != cpu ] && [ -z "$variant" ] && [ -f "$run/model.bpk" ]; then
                     # The configuration's detection speed on the device: the defaults, the
                     # RoI query on the host, the sparse convolution as a kernel map.
                     no_probes=1 bench_into "$run-bench.log" "$run/model.bpk" "$d"

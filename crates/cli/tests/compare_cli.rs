@@ -121,9 +121,10 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         ),
         "{out}"
     );
-    // The three runs' first-step losses were read (an unread one would also compare as 0):
-    // the CPU's, the device's (the CPU again), and the device's with the sparse convolution
-    // as a kernel map (the same sums in another order).
+    // The four runs' first-step losses were read (an unread one would also compare as 0):
+    // the CPU's, the device's (the CPU again), the device's with the sparse convolution as a
+    // kernel map (the same sums in another order) and with the RoI query on the host (on the
+    // CPU, its default: the same bits).
     let losses = out
         .split("first-step loss ")
         .nth(1)
@@ -131,10 +132,11 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         .unwrap_or("");
     let runs: Vec<f64> = losses.split('/').filter_map(|v| v.parse().ok()).collect();
     assert!(
-        runs.len() == 3
+        runs.len() == 4
             && runs[0] > 0.0
             && runs[0] == runs[1]
-            && (runs[2] - runs[0]).abs() <= 1e-5 * runs[0],
+            && (runs[2] - runs[0]).abs() <= 1e-5 * runs[0]
+            && runs[3] == runs[0],
         "{out}"
     );
     assert!(out.contains("relative difference 0.00e+00/"), "{out}");

@@ -54,6 +54,29 @@ impl RowGather {
         gather
     }
 
+    /// A gather by an index made on the device: `index` [M] names rows 0..=`source_rows`, the
+    /// last the zero row. Where a CubeCL device differentiates, the index is turned around
+    /// there (`gather_device::turn_around`: the same readers in the same order as
+    /// [`RowGather::new`] lists for the same index, so the same gradients to the bit); the
+    /// zero row is appended whether or not a row reads it.
+    pub fn from_device_index(index: Tensor<1, Int>, source_rows: usize) -> Self {
+        let device = index.device();
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        let readers = (on_cube_device(&device) && device.is_autodiff())
+            .then(|| crate::gather_device::turn_around(&index, source_rows));
+        #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
+        let readers = {
+            let _ = device;
+            None
+        };
+        Self {
+            index,
+            source_rows,
+            reads_zeros: true,
+            readers,
+        }
+    }
+
     fn build(index: &[u32], source_rows: usize, sums: bool, device: &Device) -> Self {
         for &n in index {
             assert!((n as usize) <= source_rows, "row {n} of {source_rows}");
@@ -162,7 +185,7 @@ fn on_cube_device(device: &Device) -> bool {
 /// rows `readers[starts[n]..starts[n + 1]]`, in ascending order; the zero row's readers are
 /// left out. The index as one list turned around by [`RowPairs`], the zero row counted as
 /// row N: its readers come last, and are cut off.
-fn readers_of(index: &[u32], source_rows: usize) -> (Vec<i64>, Vec<i64>) {
+pub(crate) fn readers_of(index: &[u32], source_rows: usize) -> (Vec<i64>, Vec<i64>) {
     let by_row = RowPairs::new(source_rows + 1, std::iter::once(index));
     let starts: Vec<i64> = by_row.starts()[..=source_rows]
         .iter()

@@ -13,7 +13,9 @@ use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::{FloatTensor, IntTensor};
 use burn::backend::{Autodiff, Backend, Dispatch, backend_extension};
 use burn::prelude::*;
+use burn::tensor::DType;
 use burn_cubecl::CubeBackend;
+use burn_cubecl::ops::numeric::{empty_device_dtype, zeros_client};
 use burn_cubecl::tensor::CubeTensor;
 
 /// The gather (see the module's documentation).
@@ -38,6 +40,25 @@ pub trait RowGatherOps: Backend {
         starts: IntTensor<Self>,
         readers: IntTensor<Self>,
     ) -> FloatTensor<Self>;
+
+    /// An index made on the device turned around there: `index` [M] (entries 0..=N, N =
+    /// `source_rows` the zero row) → (starts [N + 2], readers [M], i32), source row n read by
+    /// `readers[starts[n]..starts[n + 1]]` in ascending order, the zero row (n = N) by none.
+    /// Entries of `readers` past `starts[N]` are not written.
+    fn turn_around(
+        index: IntTensor<Self>,
+        source_rows: usize,
+    ) -> (IntTensor<Self>, IntTensor<Self>);
+}
+
+/// [`RowGatherOps::turn_around`] on a burn index of a CubeCL device: (starts, readers).
+pub fn turn_around(index: &Tensor<1, Int>, source_rows: usize) -> (Tensor<1, Int>, Tensor<1, Int>) {
+    let (starts, readers) =
+        <Dispatch as RowGatherOps>::turn_around(index.clone().into_dispatch(), source_rows);
+    (
+        Tensor::from_dispatch(starts),
+        Tensor::from_dispatch(readers),
+    )
 }
 
 /// [`RowGatherOps::gather_rows`] on burn tensors of a CubeCL device.
@@ -85,6 +106,131 @@ fn dispatch(
 
 mod kernels {
     use cubecl::prelude::*;
+
+    /// One chunk of the index a thread: `counts[key · chunks + k]`, how many of chunk k's
+    /// entries name source row `key` (every (key, k) is chunk k's alone: no atomics).
+    #[cube(launch_unchecked)]
+    pub fn chunk_counts(
+        index: &Tensor<i32>,
+        counts: &mut Tensor<i32>,
+        chunk_len: u32,
+        chunks: u32,
+    ) {
+        let k = ABSOLUTE_POS;
+        if k >= chunks as usize {
+            terminate!();
+        }
+        let first = k * chunk_len as usize;
+        let mut end = first + chunk_len as usize;
+        if end > index.shape(0) {
+            end = index.shape(0);
+        }
+        for m in first..end {
+            let key = usize::cast_from(index[m * index.stride(0)]);
+            counts[key * chunks as usize + k] += 1;
+        }
+    }
+
+    /// One block a thread: `sums[block]`, the sum of the block's values.
+    #[cube(launch_unchecked)]
+    pub fn block_sums(values: &Tensor<i32>, sums: &mut Tensor<i32>, block_len: u32) {
+        let block = ABSOLUTE_POS;
+        if block >= sums.shape(0) {
+            terminate!();
+        }
+        let first = block * block_len as usize;
+        let mut end = first + block_len as usize;
+        if end > values.shape(0) {
+            end = values.shape(0);
+        }
+        let mut sum = 0i32;
+        for i in first..end {
+            sum += values[i];
+        }
+        sums[block] = sum;
+    }
+
+    /// One thread: `sums` replaced by its exclusive prefix sums, in order.
+    #[cube(launch_unchecked)]
+    pub fn exclusive_scan_in_place(sums: &mut Tensor<i32>) {
+        if ABSOLUTE_POS >= 1 {
+            terminate!();
+        }
+        let mut running = 0i32;
+        for i in 0..sums.shape(0) {
+            let v = sums[i];
+            sums[i] = running;
+            running += v;
+        }
+    }
+
+    /// One block a thread: the block's values replaced by their exclusive prefix sums over
+    /// the whole array, from the block's offset `offsets[block]`.
+    #[cube(launch_unchecked)]
+    pub fn block_prefix(values: &mut Tensor<i32>, offsets: &Tensor<i32>, block_len: u32) {
+        let block = ABSOLUTE_POS;
+        if block >= offsets.shape(0) {
+            terminate!();
+        }
+        let first = block * block_len as usize;
+        let mut end = first + block_len as usize;
+        if end > values.shape(0) {
+            end = values.shape(0);
+        }
+        let mut running = offsets[block];
+        for i in first..end {
+            let v = values[i];
+            values[i] = running;
+            running += v;
+        }
+    }
+
+    /// One source row a thread (and one more): `starts[n]` = where row n's readers begin,
+    /// the prefix at (n, chunk 0); the zero row's range (n = N) left empty.
+    #[cube(launch_unchecked)]
+    pub fn readers_starts(offsets: &Tensor<i32>, starts: &mut Tensor<i32>, chunks: u32) {
+        let n = ABSOLUTE_POS;
+        let rows = starts.shape(0);
+        if n >= rows {
+            terminate!();
+        }
+        let mut key = n;
+        if n == rows - 1 {
+            key = n - 1;
+        }
+        starts[n] = offsets[key * chunks as usize];
+    }
+
+    /// One chunk a thread: each entry m of the chunk, in order, written at its (key, chunk)
+    /// slot, which then moves on (the zero row's entries are counted, not written).
+    #[cube(launch_unchecked)]
+    pub fn chunk_scatter(
+        index: &Tensor<i32>,
+        offsets: &mut Tensor<i32>,
+        readers: &mut Tensor<i32>,
+        chunk_len: u32,
+        chunks: u32,
+        zero_row: u32,
+    ) {
+        let k = ABSOLUTE_POS;
+        if k >= chunks as usize {
+            terminate!();
+        }
+        let first = k * chunk_len as usize;
+        let mut end = first + chunk_len as usize;
+        if end > index.shape(0) {
+            end = index.shape(0);
+        }
+        for m in first..end {
+            let key = u32::cast_from(index[m * index.stride(0)]);
+            let at = key as usize * chunks as usize + k;
+            let slot = offsets[at];
+            offsets[at] = slot + 1;
+            if key < zero_row {
+                readers[usize::cast_from(slot)] = i32::cast_from(m);
+            }
+        }
+    }
 
     /// One source value a thread: `dx[n · C + c]`.
     #[cube(launch_unchecked)]
@@ -148,6 +294,145 @@ fn backward(grad: CubeTensor, starts: CubeTensor, readers: CubeTensor) -> CubeTe
     CubeBackend::float_reshape(dx, [source_rows, channels].into())
 }
 
+/// At most this many (row, chunk) counts for a turn-around: the index is cut into as many
+/// chunks as fit (each a thread's serial walk), at least one, at most one per 256 entries.
+const TURN_AROUND_COUNTS: usize = 1 << 23;
+
+/// The turn-around on the device (see [`RowGatherOps::turn_around`]). A stable counting
+/// sort by source row, deterministic without atomics: the index cut into C chunks, each
+/// chunk's thread counts its entries per row into its own column of an [(N + 1) × C]
+/// table, the table's exclusive prefix sums in row-major order give each (row, chunk) its
+/// first slot (so a row's readers come chunk by chunk, each chunk's in order: ascending),
+/// and each chunk's thread writes its entries there.
+fn turn_around_on_device(index: CubeTensor, source_rows: usize) -> (CubeTensor, CubeTensor) {
+    let index = int_rows(index);
+    let m = index.meta.shape().num_elements();
+    assert!(
+        m < i32::MAX as usize && source_rows < i32::MAX as usize,
+        "an index of {m} entries into {source_rows} rows: turned around in 32 bits"
+    );
+    let keys = source_rows + 1;
+    let chunks = (TURN_AROUND_COUNTS / keys).clamp(1, m.div_ceil(256).max(1));
+    let chunk_len = m.div_ceil(chunks).max(1);
+    let client = index.client.clone();
+    let device = index.device.clone();
+    let counts = zeros_client(
+        client.clone(),
+        device.clone(),
+        [keys * chunks].into(),
+        DType::I32,
+    );
+    let readers = empty_device_dtype(
+        client.clone(),
+        device.clone(),
+        [m.max(1)].into(),
+        DType::I32,
+    );
+    let starts = empty_device_dtype(client.clone(), device, [keys + 1].into(), DType::I32);
+    if m > 0 {
+        let (count, dim) = launch_shape(&client, chunks);
+        // SAFETY: threads past the last chunk return first; a chunk's entries are clipped to
+        // M; every entry is a row in 0..=N (the caller's index), so key · C + k < (N + 1) · C.
+        unsafe {
+            kernels::chunk_counts::launch_unchecked(
+                &client,
+                count,
+                dim,
+                index.clone().into_tensor_arg(),
+                counts.clone().into_tensor_arg(),
+                chunk_len as u32,
+                chunks as u32,
+            );
+        }
+    }
+    exclusive_scan(&counts);
+    let (count, dim) = launch_shape(&client, keys + 1);
+    // SAFETY: threads past the last start return first; n ≤ N reads the table at n · C,
+    // within its (N + 1) · C values.
+    unsafe {
+        kernels::readers_starts::launch_unchecked(
+            &client,
+            count,
+            dim,
+            counts.clone().into_tensor_arg(),
+            starts.clone().into_tensor_arg(),
+            chunks as u32,
+        );
+    }
+    if m > 0 {
+        let (count, dim) = launch_shape(&client, chunks);
+        // SAFETY: as for the counts; each (row, chunk) slot runs from its prefix over as many
+        // values as the chunk counted there, all below M, and only entries below the zero
+        // row are written.
+        unsafe {
+            kernels::chunk_scatter::launch_unchecked(
+                &client,
+                count,
+                dim,
+                index.into_tensor_arg(),
+                counts.into_tensor_arg(),
+                readers.clone().into_tensor_arg(),
+                chunk_len as u32,
+                chunks as u32,
+                source_rows as u32,
+            );
+        }
+    }
+    (starts, readers)
+}
+
+/// `values` (i32, one-dimensional) replaced by their exclusive prefix sums: blocks of about
+/// √L values summed, the block sums scanned by one thread, then each block's values.
+fn exclusive_scan(values: &CubeTensor) {
+    let len = values.meta.shape().num_elements();
+    if len == 0 {
+        return;
+    }
+    let block_len = ((len as f64).sqrt().ceil() as usize).max(1);
+    let blocks = len.div_ceil(block_len);
+    let client = values.client.clone();
+    let sums = empty_device_dtype(
+        client.clone(),
+        values.device.clone(),
+        [blocks].into(),
+        DType::I32,
+    );
+    let (count, dim) = launch_shape(&client, blocks);
+    // SAFETY: threads past the last block return first; each block's values are clipped to
+    // L, its sum written at its index below the block count.
+    unsafe {
+        kernels::block_sums::launch_unchecked(
+            &client,
+            count.clone(),
+            dim,
+            values.clone().into_tensor_arg(),
+            sums.clone().into_tensor_arg(),
+            block_len as u32,
+        );
+    }
+    let (one, single) = launch_shape(&client, 1);
+    // SAFETY: one thread walks the block sums within their length.
+    unsafe {
+        kernels::exclusive_scan_in_place::launch_unchecked(
+            &client,
+            one,
+            single,
+            sums.clone().into_tensor_arg(),
+        );
+    }
+    // SAFETY: as for the block sums.
+    unsafe {
+        kernels::block_prefix::launch_unchecked(
+            &client,
+            count,
+            dim,
+            values.clone().into_tensor_arg(),
+            sums.into_tensor_arg(),
+            block_len as u32,
+        );
+    }
+}
+
 impl RowGatherOps for CubeBackend {
     fn gather_rows(
         values: CubeTensor,
@@ -165,6 +450,10 @@ impl RowGatherOps for CubeBackend {
         readers: CubeTensor,
     ) -> CubeTensor {
         backward(values, int_rows(starts), int_rows(readers))
+    }
+
+    fn turn_around(index: CubeTensor, source_rows: usize) -> (CubeTensor, CubeTensor) {
+        turn_around_on_device(index, source_rows)
     }
 }
 
@@ -238,6 +527,13 @@ impl<C: CheckpointStrategy> RowGatherOps for Autodiff<CubeBackend, C> {
             OpsKind::UnTracked(prep) => prep.finish(out),
         }
     }
+
+    fn turn_around(
+        index: IntTensor<Self>,
+        source_rows: usize,
+    ) -> (IntTensor<Self>, IntTensor<Self>) {
+        turn_around_on_device(index, source_rows)
+    }
 }
 
 #[cfg(all(test, feature = "wgpu"))]
@@ -245,6 +541,101 @@ mod tests {
     use crate::cube::{assert_close, upstream, working_wgpu_device};
     use crate::gather::RowGather;
     use burn::prelude::*;
+
+    fn ints(t: Tensor<1, Int>) -> Vec<i64> {
+        t.into_data().convert::<i64>().try_to_vec::<i64>().unwrap()
+    }
+
+    /// The device's turn-around lists the host's readers in the host's order, for indices
+    /// with and without the zero row, one chunk or many (rows × chunks over the table's
+    /// budget), chunk lengths that do and do not divide the index, and an empty index.
+    #[test]
+    fn the_device_turns_an_index_around_as_the_host_does() {
+        let Some(gpu) = working_wgpu_device("the device's turn-around of an index") else {
+            return;
+        };
+        for (n, m, stride) in [
+            (5, 0, 1),
+            (1, 7, 1),
+            (13, 1000, 7),
+            (997, 20_000, 389),
+            (40_000, 300_000, 7919),
+            (9_000_000, 3_000, 104_729),
+        ] {
+            // Every seventh entry the zero row (n), the rest scattered over the rows.
+            let index: Vec<u32> = (0..m)
+                .map(|j| {
+                    if j % 7 == 3 {
+                        n as u32
+                    } else {
+                        ((j * stride) % n) as u32
+                    }
+                })
+                .collect();
+            let (want_starts, want_readers) = crate::gather::readers_of(&index, n);
+            let on_gpu = Tensor::<1, Int>::from_data(
+                TensorData::new(index.iter().map(|&v| v as i64).collect(), [m]),
+                &gpu,
+            );
+            let (starts, readers) = super::turn_around(&on_gpu, n);
+            let (starts, readers) = (ints(starts), ints(readers));
+            assert_eq!(starts.len(), n + 2, "{n} rows");
+            assert_eq!(
+                &starts[..=n],
+                &want_starts[..],
+                "{n} rows, {m} entries: starts"
+            );
+            assert_eq!(starts[n + 1], starts[n], "the zero row has no readers");
+            let listed = want_readers.len();
+            assert_eq!(
+                &readers[..listed],
+                &want_readers[..],
+                "{n} rows, {m} entries: readers"
+            );
+        }
+    }
+
+    /// A gather by a device index: the same values and gradients, to the bit, as by the
+    /// same index made on the host.
+    #[test]
+    fn a_device_index_gathers_and_differentiates_as_a_host_index() {
+        let Some(gpu) = working_wgpu_device("a gather by a device index") else {
+            return;
+        };
+        let gpu = gpu.autodiff();
+        let (n, m, c) = (900, 12_000, 5);
+        let index: Vec<u32> = (0..m)
+            .map(|j| {
+                if j % 5 == 0 {
+                    n as u32
+                } else {
+                    ((j * 613) % n) as u32
+                }
+            })
+            .collect();
+        let values = inputs(n * c);
+        let through = |gather: &RowGather| {
+            let x = Tensor::<2>::from_data(TensorData::new(values.clone(), [n, c]), &gpu)
+                .require_grad();
+            let y = gather.gather(x.clone());
+            let grads = (y.clone() * upstream([m, c], &gpu)).sum().backward();
+            (
+                y.into_data().try_to_vec::<f32>().unwrap(),
+                x.grad(&grads)
+                    .unwrap()
+                    .into_data()
+                    .try_to_vec::<f32>()
+                    .unwrap(),
+            )
+        };
+        let host = RowGather::new(&index, n, &gpu);
+        let device_index = Tensor::<1, Int>::from_data(
+            TensorData::new(index.iter().map(|&v| v as i64).collect(), [m]),
+            &gpu,
+        );
+        let device = RowGather::from_device_index(device_index, n);
+        assert_eq!(through(&device), through(&host));
+    }
 
     /// `len` input values in [−1, 1) from a fixed sequence.
     fn inputs(len: usize) -> Vec<f32> {

@@ -235,26 +235,19 @@ pub enum QueryPlace {
 
 impl QueryPlace {
     /// The host on the CPU; on a CubeCL device, `FUSIONDET_ROI_QUERY` (`host`, `device` or
-    /// `check`) where set, else the device's kernels where the network only infers and the
-    /// host query where it trains.
+    /// `check`) where set, else the device's kernels.
     ///
-    /// Why the host in training: the pooling gathers the features by the query's rows, and
-    /// with the rows on the host the gather's backward pass adds each voxel's readers in one
-    /// GPU thread ([`fusiondet_nn::gather::RowGather`]); over the device's rows it would be
-    /// burn's `select`, whose backward walks every gathered row per column (172 ms for 540,027
-    /// rows of 16 values on an H200, 2026-11-29). The host query costs a training step about
-    /// 0.06 s (published Voxel R-CNN, 16 cores). In inference the kernels took the shipped
-    /// Voxel R-CNN from 35 to 50 frames/s on that H200, with the host query's boxes (111 of
-    /// 111 paired within 0.01 m); `check` there found only grid points at float ties with
-    /// other rows (2 of 22 levels).
+    /// In inference the kernels took the shipped Voxel R-CNN from 35 to 50 frames/s on an
+    /// H200 (2026-11-29), with the host query's boxes (111 of 111 paired within 0.01 m);
+    /// `check` there found only grid points at float ties with other rows (2 of 22 levels).
+    /// In training the pooling's gather is differentiated through the index turned around on
+    /// the device ([`fusiondet_nn::gather::RowGather::from_device_index`]), as the host
+    /// index's is on the host, so no step waits for the host query (about 0.06 s of a
+    /// published Voxel R-CNN step on that machine's 16 cores) and its upload.
     pub fn for_device(device: &Device) -> QueryPlace {
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
         if super::roi_query_device::cube_runtime(device).is_some() {
-            return Self::from_env().unwrap_or(if device.is_autodiff() {
-                QueryPlace::Host
-            } else {
-                QueryPlace::Device
-            });
+            return Self::from_env().unwrap_or(QueryPlace::Device);
         }
         let _ = device;
         QueryPlace::Host
@@ -740,11 +733,13 @@ impl RoiGridPool {
                             let gather = RowGather::new(&rows, level.sentinel as usize, &device);
                             (gather.gather(features), level.offsets_tensor(&device))
                         }
-                        // Made on the device without autodiff: a constant in the graph.
-                        LevelIndex::Device(level) => (
-                            with_zero_row(features).select(0, level.rows.clone()),
-                            level.offsets.clone(),
-                        ),
+                        // Made on the device, and turned around there where the network
+                        // trains (the same readers, in the same order, as a host index's).
+                        LevelIndex::Device(level) => {
+                            let [rows, _] = features.dims();
+                            let gather = RowGather::from_device_index(level.rows.clone(), rows);
+                            (gather.gather(features), level.offsets.clone())
+                        }
                     };
                     let positions = layer.positions.forward(offsets);
                     relu(gathered + positions)

@@ -19,8 +19,8 @@
 //! construction (the `SAFETY` notes below), so the runtime's bound checks are not needed.
 //! On an H200 (2026-11-29) the strided kernels found the host query's rows but at float ties
 //! (one grid point of 6,400 with one neighbour in or out at the radius, on 2 of 22 levels
-//! checked), and the shipped Voxel R-CNN the host query's boxes; they are the GPUs' query in
-//! inference ([`super::roi_pool::QueryPlace`]).
+//! checked), and the shipped Voxel R-CNN the host query's boxes; they are the GPUs' query,
+//! in inference and in training ([`super::roi_pool::QueryPlace`]).
 //!
 //! Precision: the host query works in f64; the kernels in f32, on grid points and cell
 //! centres measured from the grid's origin (so no 40 m offset eats the mantissa). A
@@ -390,7 +390,7 @@ fn run_query(
 
 #[cfg(all(test, feature = "wgpu"))]
 mod tests {
-    use super::super::roi_pool::{LevelIndex, RoiGridIndex, RoiGridPool};
+    use super::super::roi_pool::{LevelIndex, RoiGridIndex, RoiGridPool, compare_levels};
     use super::super::synthetic::unit;
     use super::*;
     use crate::voxel_rcnn::backbone3d::SparseMap;
@@ -486,7 +486,7 @@ mod tests {
             rows: rows.clone(),
             offsets: offsets.clone(),
         };
-        let comparison = super::super::roi_pool::compare_levels(host, &index, level.samples);
+        let comparison = compare_levels(host, &index, level.samples);
         let rows: Vec<i64> = rows.into_data().convert::<i64>().try_to_vec().unwrap();
         let offsets: Vec<f32> = offsets.into_data().convert::<f32>().try_to_vec().unwrap();
         assert_eq!(rows.len(), host.rows.len());
@@ -621,7 +621,8 @@ mod tests {
     }
     /// Through the host's index on a GPU the pooling's gather differentiates by each
     /// voxel's readers (`fusiondet_nn::gather::RowGather`): the pooled features and the
-    /// features' gradient are the CPU's within rounding.
+    /// features' gradient are the CPU's within rounding, and so through the device's index,
+    /// turned around on the device (training's default).
     #[test]
     fn pooling_gradients_through_the_host_index_match_the_cpu() {
         use crate::device_test_support::{assert_close, upstream};
@@ -647,7 +648,7 @@ mod tests {
             &geometry,
         );
         let read = |t: Tensor<2>| t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
-        let run = |device: &Device| {
+        let run = |device: &Device, index: &RoiGridIndex| {
             let pool = pool.clone().fork(device);
             let x = Tensor::<2>::from_data(
                 TensorData::new(feats.clone(), [sites.len(), channels]),
@@ -658,17 +659,34 @@ mod tests {
                 features: x.clone(),
                 sites: sites.clone(),
             };
-            let y = pool.forward(&[&map], &index);
+            let y = pool.forward(&[&map], index);
             let grads = (y.clone() * upstream(y.dims(), device)).sum().backward();
             (read(y), read(x.grad(&grads).unwrap()))
         };
-        let want = run(&cpu);
-        let got = run(&device.autodiff());
+        let want = run(&cpu, &index);
+        let gpu = device.autodiff();
+        let got = run(&gpu, &index);
         assert_close(&got.0, &want.0, 1e-4, "pooled");
         assert_close(&got.1, &want.1, 1e-4, "gradient");
         assert!(
             want.1.iter().any(|&g| g != 0.0),
             "a gradient reaches the features"
         );
+        // Training's default on a GPU: the index made and turned around on the device. Its
+        // rows here are the host's (its offsets, taken in f32 from the grid's origin, differ
+        // in the last bits), so the CPU's pooled features and gradient within rounding.
+        let levels = std::slice::from_ref(&level);
+        let on_device = RoiGridIndex::on_device(&rois, &[&sites], levels, grid, &geometry, &gpu);
+        let LevelIndex::Device(device_level) = &on_device.levels[0] else {
+            panic!("a training device queries on the device");
+        };
+        let host_level = index.levels[0].host().unwrap();
+        assert_eq!(
+            compare_levels(host_level, device_level, level.samples).differing,
+            0
+        );
+        let through_device = run(&gpu, &on_device);
+        assert_close(&through_device.0, &want.0, 1e-4, "pooled, device index");
+        assert_close(&through_device.1, &want.1, 1e-4, "gradient, device index");
     }
 }

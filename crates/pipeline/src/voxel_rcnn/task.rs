@@ -25,7 +25,8 @@ use std::path::Path;
 /// The parts a training step's forward pass is timed in (`metrics.jsonl`,
 /// `step_seconds.forward_parts`), shared by DASANet's. Stage one's part is the network and
 /// its anchor loss; the proposals read its predictions back (on a GPU, waiting for it);
-/// RoI sampling and the RoI query are host work; the loss part reads every term back.
+/// RoI sampling is host work, and so is the RoI query on the CPU (on a GPU its kernels are
+/// queued); the loss part reads every term back.
 pub(crate) const PART_STAGE_ONE: &str = "stage_one";
 pub(crate) const PART_PROPOSALS: &str = "proposals";
 pub(crate) const PART_ROI_SAMPLING: &str = "roi_sampling";
