@@ -115,6 +115,7 @@ mod kernels {
         counts: &mut Tensor<i32>,
         chunk_len: u32,
         chunks: u32,
+        zero_row: u32,
     ) {
         let k = ABSOLUTE_POS;
         if k >= chunks as usize {
@@ -126,9 +127,17 @@ mod kernels {
             end = index.shape(0);
         }
         for m in first..end {
-            let key = usize::cast_from(index[m * index.stride(0)]);
+            let key = row_of(index, m, zero_row) as usize;
             counts[key * chunks as usize + k] += 1;
         }
+    }
+
+    /// Entry m's source row, anything outside 0..=N read as the zero row N (an index made on
+    /// the device is not checked on the host; this keeps every count and slot in bounds).
+    #[cube]
+    fn row_of(index: &Tensor<i32>, m: usize, zero_row: u32) -> u32 {
+        let key = u32::cast_from(index[m * index.stride(0)]);
+        select(key > zero_row, zero_row, key)
     }
 
     /// One block a thread: `sums[block]`, the sum of the block's values.
@@ -222,7 +231,7 @@ mod kernels {
             end = index.shape(0);
         }
         for m in first..end {
-            let key = u32::cast_from(index[m * index.stride(0)]);
+            let key = row_of(index, m, zero_row);
             let at = key as usize * chunks as usize + k;
             let slot = offsets[at];
             offsets[at] = slot + 1;
@@ -332,7 +341,7 @@ fn turn_around_on_device(index: CubeTensor, source_rows: usize) -> (CubeTensor, 
     if m > 0 {
         let (count, dim) = launch_shape(&client, chunks);
         // SAFETY: threads past the last chunk return first; a chunk's entries are clipped to
-        // M; every entry is a row in 0..=N (the caller's index), so key · C + k < (N + 1) · C.
+        // M; every key is clamped to 0..=N, so key · C + k < (N + 1) · C.
         unsafe {
             kernels::chunk_counts::launch_unchecked(
                 &client,
@@ -342,6 +351,7 @@ fn turn_around_on_device(index: CubeTensor, source_rows: usize) -> (CubeTensor, 
                 counts.clone().into_tensor_arg(),
                 chunk_len as u32,
                 chunks as u32,
+                source_rows as u32,
             );
         }
     }
@@ -593,6 +603,11 @@ mod tests {
                 "{n} rows, {m} entries: readers"
             );
         }
+        // Entries outside 0..=N (no query writes them) are read as the zero row, in bounds.
+        let wild = Tensor::<1, Int>::from_data(TensorData::new(vec![2i64, -1, 0, 9, 2], [5]), &gpu);
+        let (starts, readers) = super::turn_around(&wild, 3);
+        assert_eq!(ints(starts), vec![0, 1, 1, 3, 3]);
+        assert_eq!(&ints(readers)[..3], &[2, 0, 4]);
     }
 
     /// A gather by a device index: the same values and gradients, to the bit, as by the
