@@ -71,6 +71,7 @@ pub fn step<const D: usize>(
 }
 
 mod kernels {
+    use crate::cube::block_range;
     use cubecl::prelude::*;
 
     /// Where logical value `index` (row-major over `t`'s shape) lies in `t`: the index
@@ -105,11 +106,7 @@ mod kernels {
         if block >= partial.shape(0) {
             terminate!();
         }
-        let first = block * block_len as usize;
-        let mut end = first + block_len as usize;
-        if end > len as usize {
-            end = len as usize;
-        }
+        let (first, end) = block_range(block, block_len, len as usize);
         let mut sum = 0f32;
         for i in first..end {
             let g = grad[offset(grad, i, packed)];

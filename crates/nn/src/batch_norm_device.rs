@@ -46,6 +46,7 @@ use burn_cubecl::CubeBackend;
 use burn_cubecl::tensor::CubeTensor;
 
 mod kernels {
+    use crate::cube::block_range;
     use cubecl::prelude::*;
     use cubecl::std::FastDivmod;
 
@@ -133,11 +134,7 @@ mod kernels {
             terminate!();
         }
         let (block, c) = (unit / channels, unit % channels);
-        let first = block * block_len as usize;
-        let mut end = first + block_len as usize;
-        if end > samples as usize {
-            end = samples as usize;
-        }
+        let (first, end) = block_range(block, block_len, samples as usize);
         let (mut b, mut s) = (first / spatial, first % spatial);
         let mut sum = 0f32;
         for _ in first..end {
@@ -214,11 +211,7 @@ mod kernels {
         let mut m = 0f32;
         let mut squares = 0f32;
         for block in 0..blocks {
-            let first = block * block_len as usize;
-            let mut end = first + block_len as usize;
-            if end > samples as usize {
-                end = samples as usize;
-            }
+            let (first, end) = block_range(block, block_len, samples as usize);
             // An empty batch has one block of no samples, whose moments were not written.
             if end > first {
                 let n_b = f32::cast_from(end - first);
@@ -316,11 +309,7 @@ mod kernels {
             terminate!();
         }
         let (block, c) = (unit / channels, unit % channels);
-        let first = block * block_len as usize;
-        let mut end = first + block_len as usize;
-        if end > samples as usize {
-            end = samples as usize;
-        }
+        let (first, end) = block_range(block, block_len, samples as usize);
         let m = mean[c];
         let (scale, beta) = (coefficients[c], coefficients[channels + c]);
         let inv_std = coefficients[2 * channels + c];

@@ -43,6 +43,25 @@ pub fn f32_buffer(like: &CubeTensor, len: usize) -> CubeTensor {
     )
 }
 
+pub use kernel_helpers::block_range;
+
+/// What kernels of several modules call (CubeCL's prelude names `Tensor` apart from burn's).
+mod kernel_helpers {
+    use cubecl::prelude::*;
+
+    /// In a kernel: block `block`'s range [first, end) of `len` values cut `block_len` at a
+    /// time (the last block shorter), the blocked reductions' and scans' unit of serial work.
+    #[cube]
+    pub fn block_range(block: usize, block_len: u32, len: usize) -> (usize, usize) {
+        let first = block * block_len as usize;
+        let mut end = first + block_len as usize;
+        if end > len {
+            end = len;
+        }
+        (first, end)
+    }
+}
+
 /// A one-dimensional launch over `units` threads.
 pub fn launch_shape(client: &cubecl::client::Client, units: usize) -> (CubeCount, CubeDim) {
     let dim = CubeDim::new(client, units);

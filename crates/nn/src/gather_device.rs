@@ -105,6 +105,7 @@ fn dispatch(
 }
 
 mod kernels {
+    use crate::cube::block_range;
     use cubecl::prelude::*;
 
     /// One chunk of the index a thread: `counts[key · chunks + k]`, how many of chunk k's
@@ -121,11 +122,7 @@ mod kernels {
         if k >= chunks as usize {
             terminate!();
         }
-        let first = k * chunk_len as usize;
-        let mut end = first + chunk_len as usize;
-        if end > index.shape(0) {
-            end = index.shape(0);
-        }
+        let (first, end) = block_range(k, chunk_len, index.shape(0));
         for m in first..end {
             let key = row_of(index, m, zero_row) as usize;
             counts[key * chunks as usize + k] += 1;
@@ -147,11 +144,7 @@ mod kernels {
         if block >= sums.shape(0) {
             terminate!();
         }
-        let first = block * block_len as usize;
-        let mut end = first + block_len as usize;
-        if end > values.shape(0) {
-            end = values.shape(0);
-        }
+        let (first, end) = block_range(block, block_len, values.shape(0));
         let mut sum = 0i32;
         for i in first..end {
             sum += values[i];
@@ -181,11 +174,7 @@ mod kernels {
         if block >= offsets.shape(0) {
             terminate!();
         }
-        let first = block * block_len as usize;
-        let mut end = first + block_len as usize;
-        if end > values.shape(0) {
-            end = values.shape(0);
-        }
+        let (first, end) = block_range(block, block_len, values.shape(0));
         let mut running = offsets[block];
         for i in first..end {
             let v = values[i];
@@ -225,11 +214,7 @@ mod kernels {
         if k >= chunks as usize {
             terminate!();
         }
-        let first = k * chunk_len as usize;
-        let mut end = first + chunk_len as usize;
-        if end > index.shape(0) {
-            end = index.shape(0);
-        }
+        let (first, end) = block_range(k, chunk_len, index.shape(0));
         for m in first..end {
             let key = row_of(index, m, zero_row);
             let at = key as usize * chunks as usize + k;

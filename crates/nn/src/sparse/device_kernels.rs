@@ -73,6 +73,7 @@ pub fn sparse_conv(
 /// The kernels, in CubeCL's language (its prelude names `Tensor` and friends apart from
 /// burn's).
 mod kernels {
+    use crate::cube::block_range;
     use cubecl::prelude::*;
 
     /// Whether `row` names one of `rows` rows (a kernel map's "none" is anything else).
@@ -171,11 +172,7 @@ mod kernels {
             weight % (c_in as usize * c_out as usize),
         );
         let (i, c) = (rest / c_out as usize, rest % c_out as usize);
-        let first = block * block_rows as usize;
-        let mut end = first + block_rows as usize;
-        if end > output_rows as usize {
-            end = output_rows as usize;
-        }
+        let (first, end) = block_range(block, block_rows, output_rows as usize);
         let mut sum = 0f32;
         for o in first..end {
             let n = table[(o * volume as usize + k) * table.stride(0)];
