@@ -21,19 +21,16 @@ pub struct AdamStep {
     pub decoupled: bool,
     /// Adam: the penalty added to the gradient (`p · penalty + g`).
     pub penalty: f32,
-    /// Adam: the update is `m · combined / (√v + epsilon_term)`.
-    pub combined: f32,
-    pub epsilon_term: f32,
-    /// AdamW: the update is `(m / correction_1) / (√(v / correction_2) + epsilon)`.
-    pub correction_1: f32,
+    /// The update: Adam's `m · scale / (√v + shift)`, scale = √(1 − β₂ᵗ)/(1 − β₁ᵗ) and shift
+    /// = ε·√(1 − β₂ᵗ) (burn's combined factor and ε term); AdamW's `(m / scale) / (√(v /
+    /// correction_2) + shift)`, scale = 1 − β₁ᵗ, correction_2 = 1 − β₂ᵗ and shift = ε.
+    pub scale: f32,
+    pub shift: f32,
     pub correction_2: f32,
-    pub epsilon: f32,
     /// AdamW: the parameter is first multiplied by `keep` (1 − lr · decay), where decaying.
     pub keep: Option<f32>,
     /// The gradient's largest L2 norm (burn's per-parameter `GradientClipping::Norm`).
     pub clip_norm: Option<f32>,
-    /// Whether the parameter has no moments yet (its first step: they are zero).
-    pub first: bool,
 }
 
 /// An optimizer's settings, as burn's `AdamConfig` and `AdamWConfig` hold them.
@@ -53,7 +50,17 @@ impl AdamStep {
     /// `β.powi(t)` in f32, the AdamW decay rate `lr · decay` in f64.
     pub fn new(settings: &AdamSettings, lr: f64, time: usize) -> AdamStep {
         let t = time as i32;
-        let bias_correction2_sqrt = (1.0 - settings.beta_2.powi(t)).sqrt();
+        let correction_1 = 1f32 - settings.beta_1.powi(t);
+        let correction_2 = 1f32 - settings.beta_2.powi(t);
+        let (scale, shift) = if settings.decoupled {
+            (correction_1, settings.epsilon)
+        } else {
+            let bias_correction2_sqrt = (1.0 - settings.beta_2.powi(t)).sqrt();
+            (
+                bias_correction2_sqrt / (1.0 - settings.beta_1.powi(t)),
+                settings.epsilon * bias_correction2_sqrt,
+            )
+        };
         let decay_rate = lr * settings.weight_decay as f64;
         AdamStep {
             lr: lr as f32,
@@ -63,14 +70,11 @@ impl AdamStep {
             factor_2: 1.0 - settings.beta_2,
             decoupled: settings.decoupled,
             penalty: settings.weight_decay,
-            combined: bias_correction2_sqrt / (1.0 - settings.beta_1.powi(t)),
-            epsilon_term: settings.epsilon * bias_correction2_sqrt,
-            correction_1: 1f32 - settings.beta_1.powi(t),
-            correction_2: 1f32 - settings.beta_2.powi(t),
-            epsilon: settings.epsilon,
+            scale,
+            shift,
+            correction_2,
             keep: (decay_rate != 0.0).then_some((1.0 - decay_rate) as f32),
             clip_norm: settings.clip_norm,
-            first: time <= 1,
         }
     }
 }
@@ -83,7 +87,7 @@ pub fn fuses<const D: usize>(param: &Tensor<D>) -> bool {
 
 /// One step of `param` by `grad` on a CubeCL device, fused ([`crate::adam_device`]): the
 /// (parameter, first moment, second moment) after it. `moments` are `None` on a parameter's
-/// first step (`step.first` is taken from it). `None` where the fused kernels do not apply
+/// first step (then zero, and not read). `None` where the fused kernels do not apply
 /// (the CPU, a build without GPU backends, or custom operations turned off:
 /// [`crate::ragged::custom_device_path`]); the caller then takes burn's optimizer.
 pub fn fused_step<const D: usize>(

@@ -20,7 +20,7 @@
 //! [`crate::batch_norm_device`].
 
 use crate::adam::AdamStep;
-use crate::cube::{f32_buffer as buffer, float_rows, launch_shape};
+use crate::cube::{f32_buffer as buffer, float_rows, launch_shape, root_blocks};
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Dispatch, backend_extension};
@@ -32,13 +32,15 @@ use burn_cubecl::tensor::CubeTensor;
 #[backend_extension(Cube)]
 pub trait AdamStepOps: Backend {
     /// (parameter, first moment, second moment) after one step of `param` by `grad`, from
-    /// the moments `moment_1`, `moment_2` (read only unless `step.first`), all one shape.
+    /// the moments `moment_1`, `moment_2` (zero, and not read, on the `first` step), all
+    /// one shape.
     fn adam_step(
         param: FloatTensor<Self>,
         grad: FloatTensor<Self>,
         moment_1: FloatTensor<Self>,
         moment_2: FloatTensor<Self>,
         step: AdamStep,
+        first: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 }
 
@@ -50,10 +52,7 @@ pub fn step<const D: usize>(
     moments: Option<(Tensor<D>, Tensor<D>)>,
     step: AdamStep,
 ) -> (Tensor<D>, Tensor<D>, Tensor<D>) {
-    let step = AdamStep {
-        first: moments.is_none(),
-        ..step
-    };
+    let first = moments.is_none();
     // On the first step the moments are not read: the gradient stands in for them.
     let (moment_1, moment_2) = moments.unwrap_or_else(|| (grad.clone(), grad.clone()));
     let (param, moment_1, moment_2) = <Dispatch as AdamStepOps>::adam_step(
@@ -62,6 +61,7 @@ pub fn step<const D: usize>(
         moment_1.into_dispatch(),
         moment_2.into_dispatch(),
         step,
+        first,
     );
     (
         Tensor::from_dispatch(param),
@@ -139,9 +139,9 @@ mod kernels {
     }
 
     /// One value a thread: burn's Adam (`decoupled` false: L2 `penalty`, bias corrections
-    /// folded into `scale` and `shift`, `AdamStep::combined` and `epsilon_term`) or AdamW
-    /// (`decoupled` true: `scale` and `shift` are `correction_1` and `epsilon`, the decay
-    /// multiplies by `keep`) on the gradient times `coefficient[0]` where `clipped`.
+    /// folded into `scale` and `shift`) or AdamW (`decoupled` true, the decay multiplying by
+    /// `keep`), as `crate::adam::AdamStep` says, on the gradient times `coefficient[0]`
+    /// where `clipped`.
     #[cube(launch_unchecked)]
     #[allow(clippy::too_many_arguments)]
     pub fn adam_update(
@@ -232,8 +232,9 @@ impl AdamStepOps for CubeBackend {
         moment_1: CubeTensor,
         moment_2: CubeTensor,
         step: AdamStep,
+        first: bool,
     ) -> (CubeTensor, CubeTensor, CubeTensor) {
-        step_on_device(param, grad, moment_1, moment_2, &step)
+        step_on_device(param, grad, moment_1, moment_2, &step, first)
     }
 }
 
@@ -243,6 +244,7 @@ fn step_on_device(
     moment_1: CubeTensor,
     moment_2: CubeTensor,
     step: &AdamStep,
+    first: bool,
 ) -> (CubeTensor, CubeTensor, CubeTensor) {
     let shape = param.meta.shape().clone();
     let len = shape.num_elements();
@@ -263,11 +265,6 @@ fn step_on_device(
         }
         _ => None,
     };
-    let (scale, shift) = if step.decoupled {
-        (step.correction_1, step.epsilon)
-    } else {
-        (step.combined, step.epsilon_term)
-    };
     let outputs = [
         buffer(&param, len),
         buffer(&param, len),
@@ -275,7 +272,7 @@ fn step_on_device(
     ];
     if len > 0 {
         let flags = kernels::AdamFlags {
-            first: step.first,
+            first,
             clipped: step.clip_norm.is_some(),
             decoupled: step.decoupled,
             decay: step.keep.is_some(),
@@ -308,8 +305,8 @@ fn step_on_device(
                 step.factor_1,
                 step.factor_2,
                 step.penalty,
-                scale,
-                shift,
+                step.scale,
+                step.shift,
                 step.correction_2,
                 step.keep.unwrap_or(1.0),
                 step.clip_norm.unwrap_or(f32::INFINITY),
@@ -329,8 +326,7 @@ const INLINE_NORM_VALUES: usize = 256;
 /// squares in blocks of about √N values, then the blocks in order.
 fn clip_coefficient(grad: &CubeTensor, len: usize, max_norm: f32, packed: bool) -> CubeTensor {
     let client = grad.client.clone();
-    let block_len = ((len as f64).sqrt().ceil() as usize).max(1);
-    let blocks = len.div_ceil(block_len);
+    let (blocks, block_len) = root_blocks(len);
     let partial = buffer(grad, blocks);
     let (count, dim) = launch_shape(&client, blocks);
     // SAFETY: threads past the last block return first; a block's values are clipped to

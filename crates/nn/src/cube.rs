@@ -62,6 +62,14 @@ mod kernel_helpers {
     }
 }
 
+/// How `len` values (at least one) split into blocks of about √len for a two-pass reduction
+/// or scan: (blocks, values a block), so that neither a block's thread nor the pass over the
+/// blocks walks more than about √len values.
+pub fn root_blocks(len: usize) -> (usize, usize) {
+    let block_len = ((len as f64).sqrt().ceil() as usize).max(1);
+    (len.div_ceil(block_len), block_len)
+}
+
 /// A one-dimensional launch over `units` threads.
 pub fn launch_shape(client: &cubecl::client::Client, units: usize) -> (CubeCount, CubeDim) {
     let dim = CubeDim::new(client, units);

@@ -4,7 +4,7 @@
 //! Inputs are indexed by their strides and the gradient written one-dimensional, as the
 //! sparse convolution's kernels do (`sparse::device_kernels`: CUDA pads 2-D rows).
 
-use crate::cube::{f32_buffer, float_rows, int_rows, launch_shape};
+use crate::cube::{f32_buffer, float_rows, int_rows, launch_shape, root_blocks};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
@@ -383,8 +383,7 @@ fn exclusive_scan(values: &CubeTensor) {
     if len == 0 {
         return;
     }
-    let block_len = ((len as f64).sqrt().ceil() as usize).max(1);
-    let blocks = len.div_ceil(block_len);
+    let (blocks, block_len) = root_blocks(len);
     let client = values.client.clone();
     let sums = empty_device_dtype(
         client.clone(),
