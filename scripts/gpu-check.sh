@@ -97,6 +97,10 @@
 #              device, through the project's kernels and through burn's generic operations
 #              (FUSIONDET_CUSTOM_OPS=off), ms each and their γ/β gradients against the CPU's
 #              (printed by `bench`)
+#   layer      training's widest point-wise layer (that position layer, 3 → 32 over the
+#              same rows) forward and backward on the device, its weight gradient summed in
+#              chunks of rows and as burn's one product (FUSIONDET_CUSTOM_OPS=off), ms each
+#              and their weight gradients against the CPU's (printed by `bench`)
 #   product    the largest relative error of one 512×512 f32 matrix product on each device
 #              (printed by `bench`): about 1e-7 where products run in f32, about 1e-4 where
 #              tensor cores round their inputs to TF32.
@@ -305,6 +309,8 @@ for m in $models; do
         record "repeated-row additions (every gather's backward) on $device, largest relative difference from the cpu: $(grep -o 'repeated-row additions.*: [0-9.e+-]*$' "$det/bench-dev.log" | grep -o '[0-9.e+-]*$' || echo '?') (about 1e-7 where right; 1e0 on lavapipe), $(grep -o 'into 20001, [0-9.]* ms' "$det/bench-dev.log" | grep -o '[0-9.]* ms' || echo '?') a run"
         norm="$(grep -o 'training batch norm + ReLU on this device.*' "$det/bench-dev.log" | head -1 || true)"
         record "${norm:-training batch norm probe: not printed by the $device bench}"
+        layer="$(grep -o 'training point-wise layer on this device.*' "$det/bench-dev.log" | head -1 || true)"
+        record "${layer:-training point-wise layer probe: not printed by the $device bench}"
         precision_recorded=1
     fi
 done

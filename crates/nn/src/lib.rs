@@ -24,6 +24,7 @@ pub mod gather;
 pub mod gather_device;
 pub mod host_max;
 pub mod linear;
+pub mod linear_chunked;
 pub mod matmul;
 pub mod mlp;
 pub mod norm;

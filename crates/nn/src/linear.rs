@@ -17,7 +17,7 @@
 //! [`crate::ragged::set_custom_ops`] turns it off with the other custom operations.
 
 use crate::matmul::{MatrixRef, product};
-use crate::ragged::{custom_path, dims2, flex_tensor, values};
+use crate::ragged::{custom_device_path, custom_path, dims2, flex_tensor, values};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
@@ -44,8 +44,14 @@ pub trait LinearRowOps: Backend {
 }
 
 /// `layer.forward(x)` on [rows, in]; in training on the flex device through the custom
-/// operation (see the module's documentation).
+/// operation (see the module's documentation), in training on a GPU with the weight gradient
+/// summed over chunks of rows ([`crate::linear_chunked`]).
 pub fn linear(layer: &Linear, x: Tensor<2>) -> Tensor<2> {
+    // Training is told by the weights: an input may be a constant made off the autodiff
+    // graph (RoI pooling's offsets from the device query).
+    if layer.weight.device().is_autodiff() && custom_device_path(&x) {
+        return crate::linear_chunked::device_linear(layer, x);
+    }
     if !(custom_path(&x) && x.device().is_autodiff()) {
         return layer.forward(x);
     }

@@ -15,6 +15,7 @@ pub mod error;
 pub mod frustum;
 pub mod grad_clip;
 pub mod kernel_cache;
+pub mod linear_probe;
 pub mod matmul_precision;
 pub mod metrics_log;
 pub mod optimizer;

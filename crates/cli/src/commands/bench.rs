@@ -92,6 +92,23 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             channels = fusiondet_pipeline::batch_norm_probe::PROBE_CHANNELS,
         );
     }
+    // What a training step's widest point-wise layer costs here, its weight gradient summed
+    // in chunks of rows and as one product (GPUs only).
+    if let Some(layer) = fusiondet_pipeline::linear_probe::linear_timing(&device.device()) {
+        outln!(
+            "  training point-wise layer on this device ({rows} rows, {d_in} → {d_out}, forward \
+             and backward): weight gradient in chunks {:.1} ms, as one product {:.1} ms; weight \
+             gradient's largest difference from the CPU's, relative to its largest value: \
+             chunks {:.1e}, one product {:.1e}",
+            layer.chunked * 1e3,
+            layer.single * 1e3,
+            layer.chunked_error,
+            layer.single_error,
+            rows = fusiondet_pipeline::batch_norm_probe::PROBE_ROWS,
+            d_in = fusiondet_pipeline::linear_probe::PROBE_IN,
+            d_out = fusiondet_pipeline::linear_probe::PROBE_OUT,
+        );
+    }
     if kind != fusiondet_models::DetectorKind::Frustum {
         // Whether training on this device gets the sparse backbone's gradients right.
         let (layout, error) =
