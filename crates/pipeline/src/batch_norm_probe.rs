@@ -10,64 +10,24 @@
 //! points × 16 neighbours) of [`PROBE_CHANNELS`] channels, forward and backward, so `bench`
 //! on a GPU says what that costs each way.
 
+use crate::custom_op_probe::{PathTiming, time_both_paths};
 use crate::matmul_precision::probe_values;
-use crate::sparse_gradient_probe::relative_difference;
 use burn::prelude::*;
-use fusiondet_nn::ragged::{custom_device_path, set_custom_ops};
 use fusiondet_nn::{NormConfig, batch_norm, norm_rows_relu};
-use std::time::Instant;
 
 /// Rows of the probe: RoI grid pooling's neighbours in a published Voxel R-CNN step.
 pub const PROBE_ROWS: usize = 256 * 216 * 16;
 /// Channels of the probe (that layer's width).
 pub const PROBE_CHANNELS: usize = 32;
 
-/// The probe's figures on one device.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BatchNormTiming {
-    /// Seconds for forward and backward through the kernels (after a warm-up run).
-    pub kernels: f64,
-    /// The same through burn's generic operations.
-    pub generic: f64,
-    /// The kernels' γ and β gradients: largest difference from the CPU's, relative to the
-    /// CPU's largest value.
-    pub kernels_error: f64,
-    /// The same for burn's generic operations.
-    pub generic_error: f64,
-}
-
-/// The probe on `device`, or `None` where the kernels do not apply (the CPU, or custom
-/// operations turned off). It switches the custom operations off for its generic runs and
-/// back on after.
-pub fn batch_norm_timing(device: &Device) -> Option<BatchNormTiming> {
-    let device = device.clone().autodiff();
-    if !custom_device_path(&Tensor::<1>::zeros([1], &device)) {
-        return None;
-    }
-    let x = Tensor::<2>::from_data(
-        TensorData::new(
-            probe_values(PROBE_ROWS * PROBE_CHANNELS, 5),
-            [PROBE_ROWS, PROBE_CHANNELS],
-        ),
-        &device,
+/// The probe on `device` (`custom`: the kernels), or `None` where the kernels do not apply
+/// (the CPU, or custom operations turned off).
+pub fn batch_norm_timing(device: &Device) -> Option<PathTiming> {
+    let input = TensorData::new(
+        probe_values(PROBE_ROWS * PROBE_CHANNELS, 5),
+        [PROBE_ROWS, PROBE_CHANNELS],
     );
-    let timed = |x: &Tensor<2>| {
-        run(x);
-        let started = Instant::now();
-        let gradients = run(x);
-        (started.elapsed().as_secs_f64(), gradients)
-    };
-    let (kernels, with_kernels) = timed(&x);
-    set_custom_ops(false);
-    let (generic, with_burn) = timed(&x);
-    set_custom_ops(true);
-    let cpu = run(&x.to_device(&Device::flex().autodiff()));
-    Some(BatchNormTiming {
-        kernels,
-        generic,
-        kernels_error: relative_difference(&with_kernels, &cpu),
-        generic_error: relative_difference(&with_burn, &cpu),
-    })
+    time_both_paths(device, input, run)
 }
 
 /// One training pass of a fresh norm + ReLU over `x` with a fixed upstream gradient:
@@ -111,7 +71,7 @@ mod tests {
         };
         let timing = batch_norm_timing(&device).expect("the kernels apply on wgpu");
         eprintln!("{timing:?}");
-        assert!(timing.kernels > 0.0 && timing.generic > 0.0);
-        assert!(timing.kernels_error < 1e-3, "{timing:?}");
+        assert!(timing.custom > 0.0 && timing.generic > 0.0);
+        assert!(timing.custom_error < 1e-3, "{timing:?}");
     }
 }

@@ -7,6 +7,7 @@ pub mod batch_norm_probe;
 pub mod bench;
 pub mod compute_pool;
 pub mod config;
+pub mod custom_op_probe;
 pub mod dasanet;
 pub mod detect;
 pub mod detection;

@@ -9,65 +9,26 @@
 //! `bench` on a GPU says what each way costs there.
 
 use crate::batch_norm_probe::PROBE_ROWS;
+use crate::custom_op_probe::{PathTiming, time_both_paths};
 use crate::matmul_precision::probe_values;
-use crate::sparse_gradient_probe::relative_difference;
 use burn::module::Param;
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use fusiondet_nn::ragged::{custom_device_path, set_custom_ops};
-use std::time::Instant;
 
 /// Input channels of the probe (a grid point's offset to a neighbour).
 pub const PROBE_IN: usize = 3;
 /// Output channels of the probe (that layer's width).
 pub const PROBE_OUT: usize = 32;
 
-/// The probe's figures on one device.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LinearTiming {
-    /// Seconds for forward and backward with the chunked weight gradient (after a warm-up).
-    pub chunked: f64,
-    /// The same through burn's `Linear`, one product.
-    pub single: f64,
-    /// The chunked path's weight gradient: largest difference from the CPU's, relative to
-    /// the CPU's largest value.
-    pub chunked_error: f64,
-    /// The same for burn's one product.
-    pub single_error: f64,
-}
-
-/// The probe on `device`, or `None` where the chunked form does not apply (the CPU, or custom
-/// operations turned off). It switches the custom operations off for its single-product runs
-/// and back on after.
-pub fn linear_timing(device: &Device) -> Option<LinearTiming> {
-    let device = device.clone().autodiff();
-    if !custom_device_path(&Tensor::<1>::zeros([1], &device)) {
-        return None;
-    }
-    let x = Tensor::<2>::from_data(
-        TensorData::new(
-            probe_values(PROBE_ROWS * PROBE_IN, 7),
-            [PROBE_ROWS, PROBE_IN],
-        ),
-        &device,
+/// The probe on `device` (`custom`: the weight gradient in chunks; `generic`: burn's one
+/// product), or `None` where the chunked form does not apply (the CPU, or custom operations
+/// turned off).
+pub fn linear_timing(device: &Device) -> Option<PathTiming> {
+    let input = TensorData::new(
+        probe_values(PROBE_ROWS * PROBE_IN, 7),
+        [PROBE_ROWS, PROBE_IN],
     );
-    let timed = |x: &Tensor<2>| {
-        run(x);
-        let started = Instant::now();
-        let gradient = run(x);
-        (started.elapsed().as_secs_f64(), gradient)
-    };
-    let (chunked, with_chunks) = timed(&x);
-    set_custom_ops(false);
-    let (single, with_one_product) = timed(&x);
-    set_custom_ops(true);
-    let cpu = run(&x.to_device(&Device::flex().autodiff()));
-    Some(LinearTiming {
-        chunked,
-        single,
-        chunked_error: relative_difference(&with_chunks, &cpu),
-        single_error: relative_difference(&with_one_product, &cpu),
-    })
+    time_both_paths(device, input, run)
 }
 
 /// One training pass of the probe's layer over `x` with a fixed upstream gradient: the
@@ -121,7 +82,7 @@ mod tests {
         };
         let timing = linear_timing(&device).expect("the chunked form applies on wgpu");
         eprintln!("{timing:?}");
-        assert!(timing.chunked > 0.0 && timing.single > 0.0);
-        assert!(timing.chunked_error < 1e-3, "{timing:?}");
+        assert!(timing.custom > 0.0 && timing.generic > 0.0);
+        assert!(timing.custom_error < 1e-3, "{timing:?}");
     }
 }

@@ -78,35 +78,40 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     );
     // What a training step's largest batch norm costs here, through the kernels and burn's
     // generic operations (GPUs only).
-    if let Some(norm) = fusiondet_pipeline::batch_norm_probe::batch_norm_timing(&device.device()) {
-        outln!(
-            "  training batch norm + ReLU on this device ({rows} rows × {channels}, forward and \
-             backward): kernels {:.1} ms, burn's generic operations {:.1} ms; γ and β gradients' \
-             largest difference from the CPU's, relative to its largest value: kernels {:.1e}, \
-             burn's {:.1e}",
-            norm.kernels * 1e3,
-            norm.generic * 1e3,
-            norm.kernels_error,
-            norm.generic_error,
-            rows = fusiondet_pipeline::batch_norm_probe::PROBE_ROWS,
-            channels = fusiondet_pipeline::batch_norm_probe::PROBE_CHANNELS,
+    use fusiondet_pipeline::{batch_norm_probe as norm, linear_probe as layer};
+    if let Some(timing) = norm::batch_norm_timing(&device.device()) {
+        print_paths(
+            "training batch norm + ReLU",
+            &format!("{} rows × {}", norm::PROBE_ROWS, norm::PROBE_CHANNELS),
+            [
+                "kernels",
+                "burn's generic operations",
+                "γ and β gradients'",
+                "kernels",
+                "burn's",
+            ],
+            &timing,
         );
     }
     // What a training step's widest point-wise layer costs here, its weight gradient summed
     // in chunks of rows and as one product (GPUs only).
-    if let Some(layer) = fusiondet_pipeline::linear_probe::linear_timing(&device.device()) {
-        outln!(
-            "  training point-wise layer on this device ({rows} rows, {d_in} → {d_out}, forward \
-             and backward): weight gradient in chunks {:.1} ms, as one product {:.1} ms; weight \
-             gradient's largest difference from the CPU's, relative to its largest value: \
-             chunks {:.1e}, one product {:.1e}",
-            layer.chunked * 1e3,
-            layer.single * 1e3,
-            layer.chunked_error,
-            layer.single_error,
-            rows = fusiondet_pipeline::batch_norm_probe::PROBE_ROWS,
-            d_in = fusiondet_pipeline::linear_probe::PROBE_IN,
-            d_out = fusiondet_pipeline::linear_probe::PROBE_OUT,
+    if let Some(timing) = layer::linear_timing(&device.device()) {
+        print_paths(
+            "training point-wise layer",
+            &format!(
+                "{} rows, {} → {}",
+                norm::PROBE_ROWS,
+                layer::PROBE_IN,
+                layer::PROBE_OUT
+            ),
+            [
+                "weight gradient in chunks",
+                "as one product",
+                "weight gradient's",
+                "chunks",
+                "one product",
+            ],
+            &timing,
         );
     }
     if kind != fusiondet_models::DetectorKind::Frustum {
@@ -125,4 +130,23 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// One line of a GPU probe timed both ways (`custom_op_probe`): `names` are the custom path's
+/// and the generic path's names, the gradient compared, and the two paths' short names.
+fn print_paths(
+    what: &str,
+    shape: &str,
+    [custom, generic, gradient, custom_short, generic_short]: [&str; 5],
+    timing: &fusiondet_pipeline::custom_op_probe::PathTiming,
+) {
+    outln!(
+        "  {what} on this device ({shape}, forward and backward): {custom} {:.1} ms, {generic} \
+         {:.1} ms; {gradient} largest difference from the CPU's, relative to its largest value: \
+         {custom_short} {:.1e}, {generic_short} {:.1e}",
+        timing.custom * 1e3,
+        timing.generic * 1e3,
+        timing.custom_error,
+        timing.generic_error,
+    );
 }
