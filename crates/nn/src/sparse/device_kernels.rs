@@ -14,8 +14,10 @@
 //! - input gradient: one thread an input value, `dx[n, i] = Σ_k Σ_c dy[inverse[n, k], c] ·
 //!   W[k, i, c]`, through the inverse map (which output reads input n at offset k), so no
 //!   two threads write one value: no atomics;
-//! - weight gradient: one thread a weight and a block of output rows, `Σ_o x[table[o, k], i]
-//!   · dy[o, c]`, the blocks' partial sums then added by burn's `sum_dim`.
+//! - weight gradient: one thread a 4 × 4 tile of weights (four inputs by four outputs at one
+//!   offset) and a block of output rows, `Σ_o x[table[o, k], i] · dy[o, c]` for the tile's
+//!   16 weights from four input and four gradient values a row, the blocks' partial sums
+//!   then added by burn's `sum_dim`.
 //!
 //! Every sum runs in a fixed order, so a layer's outputs and gradients are the same bits in
 //! every run on one device. They are not the CPU's bits (another order of the same sums):
@@ -145,8 +147,12 @@ mod kernels {
         dx[unit] = sum;
     }
 
-    /// One weight and one block of output rows a thread: `partial[b · weights + (k · C_in
-    /// + i) · C_out + c]`, the block's share of that weight's gradient.
+    /// A tile of `tile` × `tile` weights (inputs i₀.., outputs c₀.. at one offset k) and one
+    /// block of output rows a thread: `partial[b · weights + (k · C_in + i) · C_out + c]`,
+    /// the block's share of each of those weights' gradients. Each present row's table
+    /// entry, `tile` input values and `tile` gradient values are read once for `tile`²
+    /// products (one weight a thread read all three for one). Each weight's sum still runs
+    /// over the block's rows in order.
     #[cube(launch_unchecked)]
     #[allow(clippy::too_many_arguments)]
     pub fn weight_gradient(
@@ -160,35 +166,84 @@ mod kernels {
         c_in: u32,
         c_out: u32,
         block_rows: u32,
+        #[comptime] tile: u32,
     ) {
         let unit = ABSOLUTE_POS;
-        if unit >= partial.shape(0) {
+        let (tiles_in, tiles_out) = (c_in.div_ceil(tile) as usize, c_out.div_ceil(tile) as usize);
+        let tiles = volume as usize * tiles_in * tiles_out;
+        let weights = volume as usize * c_in as usize * c_out as usize;
+        let block = unit / tiles;
+        if block * weights >= partial.shape(0) {
             terminate!();
         }
-        let weights = volume as usize * c_in as usize * c_out as usize;
-        let (block, weight) = (unit / weights, unit % weights);
-        let (k, rest) = (
-            weight / (c_in as usize * c_out as usize),
-            weight % (c_in as usize * c_out as usize),
+        let t = unit % tiles;
+        let (k, rest) = (t / (tiles_in * tiles_out), t % (tiles_in * tiles_out));
+        let (i0, c0) = (
+            (rest / tiles_out) * tile as usize,
+            (rest % tiles_out) * tile as usize,
         );
-        let (i, c) = (rest / c_out as usize, rest % c_out as usize);
+        let mut sums = Array::<f32>::new(comptime!((tile * tile) as usize));
+        let mut inputs = Array::<f32>::new(comptime!(tile as usize));
+        let mut gradients = Array::<f32>::new(comptime!(tile as usize));
+        #[unroll]
+        for a in 0..tile * tile {
+            sums[a as usize] = 0f32;
+        }
         let (first, end) = block_range(block, block_rows, output_rows as usize);
-        let mut sum = 0f32;
         for o in first..end {
             let n = table[(o * volume as usize + k) * table.stride(0)];
             if present(n, input_rows) {
-                sum += x[usize::cast_from(n) * x.stride(0) + i * x.stride(1)]
-                    * dy[o * dy.stride(0) + c * dy.stride(1)];
+                let x_row = usize::cast_from(n) * x.stride(0);
+                #[unroll]
+                for a in 0..tile {
+                    // Past the edge of a layer's channels a tile reads zeros.
+                    let (i, c) = (i0 + a as usize, c0 + a as usize);
+                    let mut input = 0f32;
+                    if i < c_in as usize {
+                        input = x[x_row + i * x.stride(1)];
+                    }
+                    inputs[a as usize] = input;
+                    let mut gradient = 0f32;
+                    if c < c_out as usize {
+                        gradient = dy[o * dy.stride(0) + c * dy.stride(1)];
+                    }
+                    gradients[a as usize] = gradient;
+                }
+                #[unroll]
+                for a in 0..tile {
+                    #[unroll]
+                    for b in 0..tile {
+                        sums[(a * tile + b) as usize] += inputs[a as usize] * gradients[b as usize];
+                    }
+                }
             }
         }
-        partial[unit] = sum;
+        #[unroll]
+        for a in 0..tile {
+            #[unroll]
+            for b in 0..tile {
+                let (i, c) = (i0 + a as usize, c0 + b as usize);
+                if i < c_in as usize && c < c_out as usize {
+                    partial[block * weights + (k * c_in as usize + i) * c_out as usize + c] =
+                        sums[(a * tile + b) as usize];
+                }
+            }
+        }
     }
 }
 
+/// Weights (and gradient values) a thread of the weight gradient takes on each side: a
+/// thread's tile is `WEIGHT_TILE`² weights.
+const WEIGHT_TILE: u32 = 4;
+
 /// Threads the weight gradient aims for: blocks of output rows are sized so that a layer's
-/// weights times its blocks come to about this many (enough to fill a GPU; the partial
-/// sums stay a few megabytes).
-const WEIGHT_GRADIENT_THREADS: usize = 1 << 20;
+/// weight tiles times its blocks come to about this many (an H100's or H200's resident
+/// threads, about 2¹⁸; the partial sums, `WEIGHT_TILE`² a thread, stay within 16 MB).
+const WEIGHT_GRADIENT_THREADS: usize = 1 << 18;
+
+/// The fewest output rows a weight-gradient block takes: below it the partial sums' addition
+/// (one pass over the blocks per weight) would walk more than the blocks saved.
+const WEIGHT_GRADIENT_BLOCK_ROWS: usize = 32;
 
 fn dims<const D: usize>(t: &CubeTensor) -> [usize; D] {
     let shape = t.meta.shape();
@@ -268,16 +323,20 @@ fn backward(
     });
     let dw = want_w.then(|| {
         let weights = volume * c_in * c_out;
-        let blocks = (WEIGHT_GRADIENT_THREADS / weights.max(1)).clamp(1, output_rows.max(1));
+        let tile = WEIGHT_TILE as usize;
+        let tiles = volume * c_in.div_ceil(tile) * c_out.div_ceil(tile);
+        let blocks = (WEIGHT_GRADIENT_THREADS / tiles.max(1))
+            .min(output_rows.div_ceil(WEIGHT_GRADIENT_BLOCK_ROWS))
+            .max(1);
         let block_rows = output_rows.div_ceil(blocks).max(1);
         let blocks = output_rows.div_ceil(block_rows).max(1);
         let partial = buffer(&features, blocks * weights);
         if weights > 0 {
-            let (count, dim) = launch_shape(&client, blocks * weights);
+            let (count, dim) = launch_shape(&client, blocks * tiles);
             // SAFETY: threads past the last partial sum return first; a block's rows are
             // clipped to output_rows, whose table entries o · volume + k lie within the
             // table; a table value is used only within 0..input_rows, the features' rows;
-            // i < C_in and c < C_out index the features and the gradient within their shapes.
+            // a tile reads and writes only i < C_in and c < C_out.
             unsafe {
                 kernels::weight_gradient::launch_unchecked(
                     &client,
@@ -293,6 +352,7 @@ fn backward(
                     c_in as u32,
                     c_out as u32,
                     block_rows as u32,
+                    WEIGHT_TILE,
                 );
             }
         }
