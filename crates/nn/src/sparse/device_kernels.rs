@@ -9,11 +9,12 @@
 //! wrong at a backbone's size (`pipeline::sparse_gradient_probe`). Here three kernels read
 //! the features where they lie:
 //!
-//! - forward: one thread an output value, `y[o, c] = Σ_k Σ_i x[table[o, k], i] · W[k, i, c]`
-//!   over the offsets whose neighbour is present;
-//! - input gradient: one thread an input value, `dx[n, i] = Σ_k Σ_c dy[inverse[n, k], c] ·
-//!   W[k, i, c]`, through the inverse map (which output reads input n at offset k), so no
-//!   two threads write one value: no atomics;
+//! - forward: one thread four output values of a row, `y[o, c] = Σ_k Σ_i x[table[o, k], i] ·
+//!   W[k, i, c]` over the offsets whose neighbour is present, each input value read once
+//!   for the four;
+//! - input gradient: one thread four input gradient values of a row, `dx[n, i] = Σ_k Σ_c
+//!   dy[inverse[n, k], c] · W[k, i, c]`, through the inverse map (which output reads input n
+//!   at offset k), so no two threads write one value: no atomics;
 //! - weight gradient: one thread a 4 × 4 tile of weights (four inputs by four outputs at one
 //!   offset) and a block of output rows, `Σ_o x[table[o, k], i] · dy[o, c]` for the tile's
 //!   16 weights from four input and four gradient values a row, the blocks' partial sums
@@ -84,8 +85,11 @@ mod kernels {
         row >= 0 && row < i32::cast_from(rows)
     }
 
-    /// One output value a thread: `out[o · C_out + c]`.
+    /// `tile` output values of one row a thread: `out[o · C_out + c]` for c in c₀..c₀ + tile,
+    /// each input value read once for all of them. Each value's sum runs over the offsets
+    /// and then the input channels in order.
     #[cube(launch_unchecked)]
+    #[allow(clippy::too_many_arguments)]
     pub fn forward(
         x: &Tensor<f32>,
         w: &Tensor<f32>,
@@ -94,29 +98,51 @@ mod kernels {
         input_rows: u32,
         volume: u32,
         c_in: u32,
+        #[comptime] tile: u32,
     ) {
+        let c_out = w.shape(2);
+        let tiles = c_out.div_ceil(tile as usize);
         let unit = ABSOLUTE_POS;
-        if unit >= out.shape(0) {
+        let (o, c0) = (unit / tiles, (unit % tiles) * tile as usize);
+        if o * c_out >= out.shape(0) {
             terminate!();
         }
-        let c_out = w.shape(2);
-        let (o, c) = (unit / c_out, unit % c_out);
-        let mut sum = 0f32;
+        let mut sums = Array::<f32>::new(comptime!(tile as usize));
+        #[unroll]
+        for b in 0..tile {
+            sums[b as usize] = 0f32;
+        }
         for k in 0..volume {
             let n = table[(o * volume as usize + k as usize) * table.stride(0)];
             if present(n, input_rows) {
                 let x_row = usize::cast_from(n) * x.stride(0);
-                let w_at = k as usize * w.stride(0) + c * w.stride(2);
                 for i in 0..c_in {
-                    sum += x[x_row + i as usize * x.stride(1)] * w[w_at + i as usize * w.stride(1)];
+                    let value = x[x_row + i as usize * x.stride(1)];
+                    let w_at = k as usize * w.stride(0) + i as usize * w.stride(1);
+                    #[unroll]
+                    for b in 0..tile {
+                        let c = c0 + b as usize;
+                        if c < c_out {
+                            sums[b as usize] += value * w[w_at + c * w.stride(2)];
+                        }
+                    }
                 }
             }
         }
-        out[unit] = sum;
+        #[unroll]
+        for b in 0..tile {
+            let c = c0 + b as usize;
+            if c < c_out {
+                out[o * c_out + c] = sums[b as usize];
+            }
+        }
     }
 
-    /// One input gradient value a thread: `dx[n · C_in + i]`.
+    /// `tile` input gradient values of one row a thread: `dx[n · C_in + i]` for i in
+    /// i₀..i₀ + tile, each output gradient value read once for all of them. Each value's sum
+    /// runs over the offsets and then the output channels in order.
     #[cube(launch_unchecked)]
+    #[allow(clippy::too_many_arguments)]
     pub fn input_gradient(
         dy: &Tensor<f32>,
         w: &Tensor<f32>,
@@ -125,26 +151,44 @@ mod kernels {
         output_rows: u32,
         volume: u32,
         c_out: u32,
+        #[comptime] tile: u32,
     ) {
+        let c_in = w.shape(1);
+        let tiles = c_in.div_ceil(tile as usize);
         let unit = ABSOLUTE_POS;
-        if unit >= dx.shape(0) {
+        let (n, i0) = (unit / tiles, (unit % tiles) * tile as usize);
+        if n * c_in >= dx.shape(0) {
             terminate!();
         }
-        let c_in = w.shape(1);
-        let (n, i) = (unit / c_in, unit % c_in);
-        let mut sum = 0f32;
+        let mut sums = Array::<f32>::new(comptime!(tile as usize));
+        #[unroll]
+        for a in 0..tile {
+            sums[a as usize] = 0f32;
+        }
         for k in 0..volume {
             let o = inverse[(n * volume as usize + k as usize) * inverse.stride(0)];
             if present(o, output_rows) {
                 let dy_row = usize::cast_from(o) * dy.stride(0);
-                let w_at = k as usize * w.stride(0) + i * w.stride(1);
                 for c in 0..c_out {
-                    sum +=
-                        dy[dy_row + c as usize * dy.stride(1)] * w[w_at + c as usize * w.stride(2)];
+                    let value = dy[dy_row + c as usize * dy.stride(1)];
+                    let w_at = k as usize * w.stride(0) + c as usize * w.stride(2);
+                    #[unroll]
+                    for a in 0..tile {
+                        let i = i0 + a as usize;
+                        if i < c_in {
+                            sums[a as usize] += value * w[w_at + i * w.stride(1)];
+                        }
+                    }
                 }
             }
         }
-        dx[unit] = sum;
+        #[unroll]
+        for a in 0..tile {
+            let i = i0 + a as usize;
+            if i < c_in {
+                dx[n * c_in + i] = sums[a as usize];
+            }
+        }
     }
 
     /// A tile of `tile` × `tile` weights (inputs i₀.., outputs c₀.. at one offset k) and one
@@ -232,6 +276,9 @@ mod kernels {
     }
 }
 
+/// Output values (forward) or input gradient values (backward) of one row a thread makes.
+const ROW_TILE: u32 = 4;
+
 /// Weights (and gradient values) a thread of the weight gradient takes on each side: a
 /// thread's tile is `WEIGHT_TILE`² weights.
 const WEIGHT_TILE: u32 = 4;
@@ -259,14 +306,14 @@ fn forward(features: CubeTensor, weight: CubeTensor, table: CubeTensor) -> CubeT
     assert_eq!(entries % volume.max(1), 0, "a table of whole output rows");
     let output_rows = entries / volume.max(1);
     let out = buffer(&features, output_rows * c_out);
-    let units = output_rows * c_out;
+    let units = output_rows * c_out.div_ceil(ROW_TILE as usize);
     if units > 0 {
         let client = features.client.clone();
         let (count, dim) = launch_shape(&client, units);
-        // SAFETY: threads past the last output value return first; output o's table entries
+        // SAFETY: threads past the last output row return first; output o's table entries
         // are o · volume + k < entries; a table value is used only within 0..input_rows, the
-        // features' rows; k < volume, i < C_in and c < C_out index the weight within its
-        // shape.
+        // features' rows; k < volume, i < C_in and c < C_out (a tile stops at C_out) index
+        // the weight within its shape.
         unsafe {
             kernels::forward::launch_unchecked(
                 &client,
@@ -279,6 +326,7 @@ fn forward(features: CubeTensor, weight: CubeTensor, table: CubeTensor) -> CubeT
                 input_rows as u32,
                 volume as u32,
                 c_in as u32,
+                ROW_TILE,
             );
         }
     }
@@ -297,13 +345,13 @@ fn backward(
     let client = features.client.clone();
     let dx = want_x.then(|| {
         let dx = buffer(&features, input_rows * c_in);
-        let units = input_rows * c_in;
+        let units = input_rows * c_in.div_ceil(ROW_TILE as usize);
         if units > 0 {
             let (count, dim) = launch_shape(&client, units);
-            // SAFETY: threads past the last input value return first; input n's inverse
+            // SAFETY: threads past the last input row return first; input n's inverse
             // entries are n · volume + k < input_rows · volume; an inverse value is used only
             // within 0..output_rows, the gradient's rows; k, i, c index the weight within its
-            // shape.
+            // shape (a tile stops at C_in).
             unsafe {
                 kernels::input_gradient::launch_unchecked(
                     &client,
@@ -316,6 +364,7 @@ fn backward(
                     output_rows as u32,
                     volume as u32,
                     c_out as u32,
+                    ROW_TILE,
                 );
             }
         }
