@@ -6,15 +6,16 @@
 //! over LiDAR voxels fills about a third of its 27 offsets), multiplies, and in the backward
 //! pass scatters the gathered gradient back with atomic additions (whose order, and so whose
 //! rounding, changes from run to run); on wgpu over lavapipe its input gradient came out
-//! wrong at a backbone's size (`pipeline::sparse_gradient_probe`). Here three kernels read
-//! the features where they lie:
+//! wrong at a backbone's size (`pipeline::sparse_gradient_probe`). Here the kernels read the
+//! features where they lie:
 //!
 //! - forward: one thread four output values of a row, `y[o, c] = Σ_k Σ_i x[table[o, k], i] ·
 //!   W[k, i, c]` over the offsets whose neighbour is present, each input value read once
 //!   for the four;
 //! - input gradient: one thread four input gradient values of a row, `dx[n, i] = Σ_k Σ_c
 //!   dy[inverse[n, k], c] · W[k, i, c]`, through the inverse map (which output reads input n
-//!   at offset k), so no two threads write one value: no atomics;
+//!   at offset k), so no two threads write one value: no atomics — the forward kernel
+//!   (`map_product`) with the weight read transposed;
 //! - weight gradient: one thread a 4 × 4 tile of weights (four inputs by four outputs at one
 //!   offset) and a block of output rows, `Σ_o x[table[o, k], i] · dy[o, c]` for the tile's
 //!   16 weights from four input and four gradient values a row, the blocks' partial sums
@@ -85,108 +86,62 @@ mod kernels {
         row >= 0 && row < i32::cast_from(rows)
     }
 
-    /// `tile` output values of one row a thread: `out[o · C_out + c]` for c in c₀..c₀ + tile,
-    /// each input value read once for all of them. Each value's sum runs over the offsets
-    /// and then the input channels in order.
+    /// `tile` values of one row a thread, `out[r · D + d]` for d in d₀..d₀ + tile: the sum
+    /// over the offsets k whose entry m = `map[r, k]` is present (within 0..`src_rows`), then
+    /// over the source's channels j, of `src[m, j] · W[k, j, d]`, each source value read once
+    /// for the tile. W [volume, C_in, C_out] is read as [volume, J, D]: the forward pass
+    /// (`x` through the table, J = C_in, D = C_out), or `transposed`, the input gradient
+    /// (`dy` through the inverse map, J = C_out, D = C_in). Each value's sum runs over the
+    /// offsets and then the channels in order.
     #[cube(launch_unchecked)]
-    #[allow(clippy::too_many_arguments)]
-    pub fn forward(
-        x: &Tensor<f32>,
+    pub fn map_product(
+        src: &Tensor<f32>,
         w: &Tensor<f32>,
-        table: &Tensor<i32>,
+        map: &Tensor<i32>,
         out: &mut Tensor<f32>,
-        input_rows: u32,
+        src_rows: u32,
         volume: u32,
-        c_in: u32,
+        #[comptime] transposed: bool,
         #[comptime] tile: u32,
     ) {
-        let c_out = w.shape(2);
-        let tiles = c_out.div_ceil(tile as usize);
+        let (width, (w_j, w_d)) = if transposed {
+            (w.shape(1), (w.stride(2), w.stride(1)))
+        } else {
+            (w.shape(2), (w.stride(1), w.stride(2)))
+        };
+        let tiles = width.div_ceil(tile as usize);
         let unit = ABSOLUTE_POS;
-        let (o, c0) = (unit / tiles, (unit % tiles) * tile as usize);
-        if o * c_out >= out.shape(0) {
+        let (r, d0) = (unit / tiles, (unit % tiles) * tile as usize);
+        if r * width >= out.shape(0) {
             terminate!();
         }
         let mut sums = Array::<f32>::new(comptime!(tile as usize));
         #[unroll]
-        for b in 0..tile {
-            sums[b as usize] = 0f32;
+        for t in 0..tile {
+            sums[t as usize] = 0f32;
         }
         for k in 0..volume {
-            let n = table[(o * volume as usize + k as usize) * table.stride(0)];
-            if present(n, input_rows) {
-                let x_row = usize::cast_from(n) * x.stride(0);
-                for i in 0..c_in {
-                    let value = x[x_row + i as usize * x.stride(1)];
-                    let w_at = k as usize * w.stride(0) + i as usize * w.stride(1);
+            let m = map[(r * volume as usize + k as usize) * map.stride(0)];
+            if present(m, src_rows) {
+                let src_row = usize::cast_from(m) * src.stride(0);
+                for j in 0..src.shape(1) {
+                    let value = src[src_row + j * src.stride(1)];
+                    let w_at = k as usize * w.stride(0) + j * w_j;
                     #[unroll]
-                    for b in 0..tile {
-                        let c = c0 + b as usize;
-                        if c < c_out {
-                            sums[b as usize] += value * w[w_at + c * w.stride(2)];
+                    for t in 0..tile {
+                        let d = d0 + t as usize;
+                        if d < width {
+                            sums[t as usize] += value * w[w_at + d * w_d];
                         }
                     }
                 }
             }
         }
         #[unroll]
-        for b in 0..tile {
-            let c = c0 + b as usize;
-            if c < c_out {
-                out[o * c_out + c] = sums[b as usize];
-            }
-        }
-    }
-
-    /// `tile` input gradient values of one row a thread: `dx[n · C_in + i]` for i in
-    /// i₀..i₀ + tile, each output gradient value read once for all of them. Each value's sum
-    /// runs over the offsets and then the output channels in order.
-    #[cube(launch_unchecked)]
-    #[allow(clippy::too_many_arguments)]
-    pub fn input_gradient(
-        dy: &Tensor<f32>,
-        w: &Tensor<f32>,
-        inverse: &Tensor<i32>,
-        dx: &mut Tensor<f32>,
-        output_rows: u32,
-        volume: u32,
-        c_out: u32,
-        #[comptime] tile: u32,
-    ) {
-        let c_in = w.shape(1);
-        let tiles = c_in.div_ceil(tile as usize);
-        let unit = ABSOLUTE_POS;
-        let (n, i0) = (unit / tiles, (unit % tiles) * tile as usize);
-        if n * c_in >= dx.shape(0) {
-            terminate!();
-        }
-        let mut sums = Array::<f32>::new(comptime!(tile as usize));
-        #[unroll]
-        for a in 0..tile {
-            sums[a as usize] = 0f32;
-        }
-        for k in 0..volume {
-            let o = inverse[(n * volume as usize + k as usize) * inverse.stride(0)];
-            if present(o, output_rows) {
-                let dy_row = usize::cast_from(o) * dy.stride(0);
-                for c in 0..c_out {
-                    let value = dy[dy_row + c as usize * dy.stride(1)];
-                    let w_at = k as usize * w.stride(0) + c as usize * w.stride(2);
-                    #[unroll]
-                    for a in 0..tile {
-                        let i = i0 + a as usize;
-                        if i < c_in {
-                            sums[a as usize] += value * w[w_at + i * w.stride(1)];
-                        }
-                    }
-                }
-            }
-        }
-        #[unroll]
-        for a in 0..tile {
-            let i = i0 + a as usize;
-            if i < c_in {
-                dx[n * c_in + i] = sums[a as usize];
+        for t in 0..tile {
+            let d = d0 + t as usize;
+            if d < width {
+                out[r * width + d] = sums[t as usize];
             }
         }
     }
@@ -315,7 +270,7 @@ fn forward(features: CubeTensor, weight: CubeTensor, table: CubeTensor) -> CubeT
         // features' rows; k < volume, i < C_in and c < C_out (a tile stops at C_out) index
         // the weight within its shape.
         unsafe {
-            kernels::forward::launch_unchecked(
+            kernels::map_product::launch_unchecked(
                 &client,
                 count,
                 dim,
@@ -325,7 +280,7 @@ fn forward(features: CubeTensor, weight: CubeTensor, table: CubeTensor) -> CubeT
                 out.clone().into_tensor_arg(),
                 input_rows as u32,
                 volume as u32,
-                c_in as u32,
+                false,
                 ROW_TILE,
             );
         }
@@ -353,7 +308,7 @@ fn backward(
             // within 0..output_rows, the gradient's rows; k, i, c index the weight within its
             // shape (a tile stops at C_in).
             unsafe {
-                kernels::input_gradient::launch_unchecked(
+                kernels::map_product::launch_unchecked(
                     &client,
                     count,
                     dim,
@@ -363,7 +318,7 @@ fn backward(
                     dx.clone().into_tensor_arg(),
                     output_rows as u32,
                     volume as u32,
-                    c_out as u32,
+                    true,
                     ROW_TILE,
                 );
             }
