@@ -40,7 +40,7 @@ pub struct RowChunks {
 
 impl RowChunks {
     /// The chunks for `rows` rows aimed at `target` rows each, or `None` below two chunks'
-    /// worth (one product's cubes are then few enough walks already). A divisor of `rows`
+    /// worth (one product then walks few rows). A divisor of `rows`
     /// between `target / 2` and `2 · target`, the nearest to `target`, avoids padding;
     /// otherwise chunks of `target` rows with the last one padded.
     pub fn for_rows(rows: usize, target: usize) -> Option<RowChunks> {
