@@ -162,15 +162,10 @@ mod kernels {
         partial[row + channels + c] = squares;
     }
 
-    /// One column a thread: `out[k] = scale · Σ_block partial[block · width + k]`, the
-    /// blocks in order.
+    /// One column a thread: `out[k] = Σ_block partial[block · width + k]`, the blocks in
+    /// order.
     #[cube(launch_unchecked)]
-    pub fn norm_column_totals(
-        partial: &Tensor<f32>,
-        out: &mut Tensor<f32>,
-        blocks: u32,
-        scale: f32,
-    ) {
+    pub fn norm_column_totals(partial: &Tensor<f32>, out: &mut Tensor<f32>, blocks: u32) {
         let unit = ABSOLUTE_POS;
         let width = out.shape(0);
         if unit >= width {
@@ -180,7 +175,7 @@ mod kernels {
         for block in 0..blocks as usize {
             sum += partial[block * width + unit];
         }
-        out[unit] = sum * scale;
+        out[unit] = sum;
     }
 
     /// One channel a thread: the blocks' moments (`norm_block_moments`) combined in block
@@ -385,8 +380,8 @@ fn blocks_of(samples: usize, channels: usize) -> (usize, usize) {
     (samples.div_ceil(block_len).max(1), block_len)
 }
 
-/// The per-column totals of `partial` [blocks · width] times `scale` → [width].
-fn totals(partial: CubeTensor, blocks: usize, width: usize, scale: f32) -> CubeTensor {
+/// The per-column totals of `partial` [blocks · width] → [width].
+fn totals(partial: CubeTensor, blocks: usize, width: usize) -> CubeTensor {
     let out = buffer(&partial, width);
     let client = partial.client.clone();
     let (count, dim) = launch_shape(&client, width);
@@ -400,7 +395,6 @@ fn totals(partial: CubeTensor, blocks: usize, width: usize, scale: f32) -> CubeT
             partial.into_tensor_arg(),
             out.clone().into_tensor_arg(),
             blocks as u32,
-            scale,
         );
     }
     out
@@ -569,7 +563,7 @@ fn backward(
             relu,
         );
     }
-    let sums = totals(partial, blocks, 2 * channels, 1.0);
+    let sums = totals(partial, blocks, 2 * channels);
     // The forward pass checked that this many values fit 32-bit indices.
     let len = batch * channels * spatial;
     let dx = buffer(&view, len);
