@@ -55,11 +55,8 @@ impl AdamStep {
         let (scale, shift) = if settings.decoupled {
             (correction_1, settings.epsilon)
         } else {
-            let bias_correction2_sqrt = (1.0 - settings.beta_2.powi(t)).sqrt();
-            (
-                bias_correction2_sqrt / (1.0 - settings.beta_1.powi(t)),
-                settings.epsilon * bias_correction2_sqrt,
-            )
+            let root = correction_2.sqrt();
+            (root / correction_1, settings.epsilon * root)
         };
         let decay_rate = lr * settings.weight_decay as f64;
         AdamStep {
