@@ -284,6 +284,40 @@ mod kernels {
         }
     }
 
+    /// One output value a thread: burn's inference batch norm from the running statistics,
+    /// ((x − mean) / √(variance + ε))·γ + β in burn's order of operations (its six launches
+    /// and four passes over the tensor: a square root, a subtraction, a division, a product
+    /// and a sum), through a ReLU when `relu` (burn's two more: a comparison and a fill).
+    #[cube(launch_unchecked)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn norm_inference_output(
+        x: &Tensor<f32>,
+        mean: &Tensor<f32>,
+        variance: &Tensor<f32>,
+        gamma: &Tensor<f32>,
+        beta: &Tensor<f32>,
+        out: &mut Tensor<f32>,
+        epsilon: f32,
+        channels: FastDivmod<u32>,
+        spatial: FastDivmod<u32>,
+        #[comptime] relu: bool,
+        #[comptime] packed: bool,
+    ) {
+        let unit = ABSOLUTE_POS;
+        if unit >= out.shape(0) {
+            terminate!();
+        }
+        let (b, c, s) = position(unit, channels, spatial);
+        let std = f32::sqrt(variance[c * variance.stride(0)] + epsilon);
+        let centred = value_at(x, unit, b, c, s, packed) - mean[c * mean.stride(0)];
+        let v = centred / std * gamma[c * gamma.stride(0)] + beta[c * beta.stride(0)];
+        if relu && !kept(v) {
+            out[unit] = 0.0;
+        } else {
+            out[unit] = v;
+        }
+    }
+
     /// One (block, channel) a thread: `partial[block · 2C + c]` = Σ g and
     /// `partial[block · 2C + C + c]` = Σ g·x̂ over the block's samples in order (g through the
     /// ReLU's gate when `relu`).
@@ -748,13 +782,110 @@ impl<C: CheckpointStrategy> RunningStatisticsOps for Autodiff<CubeBackend, C> {
     }
 }
 
+/// Inference's batch norm (the running statistics) with the ReLU after it when `relu`, as
+/// one launch on a CubeCL device where burn's operations take eight, six of them passes over
+/// the whole tensor (`norm_inference_output`). Inference only: nothing is differentiated.
+#[backend_extension(Cube)]
+pub trait InferenceNormOps: Backend {
+    /// `x` [B, C, …] or [rows, C] normalised per channel (the second axis).
+    #[allow(clippy::too_many_arguments)]
+    fn batch_norm_inference(
+        x: FloatTensor<Self>,
+        mean: FloatTensor<Self>,
+        variance: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        epsilon: f64,
+        relu: bool,
+    ) -> FloatTensor<Self>;
+}
+
+/// `bn` in inference on `x` (a tensor of a CubeCL device without autodiff), through a ReLU
+/// when `relu`: the values burn's `BatchNorm::forward` and `relu` give, in one launch.
+pub fn inference<const D: usize>(bn: &burn::nn::BatchNorm, x: Tensor<D>, relu: bool) -> Tensor<D> {
+    let device = x.device();
+    let out = <Dispatch as InferenceNormOps>::batch_norm_inference(
+        x.into_dispatch(),
+        bn.running_mean.value().to_device(&device).into_dispatch(),
+        bn.running_var.value().to_device(&device).into_dispatch(),
+        bn.gamma.val().into_dispatch(),
+        bn.beta.val().into_dispatch(),
+        bn.epsilon,
+        relu,
+    );
+    Tensor::from_dispatch(out)
+}
+
+impl InferenceNormOps for CubeBackend {
+    fn batch_norm_inference(
+        x: CubeTensor,
+        mean: CubeTensor,
+        variance: CubeTensor,
+        gamma: CubeTensor,
+        beta: CubeTensor,
+        epsilon: f64,
+        relu: bool,
+    ) -> CubeTensor {
+        let shape = x.meta.shape().clone();
+        let view = view3(x);
+        let [batch, channels, spatial] = dims3(&view);
+        let len = batch * channels * spatial;
+        assert!(
+            len <= u32::MAX as usize,
+            "a batch norm over {len} values: the kernel indexes them in 32 bits"
+        );
+        let per_channel = [mean, variance, gamma, beta].map(float_rows);
+        for t in &per_channel {
+            assert_eq!(
+                t.meta.shape().num_elements(),
+                channels,
+                "one value a channel"
+            );
+        }
+        let out = buffer(&view, len);
+        let packed = is_packed(&view);
+        if len > 0 {
+            let client = view.client.clone();
+            let (count, dim) = launch_shape(&client, len);
+            let [mean, variance, gamma, beta] = per_channel;
+            // SAFETY: threads past the last value return first; a unit below B·C·S addresses
+            // the view within its shape; the per-channel inputs hold C values each (checked
+            // above), read by their strides.
+            unsafe {
+                kernels::norm_inference_output::launch_unchecked(
+                    &client,
+                    count,
+                    dim,
+                    view.into_tensor_arg(),
+                    mean.into_tensor_arg(),
+                    variance.into_tensor_arg(),
+                    gamma.into_tensor_arg(),
+                    beta.into_tensor_arg(),
+                    out.clone().into_tensor_arg(),
+                    epsilon as f32,
+                    channels as u32,
+                    spatial as u32,
+                    relu,
+                    packed,
+                );
+            }
+        }
+        CubeBackend::float_reshape(out, shape)
+    }
+}
+
 #[cfg(all(test, feature = "wgpu"))]
 mod tests {
     use crate::batch_norm_ops::{NormLayout, batch_norm_train};
     use crate::cube::{assert_close, working_wgpu_device};
-    use crate::norm::{NormConfig, batch_norm, norm_maps_relu, norm_rows};
+    use crate::norm::{
+        NormConfig, batch_norm, inference_on_device, norm_maps, norm_maps_relu, norm_rows,
+        norm_rows_relu,
+    };
     use crate::ragged;
+    use burn::nn::BatchNorm;
     use burn::prelude::*;
+    use burn::tensor::activation::relu;
 
     fn flat<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         t.try_into_vec_as::<f32>().unwrap()
@@ -906,5 +1037,100 @@ mod tests {
         let out = norm_rows(&bn, Tensor::<2>::zeros([0, 3], &gpu));
         assert_eq!(out.dims(), [0, 3]);
         assert_eq!(flat(bn.running_mean.value()), vec![0.0; 3]);
+    }
+
+    /// A norm with running statistics of its own (not the initial zeros and ones), the same
+    /// on every device.
+    fn trained_norm(channels: usize, device: &Device) -> BatchNorm {
+        let mut bn = batch_norm(channels, &NormConfig::default(), device);
+        let per_channel = |f: &dyn Fn(f32) -> f32| {
+            let v: Vec<f32> = (0..channels).map(|c| f(c as f32)).collect();
+            Tensor::<1>::from_data(TensorData::new(v, [channels]), device)
+        };
+        bn.gamma = burn::module::Param::from_tensor(per_channel(&|c| 0.75 + c * 0.125));
+        bn.beta = burn::module::Param::from_tensor(per_channel(&|c| c * 0.25 - 0.5));
+        bn.running_mean = burn::module::RunningState::new(per_channel(&|c| 3.5 + c));
+        bn.running_var = burn::module::RunningState::new(per_channel(&|c| 0.05 + c * 0.3));
+        bn
+    }
+
+    /// Inference's norms take the one-launch kernel on a CubeCL device without autodiff (not
+    /// with autodiff, nor on the CPU) and give burn's values there, rows and maps, with and
+    /// without the ReLU, from a packed tensor and from a transposed view.
+    #[test]
+    fn inference_norms_take_one_launch_and_give_burns_values() {
+        let Some(gpu) = working_wgpu_device("the inference batch norm's kernel") else {
+            return;
+        };
+        let cpu = Device::flex();
+        let (rows, c) = (1_000, 7);
+        let (x, _) = input(rows * c, |i| i % c, 5);
+        let probe = Tensor::<2>::zeros([1, c], &gpu);
+        assert!(inference_on_device(&probe));
+        let elsewhere = |device: &Device| Tensor::<2>::zeros([1, c], device);
+        assert!(!inference_on_device(&elsewhere(&gpu.clone().autodiff())));
+        assert!(!inference_on_device(&elsewhere(&cpu)));
+        let by_burn = |bn: &BatchNorm, x: Tensor<2>, with_relu: bool| {
+            let out = bn.forward(x);
+            flat(if with_relu { relu(out) } else { out })
+        };
+        for with_relu in [false, true] {
+            let case = format!("rows {rows}×{c}, ReLU {with_relu}");
+            let on = |device: &Device| {
+                let bn = trained_norm(c, device);
+                let t = Tensor::<2>::from_data(TensorData::new(x.clone(), [rows, c]), device);
+                let ours = if with_relu {
+                    norm_rows_relu(&bn, t.clone())
+                } else {
+                    norm_rows(&bn, t.clone())
+                };
+                (flat(ours), by_burn(&bn, t, with_relu))
+            };
+            let (got, burns_on_gpu) = on(&gpu);
+            let (_, want) = on(&cpu);
+            assert_close(&got, &want, 1e-6, &format!("{case}: against the CPU"));
+            // The same bits on lavapipe; a GPU's compiler may fuse the product and the sum
+            // into one rounding where burn's separate launches round twice.
+            assert_close(
+                &got,
+                &burns_on_gpu,
+                1e-6,
+                &format!("{case}: against burn's"),
+            );
+            let bn = trained_norm(c, &gpu);
+            let by_channel: Vec<f32> = (0..c * rows)
+                .map(|j| x[(j % rows) * c + j / rows])
+                .collect();
+            let view =
+                Tensor::<2>::from_data(TensorData::new(by_channel, [c, rows]), &gpu).transpose();
+            let transposed = if with_relu {
+                norm_rows_relu(&bn, view)
+            } else {
+                norm_rows(&bn, view)
+            };
+            assert_eq!(flat(transposed), got, "{case}: a transposed view");
+            let shape = [2, c, 9, 11];
+            let (maps, _) = input(shape.iter().product(), |i| i / 99 % c, 9);
+            let on = |device: &Device| {
+                let bn = trained_norm(c, device);
+                let t = Tensor::<4>::from_data(TensorData::new(maps.clone(), shape), device);
+                flat(if with_relu {
+                    norm_maps_relu(&bn, t)
+                } else {
+                    norm_maps(&bn, t)
+                })
+            };
+            assert_close(
+                &on(&gpu),
+                &on(&cpu),
+                1e-6,
+                &format!("maps {shape:?}, ReLU {with_relu}"),
+            );
+        }
+        let bn = trained_norm(3, &gpu);
+        assert_eq!(
+            norm_rows_relu(&bn, Tensor::<2>::zeros([0, 3], &gpu)).dims(),
+            [0, 3]
+        );
     }
 }

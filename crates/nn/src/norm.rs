@@ -42,7 +42,8 @@ pub fn batch_norm(channels: usize, config: &NormConfig, device: &Device) -> Batc
 /// output, two backward, where burn's generic form transposes the rows and makes about
 /// eight passes each way), with the same running-statistics update as `BatchNorm`; in
 /// training on a GPU the same operation as CubeCL kernels (`batch_norm_device`, whose
-/// reductions burn runs one thread a channel); in inference `bn.forward` itself.
+/// reductions burn runs one thread a channel); in inference `bn.forward` itself, on a GPU
+/// as one launch that gives its values ([`inference_on_device`]).
 pub fn norm_rows(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
     fused_in_training(bn, x, NormLayout::Rows, false)
 }
@@ -58,7 +59,8 @@ pub fn norm_rows_relu(bn: &BatchNorm, x: Tensor<2>) -> Tensor<2> {
 /// sequences): in training on the flex CPU device the fused custom operation
 /// ([`batch_norm_train`] over maps: statistics read in place, where burn's generic form
 /// copies the map into [C, B·…] twice each way), with the same running-statistics update
-/// as `BatchNorm`; on a GPU its kernels, as in [`norm_rows`]; in inference `bn.forward`.
+/// as `BatchNorm`; on a GPU its kernels, as in [`norm_rows`]; in inference `bn.forward`
+/// (on a GPU, as in [`norm_rows`], one launch).
 pub fn norm_maps<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
     fused_in_training(bn, x, NormLayout::Maps, false)
 }
@@ -70,7 +72,8 @@ pub fn norm_maps_relu<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D>
 
 /// The fused operation in `layout` (with a ReLU when `relu`) where training runs on the flex
 /// device or a CubeCL one, with `BatchNorm`'s running-statistics update; `bn.forward` (and
-/// `relu`) elsewhere, or wherever the custom operations are off.
+/// `relu`) elsewhere — in inference on a GPU as one launch ([`inference_on_device`]) — or
+/// wherever the custom operations are off.
 fn fused_in_training<const D: usize>(
     bn: &BatchNorm,
     x: Tensor<D>,
@@ -79,6 +82,10 @@ fn fused_in_training<const D: usize>(
 ) -> Tensor<D> {
     let fused = ragged::custom_path(&x) || ragged::custom_device_path(&x);
     if !(x.device().is_autodiff() && bn.training.is_enabled() && fused) {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if inference_on_device(&x) {
+            return crate::batch_norm_device::inference(bn, x, relu);
+        }
         let out = bn.forward(x);
         return if relu { activation::relu(out) } else { out };
     }
@@ -92,6 +99,14 @@ fn fused_in_training<const D: usize>(
         batch_norm_train(x, bn.gamma.val(), bn.beta.val(), bn.epsilon, layout, relu);
     update_running_statistics(bn, mean, variance);
     out
+}
+
+/// Whether a norm of `x` in inference runs as one CubeCL launch with its ReLU
+/// (`batch_norm_device::inference`) rather than burn's eight: on a CubeCL device without
+/// autodiff (detection), unless the custom operations are off. A norm left in inference on
+/// an autodiff device (a frozen layer) keeps burn's, whose operations carry gradients.
+pub fn inference_on_device<const D: usize>(x: &Tensor<D>) -> bool {
+    !x.device().is_autodiff() && ragged::custom_device_path(x)
 }
 
 /// `BatchNorm`'s running-statistics update from a batch's mean and biased variance
