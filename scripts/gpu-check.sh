@@ -61,6 +61,11 @@
 #                  so the step times and frames/s above are measured without it), summed per
 #                  kernel: 1 or 0 (default: 1); each profiled run is stopped after
 #                  PROFILE_SECONDS (default: 150)
+#   ARCHIVE        a file (e.g. $OUT/gpu-check.tar.xz on a lent machine, whose call brings back
+#                  a few files under $OUT and nothing else): at the end, the run's logs, kernel
+#                  profiles, bench outputs and training metrics are packed into it (not the
+#                  simulated frames, models or result files), for reading every figure after
+#                  the machine has gone back
 #   FUSIONDET_AUTOTUNE_LOG  where burn's autotune writes the kernel it kept for each tuned
 #                  shape (default: autotune.log in CHECK_OUT; see kernel_cache.rs)
 #   SPARSE_AB      models also run on the device with the sparse convolution as a kernel
@@ -132,6 +137,7 @@ train="${TRAIN:-1}"
 train_configs="${TRAIN_CONFIGS:-configs/voxel-rcnn-car.toml configs/dasanet-car.toml}"
 train_cpu="${TRAIN_CPU:-1}"
 out="${CHECK_OUT:-$repo/gpu-check-out}"
+archive="${ARCHIVE:+$(realpath -m "$ARCHIVE")}"
 frames="${FRAMES:-48}"
 repeats="${REPEATS:-3}"
 steps_frames="${STEPS_FRAMES:-8}"
@@ -466,6 +472,15 @@ if [ -s "$FUSIONDET_AUTOTUNE_LOG" ]; then
     # (shapes tuned by an earlier process come from the cache and are not logged again).
     echo "autotune kept (kernel × tuned shapes): $(grep -o 'Fastest result [A-Za-z0-9_:]*' "$FUSIONDET_AUTOTUNE_LOG" \
         | cut -d' ' -f3 | sort | uniq -c | sort -rn | awk '{ printf "%s%s × %s", (n++ ? ", " : ""), $2, $1 }'); log $FUSIONDET_AUTOTUNE_LOG"
+fi
+if [ -n "$archive" ]; then
+    # Text the run wrote (logs, `.kernels` profiles, metrics, the summary), relative to $out.
+    printf '%s\n' "${summary[@]}" >"$out/summary.txt"
+    (cd "$out" && find . -type f \( -name '*.log' -o -name '*.kernels' -o -name '*.jsonl' \
+        -o -name 'summary.txt' \) -not -path './sim/*' -print0 \
+        | tar --null -T - -cf - | xz -9 >"$archive") \
+        && echo "archive: $archive ($(du -h "$archive" | cut -f1))" \
+        || echo "archive: could not write $archive"
 fi
 if [ "$failures" -gt 0 ]; then
     echo "$failures check(s) failed (logs under $out)"
