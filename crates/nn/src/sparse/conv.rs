@@ -92,16 +92,16 @@ impl SparseConv3d {
                 rules,
                 ..
             } => per_offset_with_burns_ops(features, weight, *identity_offset, rules, out_rows),
-            RuleGather::KernelMap { table, inverse } => {
+            RuleGather::KernelMap { table, kernels } => {
                 let device = features.device();
                 if out_rows == 0 {
                     return Tensor::zeros([0, c_out], &device);
                 }
                 #[cfg(any(feature = "wgpu", feature = "cuda"))]
-                if let Some(inverse) = inverse {
-                    return super::device_kernels::sparse_conv(features, weight, table, inverse);
+                if *kernels {
+                    return super::device_kernels::sparse_conv(features, weight, table);
                 }
-                let _ = inverse;
+                let _ = kernels;
                 // Row `rows` is the zero row absent neighbours read; its gradient is dropped
                 // with it.
                 let padded = Tensor::cat(vec![features, Tensor::zeros([1, c_in], &device)], 0);

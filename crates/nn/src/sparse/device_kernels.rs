@@ -15,7 +15,9 @@
 //! - input gradient: one thread four input gradient values of a row, `dx[n, i] = Σ_k Σ_c
 //!   dy[inverse[n, k], c] · W[k, i, c]`, through the inverse map (which output reads input n
 //!   at offset k), so no two threads write one value: no atomics — the forward kernel
-//!   (`map_product`) with the weight read transposed;
+//!   (`map_product`) with the weight read transposed. The inverse is made from the table
+//!   when a backward pass asks for it (two launches: cleared, then one writer an entry), so
+//!   inference, which never differentiates, neither builds nor stores it;
 //! - weight gradient: one thread a 4 × 4 tile of weights (four inputs by four outputs at one
 //!   offset) and a block of output rows, `Σ_o x[table[o, k], i] · dy[o, c]` for the tile's
 //!   16 weights from four input and four gradient values a row, the blocks' partial sums
@@ -40,7 +42,9 @@ use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::{FloatTensor, IntTensor};
 use burn::backend::{Autodiff, Backend, Dispatch, backend_extension};
 use burn::prelude::*;
+use burn::tensor::DType;
 use burn_cubecl::CubeBackend;
+use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
 
 /// The convolution (see the module's documentation).
@@ -49,28 +53,19 @@ pub trait SparseConvKernelOps: Backend {
     /// `features` [input rows, C_in] convolved with `weight` [volume, C_in, C_out] through
     /// `table` [output rows · volume] (the input row output o reads at offset k, at
     /// `o · volume + k`; any value outside `0..input rows` for none) → [output rows, C_out].
-    /// `inverse` [input rows · volume] holds the output row that reads input n at offset k
-    /// (−1 for none): the backward pass's map.
     fn sparse_conv_kernel_map(
         features: FloatTensor<Self>,
         weight: FloatTensor<Self>,
         table: IntTensor<Self>,
-        inverse: IntTensor<Self>,
     ) -> FloatTensor<Self>;
 }
 
 /// [`SparseConvKernelOps::sparse_conv_kernel_map`] on burn tensors of a CubeCL device.
-pub fn sparse_conv(
-    features: Tensor<2>,
-    weight: Tensor<3>,
-    table: &Tensor<1, Int>,
-    inverse: &Tensor<1, Int>,
-) -> Tensor<2> {
+pub fn sparse_conv(features: Tensor<2>, weight: Tensor<3>, table: &Tensor<1, Int>) -> Tensor<2> {
     Tensor::from_dispatch(<Dispatch as SparseConvKernelOps>::sparse_conv_kernel_map(
         features.into_dispatch(),
         weight.into_dispatch(),
         table.clone().into_dispatch(),
-        inverse.clone().into_dispatch(),
     ))
 }
 
@@ -143,6 +138,39 @@ mod kernels {
             if d < width {
                 out[r * width + d] = sums[t as usize];
             }
+        }
+    }
+
+    /// One inverse entry a thread: −1, no output reading input n at offset k, until
+    /// `invert_table` writes the entries that have one.
+    #[cube(launch_unchecked)]
+    pub fn clear_inverse(inverse: &mut Tensor<i32>) {
+        let unit = ABSOLUTE_POS;
+        if unit >= inverse.shape(0) {
+            terminate!();
+        }
+        inverse[unit] = -1i32;
+    }
+
+    /// One table entry a thread: where output o reads input n = `table[o · volume + k]`,
+    /// `inverse[n · volume + k]` = o. Within one offset an input is read by one output at
+    /// most (n fixes o: o = (n + p − d_k) / s), so each inverse entry has one writer at most:
+    /// no atomics, the same map in every run.
+    #[cube(launch_unchecked)]
+    pub fn invert_table(
+        table: &Tensor<i32>,
+        inverse: &mut Tensor<i32>,
+        input_rows: u32,
+        volume: u32,
+    ) {
+        let unit = ABSOLUTE_POS;
+        if unit >= table.shape(0) {
+            terminate!();
+        }
+        let n = table[unit * table.stride(0)];
+        if present(n, input_rows) {
+            let (o, k) = (unit / volume as usize, unit % volume as usize);
+            inverse[usize::cast_from(n) * volume as usize + k] = i32::cast_from(o);
         }
     }
 
@@ -288,9 +316,52 @@ fn forward(features: CubeTensor, weight: CubeTensor, table: CubeTensor) -> CubeT
     CubeBackend::float_reshape(out, [output_rows, c_out].into())
 }
 
+/// The inverse of `table` [output rows · volume]: [input rows · volume], the output row that
+/// reads input n at offset k at `n · volume + k`, or −1 (two launches).
+fn invert(table: &CubeTensor, input_rows: usize, volume: usize) -> CubeTensor {
+    let [entries] = dims(table);
+    let len = input_rows * volume;
+    let inverse = empty_device_dtype(
+        table.client.clone(),
+        table.device.clone(),
+        [len].into(),
+        DType::I32,
+    );
+    let client = table.client.clone();
+    if len > 0 {
+        let (count, dim) = launch_shape(&client, len);
+        // SAFETY: threads past the last entry return first.
+        unsafe {
+            kernels::clear_inverse::launch_unchecked(
+                &client,
+                count,
+                dim,
+                inverse.clone().into_tensor_arg(),
+            );
+        }
+    }
+    if entries > 0 && len > 0 {
+        let (count, dim) = launch_shape(&client, entries);
+        // SAFETY: threads past the last table entry return first; an entry is used only
+        // within 0..input_rows, so n · volume + k < input_rows · volume, the inverse's length.
+        unsafe {
+            kernels::invert_table::launch_unchecked(
+                &client,
+                count,
+                dim,
+                table.clone().into_tensor_arg(),
+                inverse.clone().into_tensor_arg(),
+                input_rows as u32,
+                volume as u32,
+            );
+        }
+    }
+    inverse
+}
+
 /// (input gradient, weight gradient), each where asked for.
 fn backward(
-    [features, weight, table, inverse]: [CubeTensor; 4],
+    [features, weight, table]: [CubeTensor; 3],
     grad: CubeTensor,
     [want_x, want_w]: [bool; 2],
 ) -> (Option<CubeTensor>, Option<CubeTensor>) {
@@ -299,6 +370,7 @@ fn backward(
     let [output_rows, _] = dims(&grad);
     let client = features.client.clone();
     let dx = want_x.then(|| {
+        let inverse = invert(&table, input_rows, volume);
         let dx = buffer(&features, input_rows * c_in);
         let units = input_rows * c_in.div_ceil(ROW_TILE as usize);
         if units > 0 {
@@ -372,7 +444,6 @@ impl SparseConvKernelOps for CubeBackend {
         features: CubeTensor,
         weight: CubeTensor,
         table: CubeTensor,
-        _inverse: CubeTensor,
     ) -> CubeTensor {
         forward(float_rows(features), float_rows(weight), int_rows(table))
     }
@@ -383,8 +454,8 @@ impl SparseConvKernelOps for CubeBackend {
 struct SparseConvKernelBackward;
 
 impl Backward<CubeBackend, 2> for SparseConvKernelBackward {
-    /// The features, the weight, the table and its inverse (as the kernels read them).
-    type State = [CubeTensor; 4];
+    /// The features, the weight and the table (as the kernels read them).
+    type State = [CubeTensor; 3];
 
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
         let grad = float_rows(grads.consume::<CubeBackend>(&ops.node));
@@ -404,7 +475,6 @@ impl<C: CheckpointStrategy> SparseConvKernelOps for Autodiff<CubeBackend, C> {
         features: FloatTensor<Self>,
         weight: FloatTensor<Self>,
         table: IntTensor<Self>,
-        inverse: IntTensor<Self>,
     ) -> FloatTensor<Self> {
         let (features, a) = features.into_parts();
         let (weight, b) = weight.into_parts();
@@ -416,9 +486,7 @@ impl<C: CheckpointStrategy> SparseConvKernelOps for Autodiff<CubeBackend, C> {
             .compute_bound()
             .stateful()
         {
-            OpsKind::Tracked(prep) => {
-                prep.finish([features, weight, table, int_rows(inverse)], out)
-            }
+            OpsKind::Tracked(prep) => prep.finish([features, weight, table], out),
             OpsKind::UnTracked(prep) => prep.finish(out),
         }
     }
@@ -457,13 +525,7 @@ mod tests {
         };
         if layout == RuleLayout::DeviceKernels {
             assert!(
-                matches!(
-                    &book.gather,
-                    RuleGather::KernelMap {
-                        inverse: Some(_),
-                        ..
-                    }
-                ),
+                matches!(&book.gather, RuleGather::KernelMap { kernels: true, .. }),
                 "the kernels' layout on a CubeCL device"
             );
         }

@@ -5,7 +5,8 @@
 //! through one kernel map on GPUs); on the flex CPU device the per-offset form runs as one
 //! custom operation with its own backward pass ([`fused`]), and on a CubeCL device the
 //! kernel map can run as CubeCL kernels with theirs (`device_kernels`, features `wgpu` /
-//! `cuda`), its table and inverse then found on the device too (`rulebook_device`).
+//! `cuda`), its table then found on the device too (`rulebook_device`) and its inverse made
+//! from the table there when a backward pass needs it.
 //!
 //! Written here because no Rust crate does sparse convolution; the operations it is made
 //! of (select, matmul, select_assign with add) are burn's, so gradients and every backend

@@ -154,8 +154,8 @@ pub enum RuleLayout {
     /// third of its 27 offsets), which a GPU does faster than it launches the 80-odd
     /// kernels a per-offset layer takes.
     KernelMap,
-    /// The kernel map and its inverse (which output row reads each input row at each
-    /// offset), run by the CubeCL kernels of `device_kernels`: no gathered copy, no zeros
+    /// The kernel map, run by the CubeCL kernels of `device_kernels` (which make its inverse,
+    /// the output row that reads each input row at each offset, for a backward pass): no gathered copy, no zeros
     /// multiplied, no atomic additions in the backward pass. Only on a CubeCL device of a
     /// build with the `wgpu` or `cuda` feature; elsewhere it is [`RuleLayout::KernelMap`].
     /// The GPUs' default ([`RuleLayout::for_device`]).
@@ -302,9 +302,9 @@ pub enum RuleGather {
         /// where it reads none. Boxed: a tensor handle is several times the size of the
         /// per-offset variant.
         table: Box<Tensor<1, Int>>,
-        /// [input rows · kernel volume]: the output row that reads input `n` at offset `k`,
-        /// or −1; only in [`RuleLayout::DeviceKernels`], whose kernels it selects.
-        inverse: Option<Box<Tensor<1, Int>>>,
+        /// Whether the CubeCL kernels read it ([`RuleLayout::DeviceKernels`]; they make its
+        /// inverse on the device when a backward pass needs it).
+        kernels: bool,
     },
 }
 
@@ -540,7 +540,7 @@ impl TableBuild {
     }
 }
 
-/// The kernels' table and inverse built on the device, where `layout` is
+/// The kernels' table built on the device, where `layout` is
 /// [`RuleLayout::DeviceKernels`] on `device` and `build` asks for it; `output` is `None` for a
 /// submanifold layer (its outputs are its inputs).
 fn device_tables(
@@ -553,10 +553,10 @@ fn device_tables(
 ) -> Option<RuleGather> {
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
     if build == TableBuild::Device && layout.on(device) == RuleLayout::DeviceKernels {
-        let (table, inverse) = super::rulebook_device::kernel_map(input, output, geometry, device)?;
+        let table = super::rulebook_device::kernel_map(input, output, geometry, device)?;
         return Some(RuleGather::KernelMap {
             table: Box::new(table),
-            inverse: Some(Box::new(inverse)),
+            kernels: true,
         });
     }
     let _ = (input, output, geometry, layout, device, build);
@@ -656,46 +656,28 @@ fn gather(
             for (k, input, output) in &pairs {
                 by_offset[*k] = Some((input, output));
             }
-            let column = |len: usize, none: i32, k: usize, forward: bool| {
-                let mut column = vec![none; len];
+            let column = |k: usize| {
+                let mut column = vec![input_rows as i32; output_rows];
                 if identity == Some(k) {
                     for (row, v) in column.iter_mut().enumerate() {
                         *v = row as i32;
                     }
                 }
                 if let Some((input, output)) = by_offset[k] {
-                    let (at, value) = if forward {
-                        (output, input)
-                    } else {
-                        (input, output)
-                    };
-                    for (&a, &v) in at.iter().zip(value) {
-                        column[a as usize] = v as i32;
+                    for (&o, &n) in output.iter().zip(input) {
+                        column[o as usize] = n as i32;
                     }
                 }
                 column
             };
             // The table: output o reads `table[o · volume + k]` at offset k, `input_rows` for
             // none (the zero row).
-            let columns: Vec<Vec<i32>> = (0..volume)
-                .into_par_iter()
-                .map(|k| column(output_rows, input_rows as i32, k, true))
-                .collect();
+            let columns: Vec<Vec<i32>> = (0..volume).into_par_iter().map(column).collect();
             let table = interleave(&columns, output_rows);
-            // Within one offset no input row repeats, so each inverse entry has one writer.
-            let inverse = (layout == RuleLayout::DeviceKernels).then(|| {
-                let columns: Vec<Vec<i32>> = (0..volume)
-                    .into_par_iter()
-                    .map(|k| column(input_rows, -1, k, false))
-                    .collect();
-                let inverse = interleave(&columns, input_rows);
-                let n = inverse.len();
-                Box::new(Tensor::from_data(TensorData::new(inverse, [n]), device))
-            });
             let n = table.len();
             RuleGather::KernelMap {
                 table: Box::new(Tensor::from_data(TensorData::new(table, [n]), device)),
-                inverse,
+                kernels: layout == RuleLayout::DeviceKernels,
             }
         }
     }

@@ -1,16 +1,14 @@
-//! A rulebook's kernel map and its inverse built on the device, for the CubeCL kernels of
+//! A rulebook's kernel map built on the device, for the CubeCL kernels of
 //! [`super::device_kernels`] (cargo features `wgpu` and `cuda`).
 //!
 //! Why: on a GPU machine the rulebooks were the host's largest work of every frame (33 ms
 //! of the published Voxel R-CNN's 44 on an H200, 108 ms of DASANet's 163: neighbour walks
 //! per offset, then two [rows × volume] tables filled and uploaded). Here the host uploads
 //! only the sites (coordinates by row, linear indices ascending with their rows) and one
-//! thread per (row, offset) finds its entry by binary search in the other side's indices:
-//!
-//! - table: output `o` at offset `k` reads the input at `o·s − p + d_k`, or the zero row
-//!   (`input rows`) where there is none;
-//! - inverse: input `n` at offset `k` feeds the output at `(n + p − d_k) / s` where that
-//!   divides and lies inside the output grid, or −1.
+//! thread per (output row, offset) finds its entry by binary search in the input's indices:
+//! output `o` at offset `k` reads the input at `o·s − p + d_k`, or the zero row (`input
+//! rows`) where there is none. (The inverse map a backward pass reads is made from this
+//! table by the convolution's kernels when one runs.)
 //!
 //! Both are exact integer searches: the same tables, entry for entry, as the host's
 //! ([`super::rulebook`]'s tests on wgpu compare them). The host still finds a strided
@@ -39,10 +37,10 @@ use burn_cubecl::tensor::CubeTensor;
 #[backend_extension(Cube, Autodiff)]
 pub trait KernelMapSearchOps: Backend {
     /// For every row r of `from` [rows · 4] (batch, z, y, x) and offset k of `volume`: the
-    /// row of the `to` site it reaches (`to_keys` [sites] its linear indices ascending,
+    /// row of the `to` site it reads (`to_keys` [sites] its linear indices ascending,
     /// `to_rows` [sites] their rows), or `none`, at `r · volume + k` of the result.
     /// `geometry` [12] holds the kernel, stride and padding (z, y, x) and the `to` grid's
-    /// extent; `inverse` says which way `from` reaches `to` (the module's documentation).
+    /// extent.
     fn kernel_map_search(
         from: IntTensor<Self>,
         to_keys: IntTensor<Self>,
@@ -50,26 +48,18 @@ pub trait KernelMapSearchOps: Backend {
         geometry: IntTensor<Self>,
         volume: usize,
         none: i32,
-        inverse: bool,
     ) -> IntTensor<Self>;
 }
 
 mod kernels {
     use cubecl::prelude::*;
 
-    /// The coordinate along one axis that `c` reaches at kernel offset `d`, or −1: forward
-    /// `c·s − p + d`, inverse `(c + p − d) / s` where it divides; inside `0..extent`.
+    /// The coordinate along one axis that `c` reads at kernel offset `d`, `c·s − p + d`, or
+    /// −1 outside `0..extent`.
     #[cube]
-    fn reach(c: i32, d: i32, s: i32, p: i32, extent: i32, #[comptime] inverse: bool) -> i32 {
-        let none = -1i32;
-        if inverse {
-            let n = c + p - d;
-            let q = n / s;
-            select(n >= 0 && q * s == n && q < extent, q, none)
-        } else {
-            let at = c * s - p + d;
-            select(at >= 0 && at < extent, at, none)
-        }
+    fn reach(c: i32, d: i32, s: i32, p: i32, extent: i32) -> i32 {
+        let at = c * s - p + d;
+        select(at >= 0 && at < extent, at, -1i32)
     }
 
     /// One (row, offset) a thread: `out[r · volume + k]`.
@@ -82,7 +72,6 @@ mod kernels {
         out: &mut Tensor<i32>,
         volume: u32,
         none: i32,
-        #[comptime] inverse: bool,
     ) {
         let unit = ABSOLUTE_POS;
         if unit >= out.shape(0) {
@@ -94,9 +83,9 @@ mod kernels {
         let (dz, dy, dx) = (k / (ky * kx), (k / kx) % ky, k % kx);
         let (ez, ey, ex) = (g[9], g[10], g[11]);
         let b = from[r * 4];
-        let z = reach(from[r * 4 + 1], dz, g[3], g[6], ez, inverse);
-        let y = reach(from[r * 4 + 2], dy, g[4], g[7], ey, inverse);
-        let x = reach(from[r * 4 + 3], dx, g[5], g[8], ex, inverse);
+        let z = reach(from[r * 4 + 1], dz, g[3], g[6], ez);
+        let y = reach(from[r * 4 + 2], dy, g[4], g[7], ey);
+        let x = reach(from[r * 4 + 3], dx, g[5], g[8], ex);
         let mut value = none;
         if z >= 0 && y >= 0 && x >= 0 {
             let key = ((b * ez + z) * ey + y) * ex + x;
@@ -131,7 +120,6 @@ fn search(
     geometry: CubeTensor,
     volume: usize,
     none: i32,
-    inverse: bool,
 ) -> CubeTensor {
     let cast = |t: CubeTensor| CubeBackend::int_cast(t, IntDType::I32);
     let (from, keys, rows, geometry) = (cast(from), cast(keys), cast(rows), cast(geometry));
@@ -161,7 +149,6 @@ fn search(
                 out.clone().into_tensor_arg(),
                 volume as u32,
                 none,
-                inverse,
             );
         }
     }
@@ -176,9 +163,8 @@ impl KernelMapSearchOps for CubeBackend {
         geometry: CubeTensor,
         volume: usize,
         none: i32,
-        inverse: bool,
     ) -> CubeTensor {
-        search(from, to_keys, to_rows, geometry, volume, none, inverse)
+        search(from, to_keys, to_rows, geometry, volume, none)
     }
 }
 
@@ -191,37 +177,8 @@ impl<C: CheckpointStrategy> KernelMapSearchOps for Autodiff<CubeBackend, C> {
         geometry: IntTensor<Self>,
         volume: usize,
         none: i32,
-        inverse: bool,
     ) -> IntTensor<Self> {
-        search(from, to_keys, to_rows, geometry, volume, none, inverse)
-    }
-}
-
-/// One side's sites on the device: coordinates by row [rows · 4], linear indices ascending
-/// [rows] and the row of each [rows].
-struct DeviceSites {
-    coords: Tensor<1, Int>,
-    keys: Tensor<1, Int>,
-    rows: Tensor<1, Int>,
-}
-
-impl DeviceSites {
-    fn upload(sites: &SparseSites, device: &Device) -> DeviceSites {
-        let coords: Vec<i32> = sites.coords().iter().flatten().copied().collect();
-        let (keys, rows): (Vec<i32>, Vec<i32>) = sites
-            .by_key()
-            .iter()
-            .map(|&(key, row)| (key as i32, row as i32))
-            .unzip();
-        let int = |values: Vec<i32>| {
-            let len = values.len();
-            Tensor::from_data(TensorData::new(values, [len]), device)
-        };
-        DeviceSites {
-            coords: int(coords),
-            keys: int(keys),
-            rows: int(rows),
-        }
+        search(from, to_keys, to_rows, geometry, volume, none)
     }
 }
 
@@ -232,50 +189,57 @@ fn fits_i32(sites: &SparseSites) -> bool {
     cells <= i32::MAX as u128
 }
 
-/// The kernel map [output rows · volume] and its inverse [input rows · volume] of a layer
-/// of `geometry` from `input` to `output` sites, built on `device` (a CubeCL device); `None`
-/// where the grids' indices do not fit an i32.
+/// The kernel map [output rows · volume] of a layer of `geometry` from `input` to `output`
+/// sites (`None`: a submanifold layer's, onto its inputs), built on `device` (a CubeCL
+/// device); `None` where the input grids' indices, which the search compares, do not fit an
+/// i32.
 pub(crate) fn kernel_map(
     input: &SparseSites,
     output: Option<&SparseSites>,
     geometry: &ConvGeometry,
     device: &Device,
-) -> Option<(Tensor<1, Int>, Tensor<1, Int>)> {
-    let output_grid = output.unwrap_or(input);
-    if !fits_i32(input) || !fits_i32(output_grid) {
+) -> Option<Tensor<1, Int>> {
+    if !fits_i32(input) {
         return None;
     }
-    let volume = geometry.volume();
-    let geometry_for = |to: &SparseSites| {
-        let values: Vec<i32> = [
-            geometry.kernel,
-            geometry.stride,
-            geometry.padding,
-            to.spatial_shape(),
-        ]
+    let int = |values: Vec<i32>| {
+        let len = values.len();
+        Tensor::<1, Int>::from_data(TensorData::new(values, [len]), device)
+    };
+    let geometry_values: Vec<i32> = [
+        geometry.kernel,
+        geometry.stride,
+        geometry.padding,
+        input.spatial_shape(),
+    ]
+    .iter()
+    .flatten()
+    .map(|&v| v as i32)
+    .collect();
+    // The output sites' coordinates by row [rows · 4]; the input's linear indices ascending
+    // and the row of each.
+    let from: Vec<i32> = output
+        .unwrap_or(input)
+        .coords()
         .iter()
         .flatten()
-        .map(|&v| v as i32)
+        .copied()
         .collect();
-        Tensor::<1, Int>::from_data(TensorData::new(values, [12]), device)
-    };
-    let input_sites = DeviceSites::upload(input, device);
-    let output_sites = output.map(|o| DeviceSites::upload(o, device));
-    let output_sites = output_sites.as_ref().unwrap_or(&input_sites);
-    let run = |from: &DeviceSites, to: &DeviceSites, to_grid: &SparseSites, none: i32, inverse| {
-        Tensor::from_dispatch(<Dispatch as KernelMapSearchOps>::kernel_map_search(
-            from.coords.clone().into_dispatch(),
-            to.keys.clone().into_dispatch(),
-            to.rows.clone().into_dispatch(),
-            geometry_for(to_grid).into_dispatch(),
-            volume,
-            none,
-            inverse,
-        ))
-    };
-    let table = run(output_sites, &input_sites, input, input.len() as i32, false);
-    let inverse = run(&input_sites, output_sites, output_grid, -1, true);
-    Some((table, inverse))
+    let (keys, rows): (Vec<i32>, Vec<i32>) = input
+        .by_key()
+        .iter()
+        .map(|&(key, row)| (key as i32, row as i32))
+        .unzip();
+    Some(Tensor::from_dispatch(
+        <Dispatch as KernelMapSearchOps>::kernel_map_search(
+            int(from).into_dispatch(),
+            int(keys).into_dispatch(),
+            int(rows).into_dispatch(),
+            int(geometry_values).into_dispatch(),
+            geometry.volume(),
+            input.len() as i32,
+        ),
+    ))
 }
 
 #[cfg(all(test, feature = "wgpu"))]
@@ -287,13 +251,13 @@ mod tests {
     use burn::prelude::*;
     use std::sync::Arc;
 
-    /// (table, inverse) of a rulebook in the kernels' layout.
-    fn tables(book: &Rulebook) -> (Vec<i64>, Vec<i64>) {
+    /// The table of a rulebook in the kernels' layout.
+    fn table(book: &Rulebook) -> Vec<i64> {
         match &book.gather {
             RuleGather::KernelMap {
                 table,
-                inverse: Some(inverse),
-            } => (ints(table), ints(inverse)),
+                kernels: true,
+            } => ints(table),
             _ => panic!("the kernels' layout"),
         }
     }
@@ -318,7 +282,7 @@ mod tests {
         }
     }
 
-    /// The device's search gives the host's tables entry for entry, and the same pair
+    /// The device's search gives the host's table entry for entry, and the same pair
     /// counts, for submanifold and strided geometries (the backbones' and odd ones) over two
     /// batch items, with sites dense enough to touch every edge of the grid and so sparse
     /// most offsets are empty; and over no sites.
@@ -348,7 +312,7 @@ mod tests {
                 let host = build(&sites, geometry, same, TableBuild::Host, &gpu);
                 let device = build(&sites, geometry, same, TableBuild::Device, &gpu);
                 assert_eq!(device.output.coords(), host.output.coords());
-                assert_eq!(tables(&device), tables(&host), "{geometry:?} on {shape:?}");
+                assert_eq!(table(&device), table(&host), "{geometry:?} on {shape:?}");
                 assert_eq!(
                     device.total_pairs(),
                     host.total_pairs(),
@@ -364,7 +328,7 @@ mod tests {
             TableBuild::Device,
             &gpu,
         );
-        assert_eq!(tables(&book), (Vec::new(), Vec::new()));
+        assert!(table(&book).is_empty());
         assert_eq!(book.total_pairs(), 0);
     }
 }
