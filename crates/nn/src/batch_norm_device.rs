@@ -93,6 +93,16 @@ mod kernels {
         v > 0.0 || f32::is_nan(v)
     }
 
+    /// `v` through the ReLU when `relu` (burn's: 0 where `v ≤ 0`, NaN kept), else `v`.
+    #[cube]
+    fn activated(v: f32, #[comptime] relu: bool) -> f32 {
+        let mut out = v;
+        if relu && !kept(v) {
+            out = 0.0;
+        }
+        out
+    }
+
     /// The norm's output before the activation, `(x − mean)·scale + β` (the CPU's order of
     /// operations), the same forward and in the ReLU's gate backward.
     #[cube]
@@ -277,11 +287,7 @@ mod kernels {
             coefficients[c],
             coefficients[x.shape(1) + c],
         );
-        if relu && !kept(v) {
-            out[unit] = 0.0;
-        } else {
-            out[unit] = v;
-        }
+        out[unit] = activated(v, relu);
     }
 
     /// One output value a thread: burn's inference batch norm from the running statistics,
@@ -311,11 +317,7 @@ mod kernels {
         let std = f32::sqrt(variance[c * variance.stride(0)] + epsilon);
         let centred = value_at(x, unit, b, c, s, packed) - mean[c * mean.stride(0)];
         let v = centred / std * gamma[c * gamma.stride(0)] + beta[c * beta.stride(0)];
-        if relu && !kept(v) {
-            out[unit] = 0.0;
-        } else {
-            out[unit] = v;
-        }
+        out[unit] = activated(v, relu);
     }
 
     /// One (block, channel) a thread: `partial[block · 2C + c]` = Σ g and
@@ -400,6 +402,18 @@ fn view3(t: CubeTensor) -> CubeTensor {
     assert!(shape.num_dims() >= 2, "a [rows, C] or [B, C, …] tensor");
     let spatial = (2..shape.num_dims()).map(|d| shape[d]).product::<usize>();
     CubeBackend::float_reshape(float_rows(t), [shape[0], shape[1], spatial].into())
+}
+
+/// `x` as the [B, C, S] view the element-wise kernels read, and its number of values, which
+/// they index in 32 bits.
+fn element_view(x: CubeTensor) -> (CubeTensor, usize) {
+    let view = view3(x);
+    let len = dims3(&view).iter().product::<usize>();
+    assert!(
+        len <= u32::MAX as usize,
+        "a batch norm over {len} values: the kernels index them in 32 bits"
+    );
+    (view, len)
 }
 
 /// How a reduction over `samples` samples of `channels` channels is split: (blocks, samples
@@ -522,15 +536,10 @@ fn forward(
     relu: bool,
 ) -> (CubeTensor, CubeTensor, CubeTensor, BatchNormState) {
     let shape = x.meta.shape().clone();
-    let view = view3(x);
-    let [batch, channels, spatial] = dims3(&view);
+    let (view, len) = element_view(x);
+    let [_, channels, spatial] = dims3(&view);
     let (mean, variance, coefficients) = statistics(&view, gamma, beta, epsilon);
     let client = view.client.clone();
-    let len = batch * channels * spatial;
-    assert!(
-        len <= u32::MAX as usize,
-        "a batch norm over {len} values: the kernels index them in 32 bits"
-    );
     let out = buffer(&view, len);
     let packed = is_packed(&view);
     if len > 0 {
@@ -827,13 +836,8 @@ impl InferenceNormOps for CubeBackend {
         relu: bool,
     ) -> CubeTensor {
         let shape = x.meta.shape().clone();
-        let view = view3(x);
-        let [batch, channels, spatial] = dims3(&view);
-        let len = batch * channels * spatial;
-        assert!(
-            len <= u32::MAX as usize,
-            "a batch norm over {len} values: the kernel indexes them in 32 bits"
-        );
+        let (view, len) = element_view(x);
+        let [_, channels, spatial] = dims3(&view);
         let per_channel = [mean, variance, gamma, beta].map(float_rows);
         for t in &per_channel {
             assert_eq!(
