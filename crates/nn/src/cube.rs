@@ -79,6 +79,20 @@ pub fn launch_shape(client: &cubecl::client::Client, units: usize) -> (CubeCount
     )
 }
 
+/// The most bytes `device` binds to one buffer, so the largest tensor a kernel reads or
+/// writes whole there (CubeCL's `max_page_size`; on wgpu the adapter's storage binding
+/// limit), or `None` off CubeCL. On wgpu a larger tensor comes out wrong with no error
+/// (burn 0.22 and CubeCL 0.11 do not check): Mesa's lavapipe binds 128 MiB.
+pub fn binding_limit(device: &Device) -> Option<u64> {
+    match device.clone().without_autodiff().as_dispatch() {
+        burn::backend::DispatchDevice::Cube(cube) => {
+            Some(cube.client().properties().memory.max_page_size)
+        }
+        #[allow(unreachable_patterns)]
+        _ => None,
+    }
+}
+
 /// burn's wgpu device, or `None` (with a line saying what was not checked) where no adapter
 /// runs a kernel: for tests of GPU code on the CPU, where Mesa's lavapipe (Debian's
 /// `mesa-vulkan-drivers`) is enough.
@@ -122,4 +136,21 @@ pub fn upstream(dims: [usize; 2], device: &Device) -> Tensor<2> {
         .map(|v| ((v * 53) % 97) as f32 / 48.0 - 1.0)
         .collect();
     Tensor::from_data(TensorData::new(values, dims), device)
+}
+
+#[cfg(all(test, feature = "wgpu"))]
+mod tests {
+    use super::*;
+
+    /// A CubeCL device states how much one buffer binds (lavapipe: 128 MiB), the CPU nothing.
+    #[test]
+    fn cubecl_devices_state_their_binding_limit() {
+        let Some(gpu) = working_wgpu_device("the binding limit") else {
+            return;
+        };
+        let limit = binding_limit(&gpu).expect("a CubeCL device");
+        assert!(limit >= 1 << 20, "{limit} bytes");
+        assert_eq!(binding_limit(&gpu.autodiff()), Some(limit));
+        assert_eq!(binding_limit(&Device::flex()), None);
+    }
 }

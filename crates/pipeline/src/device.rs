@@ -37,7 +37,9 @@ impl ComputeDevice {
             #[cfg(feature = "wgpu")]
             ComputeDevice::Wgpu => {
                 crate::kernel_cache::configure();
-                Device::wgpu(burn::tensor::DeviceKind::DefaultDevice)
+                let device = Device::wgpu(burn::tensor::DeviceKind::DefaultDevice);
+                note_small_binding_limit(&device);
+                device
             }
             #[cfg(feature = "cuda")]
             ComputeDevice::Cuda(index) => {
@@ -115,6 +117,32 @@ impl ComputeDevice {
             Self::NAMES.join(", ")
         )
     }
+}
+
+/// The binding limit under which a wgpu adapter's results are not to be trusted for every
+/// configuration: 1 GiB (real GPUs bind 2–4 GiB or more; Mesa's lavapipe 128 MiB).
+#[cfg(feature = "wgpu")]
+const SMALL_BINDING_LIMIT: u64 = 1 << 30;
+
+/// Says once a process, where the wgpu adapter binds less than [`SMALL_BINDING_LIMIT`] to
+/// one buffer, that a larger tensor comes out wrong there without an error: burn and CubeCL
+/// do not check, and nothing here can (measured on lavapipe: the shipped SAF model's LFA
+/// passes 128 MiB from 9 frustums a batch, and its boxes part from the CPU's).
+#[cfg(feature = "wgpu")]
+fn note_small_binding_limit(device: &Device) {
+    static NOTED: std::sync::Once = std::sync::Once::new();
+    NOTED.call_once(|| {
+        let limit = fusiondet_nn::cube::binding_limit(device);
+        if let Some(limit) = limit.filter(|&l| l < SMALL_BINDING_LIMIT) {
+            eprintln!(
+                "note: this wgpu adapter binds at most {} MiB to one tensor; a larger tensor \
+                 comes out wrong without an error (burn and CubeCL do not check), so results \
+                 that need one are not the CPU's: the shipped SAF models need one from 9 \
+                 frustums a batch (docs/gpus-and-clusters.md)",
+                limit >> 20
+            );
+        }
+    });
 }
 
 /// `cuda` is device 0, `cuda:N` device N; `None` for a name that is not CUDA's.
