@@ -241,11 +241,14 @@ impl Lfa {
             let terms = || first_layer_terms(first, inputs, &coords, feats.as_ref(), &q);
             // The local MLP's last ReLU after the max over the K neighbours: it commutes
             // with the max, and then runs over M rows instead of M·K.
+            let widest = stage.local.iter().map(MlpLayer::out_channels).max();
             let local = if rest.is_empty() && first.is_folded() && host_max::host_path(&q) {
                 // One folded layer in inference on the CPU (LFA at the paper's widths):
                 // the max is taken as the sums are formed, and the [M·K, C₁] sums are
                 // never stored.
                 terms().max_on_host(&at)
+            } else if let Some(queries) = inference_chunk(&q, k, widest.unwrap_or(1)) {
+                terms().local_in_chunks(first, rest, &at, queries)
             } else {
                 let local = first.normalize(terms().combine(&at));
                 let local = match rest.split_last() {
@@ -271,6 +274,33 @@ impl Lfa {
             }
             None => feats,
         }
+    }
+}
+
+/// Queries a chunk where inference on a GPU would otherwise make a [M·K, C] tensor (C the
+/// stage's widest local layer) past half the most one buffer binds (on wgpu a larger tensor
+/// comes out wrong without an error: lavapipe binds 128 MiB, which the shipped SAF model's
+/// first stage passes from 9 frustums a batch); `None` where it fits, in training (whose
+/// batch norms take their statistics over all the rows) and off CubeCL.
+fn inference_chunk(q: &Tensor<2>, k: usize, widest: usize) -> Option<usize> {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    {
+        let device = q.device();
+        if device.is_autodiff() {
+            return None;
+        }
+        let budget = fusiondet_nn::cube::binding_limit(&device)? / 2;
+        let per_query = (k * widest * std::mem::size_of::<f32>()).max(1) as u64;
+        let [m, _] = q.dims();
+        if m as u64 * per_query <= budget {
+            return None;
+        }
+        Some(((budget / per_query) as usize).max(1))
+    }
+    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
+    {
+        let _ = (q, k, widest);
+        None
     }
 }
 
@@ -419,27 +449,78 @@ impl FirstLayerTerms {
     /// `y_ik = per_point_k + per_query_i + d_ik w_d`, [M·K, C₁], by burn's operations
     /// (differentiable, any backend).
     fn combine_by_tensors(self, at: &Neighbourhood) -> Tensor<2> {
-        let (index, k) = (at.index, at.k);
-        let [m, c1] = self.per_query.dims();
-        // ‖p_i − p_k‖ of the scaled offsets, [M·K, 1].
-        let nb = at
-            .coords
-            .clone()
-            .select(0, index.neighbours.index().clone()); // [M·K, 3]
-        let qk =
-            at.q.clone()
-                .reshape([m, 1, 3])
-                .expand([m, k, 3])
-                .reshape([m * k, 3]);
+        let [m, _] = self.per_query.dims();
+        let neighbours = at.index.neighbours.index().clone();
+        let per_point = at.index.neighbours.gather(self.per_point.clone());
+        self.rows_of(at, 0..m, neighbours, per_point)
+    }
+
+    /// The sums of queries `queries` ([Q·K, C₁]), given those queries' neighbour rows [Q·K]
+    /// and their per-point terms gathered [Q·K, C₁].
+    fn rows_of(
+        &self,
+        at: &Neighbourhood,
+        queries: std::ops::Range<usize>,
+        neighbours: Tensor<1, Int>,
+        per_point: Tensor<2>,
+    ) -> Tensor<2> {
+        let k = at.k;
+        let [all, c1] = self.per_query.dims();
+        let m = queries.len();
+        // Whole tensors where the range is all the queries (no slice for autodiff to record).
+        let rows = |t: &Tensor<2>, width: usize| {
+            if m == all {
+                t.clone()
+            } else {
+                t.clone().slice([queries.clone(), 0..width])
+            }
+        };
+        // ‖p_i − p_k‖ of the scaled offsets, [Q·K, 1].
+        let nb = at.coords.clone().select(0, neighbours); // [Q·K, 3]
+        let qk = rows(at.q, 3)
+            .reshape([m, 1, 3])
+            .expand([m, k, 3])
+            .reshape([m * k, 3]);
         let dist = scaled(qk - nb, at.offset_gain)
             .square()
             .sum_dim(1)
             .add_scalar(1e-12)
             .sqrt();
-        let y = index.neighbours.gather(self.per_point).reshape([m, k, c1])
-            + self.per_query.reshape([m, 1, c1])
-            + (dist * self.w_d).reshape([m, k, c1]);
+        let y = per_point.reshape([m, k, c1])
+            + rows(&self.per_query, c1).reshape([m, 1, c1])
+            + (dist * self.w_d.clone()).reshape([m, k, c1]);
         y.reshape([m * k, c1])
+    }
+
+    /// The stage's local features [M, C] (before their ReLU) through `first` and `rest`, the
+    /// queries taken `queries` at a time so that no [queries·K, C] tensor passes what one
+    /// buffer binds (inference only: each query's rows are the same whatever the chunk, and
+    /// the norms use their running statistics).
+    fn local_in_chunks(
+        self,
+        first: &MlpLayer,
+        rest: &[MlpLayer],
+        at: &Neighbourhood,
+        queries: usize,
+    ) -> Tensor<2> {
+        let k = at.k;
+        let [m, _] = self.per_query.dims();
+        let index = at.index.neighbours.index();
+        let parts: Vec<Tensor<2>> = (0..m)
+            .step_by(queries.max(1))
+            .map(|q0| {
+                let rows = q0..(q0 + queries).min(m);
+                let neighbours = index.clone().narrow(0, rows.start * k, rows.len() * k);
+                let per_point = self.per_point.clone().select(0, neighbours.clone());
+                let local = first.normalize(self.rows_of(at, rows, neighbours, per_point));
+                let local = match rest.split_last() {
+                    None => local,
+                    Some((last, hidden)) => last.forward_pre_activation(run(hidden, relu(local))),
+                };
+                max_over_neighbours(local, k)
+            })
+            .collect();
+        Tensor::cat(parts, 0)
     }
 
     /// The same sum in one pass on the host, in parallel over the queries, for inference
@@ -922,5 +1003,43 @@ mod tests {
         for (i, (got, want)) in got.iter().zip(&want).enumerate() {
             assert_close(got, want, 1e-3, &format!("quantity {i}"));
         }
+    }
+
+    /// In inference on a GPU a stage whose [M·K, C] sums would pass half of what one buffer
+    /// binds takes its queries in chunks (lavapipe binds 128 MiB, and a larger tensor comes
+    /// out wrong there without an error): 13 frustums of 4,096 points at the paper's widths
+    /// (218 MB of sums a stage) give the CPU's features.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn inference_past_the_binding_limit_matches_the_cpu_on_wgpu() {
+        use crate::device_test_support::assert_close;
+        let Some(gpu) = fusiondet_nn::cube::working_wgpu_device("LFA's chunked inference") else {
+            return;
+        };
+        let (frustums, n0) = (13, 4096);
+        let points: Vec<f32> = (0..frustums * n0 * 3)
+            .map(|i| ((i * 7919) % 1000) as f32 / 100.0 - 5.0)
+            .collect();
+        let config = LfaConfig::paper();
+        let model = ModelConfig {
+            lfa: Some(config.clone()),
+            ..ModelConfig::default()
+        };
+        let cpu = Device::flex();
+        let lfa = Lfa::new(&model, &config, &cpu);
+        let run = |device: &Device| {
+            let lfa = lfa.clone().fork(device);
+            let inputs = LfaInputs::new(&points, frustums, n0, &config, device).unwrap();
+            lfa.forward(&inputs).try_into_vec_as::<f32>().unwrap()
+        };
+        let queries = Tensor::<2>::zeros([frustums * n0 / 2, 3], &gpu);
+        let sums = (frustums * n0 / 2 * config.neighbours * 128 * 4) as u64;
+        let limit = fusiondet_nn::cube::binding_limit(&gpu).unwrap();
+        assert_eq!(
+            inference_chunk(&queries, config.neighbours, 128).is_some(),
+            sums > limit / 2,
+            "chunks exactly where the sums pass half the limit ({limit} bytes)"
+        );
+        assert_close(&run(&gpu), &run(&cpu), 1e-5, "LFA's features");
     }
 }

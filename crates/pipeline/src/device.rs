@@ -126,8 +126,9 @@ const SMALL_BINDING_LIMIT: u64 = 1 << 30;
 
 /// Says once a process, where the wgpu adapter binds less than [`SMALL_BINDING_LIMIT`] to
 /// one buffer, that a larger tensor comes out wrong there without an error: burn and CubeCL
-/// do not check, and nothing here can (measured on lavapipe: the shipped SAF model's LFA
-/// passes 128 MiB from 9 frustums a batch, and its boxes part from the CPU's).
+/// do not check. LFA's inference splits its largest sums to stay under the limit (the
+/// shipped SAF model's passed lavapipe's 128 MiB from 9 frustums a batch); nothing else
+/// does.
 #[cfg(feature = "wgpu")]
 fn note_small_binding_limit(device: &Device) {
     static NOTED: std::sync::Once = std::sync::Once::new();
@@ -137,8 +138,8 @@ fn note_small_binding_limit(device: &Device) {
             eprintln!(
                 "note: this wgpu adapter binds at most {} MiB to one tensor; a larger tensor \
                  comes out wrong without an error (burn and CubeCL do not check), so results \
-                 that need one are not the CPU's: the shipped SAF models need one from 9 \
-                 frustums a batch (docs/gpus-and-clusters.md)",
+                 that need one are not the CPU's: the shipped models' detection stays under \
+                 it, training large configurations may not (docs/gpus-and-clusters.md)",
                 limit >> 20
             );
         }

@@ -162,7 +162,13 @@ fn parity(gpu: ComputeDevice, name: &str) {
     }
     let gpu = gpu.device();
     let data = repo().join("data/kitti-sample");
-    for model in ["fconvnet-car", "voxel-rcnn-car", "dasanet-car"] {
+    for model in [
+        "fconvnet-car",
+        "saf-car",
+        "fcam-car",
+        "voxel-rcnn-car",
+        "dasanet-car",
+    ] {
         let path = repo().join(format!("models/{model}.bpk"));
         let config = ExperimentConfig::for_checkpoint(&path, None).unwrap();
         let run = |device: &Device| {
