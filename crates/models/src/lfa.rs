@@ -250,12 +250,7 @@ impl Lfa {
             } else if let Some(queries) = inference_chunk(&q, k, widest.unwrap_or(1)) {
                 terms().local_in_chunks(first, rest, &at, queries)
             } else {
-                let local = first.normalize(terms().combine(&at));
-                let local = match rest.split_last() {
-                    None => local,
-                    Some((last, hidden)) => last.forward_pre_activation(run(hidden, relu(local))),
-                };
-                max_over_neighbours(local, k)
+                max_over_neighbours(local_mlp(first, rest, terms().combine(&at)), k)
             };
             let local = relu(local);
             let mut point_in = vec![scaled(q.clone(), inputs.position_gain)];
@@ -274,6 +269,16 @@ impl Lfa {
             }
             None => feats,
         }
+    }
+}
+
+/// The local MLP on a stage's first-layer sums [rows, C₁]: that layer's norm, then the other
+/// layers, the last without its ReLU (which follows the max over the neighbours).
+fn local_mlp(first: &MlpLayer, rest: &[MlpLayer], sums: Tensor<2>) -> Tensor<2> {
+    let local = first.normalize(sums);
+    match rest.split_last() {
+        None => local,
+        Some((last, hidden)) => last.forward_pre_activation(run(hidden, relu(local))),
     }
 }
 
@@ -512,12 +517,8 @@ impl FirstLayerTerms {
                 let rows = q0..(q0 + queries).min(m);
                 let neighbours = index.clone().narrow(0, rows.start * k, rows.len() * k);
                 let per_point = self.per_point.clone().select(0, neighbours.clone());
-                let local = first.normalize(self.rows_of(at, rows, neighbours, per_point));
-                let local = match rest.split_last() {
-                    None => local,
-                    Some((last, hidden)) => last.forward_pre_activation(run(hidden, relu(local))),
-                };
-                max_over_neighbours(local, k)
+                let sums = self.rows_of(at, rows, neighbours, per_point);
+                max_over_neighbours(local_mlp(first, rest, sums), k)
             })
             .collect();
         Tensor::cat(parts, 0)
