@@ -38,7 +38,8 @@ use burn_cubecl::tensor::CubeTensor;
 pub trait KernelMapSearchOps: Backend {
     /// For every row r of `from` [rows · 4] (batch, z, y, x) and offset k of `volume`: the
     /// row of the `to` site it reads (`to_keys` [sites] its linear indices ascending,
-    /// `to_rows` [sites] their rows), or `none`, at `r · volume + k` of the result.
+    /// `to_rows` [sites] their rows), or the number of `to` sites (the zero row the table
+    /// names for none), at `r · volume + k` of the result.
     /// `geometry` [12] holds the kernel, stride and padding (z, y, x) and the `to` grid's
     /// extent.
     fn kernel_map_search(
@@ -47,7 +48,6 @@ pub trait KernelMapSearchOps: Backend {
         to_rows: IntTensor<Self>,
         geometry: IntTensor<Self>,
         volume: usize,
-        none: i32,
     ) -> IntTensor<Self>;
 }
 
@@ -71,7 +71,6 @@ mod kernels {
         g: &Tensor<i32>,
         out: &mut Tensor<i32>,
         volume: u32,
-        none: i32,
     ) {
         let unit = ABSOLUTE_POS;
         if unit >= out.shape(0) {
@@ -86,7 +85,8 @@ mod kernels {
         let z = reach(from[r * 4 + 1], dz, g[3], g[6], ez);
         let y = reach(from[r * 4 + 2], dy, g[4], g[7], ey);
         let x = reach(from[r * 4 + 3], dx, g[5], g[8], ex);
-        let mut value = none;
+        // None: the zero row appended after the sites' rows.
+        let mut value = i32::cast_from(keys.shape(0));
         if z >= 0 && y >= 0 && x >= 0 {
             let key = ((b * ez + z) * ey + y) * ex + x;
             // The first index not below `key`.
@@ -119,7 +119,6 @@ fn search(
     rows: CubeTensor,
     geometry: CubeTensor,
     volume: usize,
-    none: i32,
 ) -> CubeTensor {
     let cast = |t: CubeTensor| CubeBackend::int_cast(t, IntDType::I32);
     let (from, keys, rows, geometry) = (cast(from), cast(keys), cast(rows), cast(geometry));
@@ -148,7 +147,6 @@ fn search(
                 geometry.into_tensor_arg(),
                 out.clone().into_tensor_arg(),
                 volume as u32,
-                none,
             );
         }
     }
@@ -162,9 +160,8 @@ impl KernelMapSearchOps for CubeBackend {
         to_rows: CubeTensor,
         geometry: CubeTensor,
         volume: usize,
-        none: i32,
     ) -> CubeTensor {
-        search(from, to_keys, to_rows, geometry, volume, none)
+        search(from, to_keys, to_rows, geometry, volume)
     }
 }
 
@@ -176,9 +173,8 @@ impl<C: CheckpointStrategy> KernelMapSearchOps for Autodiff<CubeBackend, C> {
         to_rows: IntTensor<Self>,
         geometry: IntTensor<Self>,
         volume: usize,
-        none: i32,
     ) -> IntTensor<Self> {
-        search(from, to_keys, to_rows, geometry, volume, none)
+        search(from, to_keys, to_rows, geometry, volume)
     }
 }
 
@@ -237,7 +233,6 @@ pub(crate) fn kernel_map(
             int(rows).into_dispatch(),
             int(geometry_values).into_dispatch(),
             geometry.volume(),
-            input.len() as i32,
         ),
     ))
 }
