@@ -22,6 +22,7 @@ use crate::model::FConvNetOutput;
 use burn::prelude::*;
 use burn::tensor::activation::log_softmax;
 use fusiondet_frustum::FrustumBatch;
+use fusiondet_nn::reduce::sum_all;
 
 /// A batch's targets as tensors, prepared on the host.
 #[derive(Debug, Clone)]
@@ -274,8 +275,7 @@ pub fn focal_loss(
     let log_pt = log_softmax(logits, 1).gather(1, labels); // [K, 1]
     let pt = log_pt.clone().exp();
     let modulator = pt.neg().add_scalar(1.0).clamp_min(0.0).powf_scalar(gamma);
-    (alpha * modulator * log_pt)
-        .sum()
+    sum_all(alpha * modulator * log_pt)
         .neg()
         .div_scalar(normaliser)
 }

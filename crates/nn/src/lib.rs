@@ -29,6 +29,7 @@ pub mod matmul;
 pub mod mlp;
 pub mod norm;
 pub mod ragged;
+pub mod reduce;
 pub mod row_pairs;
 pub mod segment;
 pub mod sparse;

@@ -22,6 +22,7 @@ use super::anchor_head::AnchorPredictions;
 use super::roi_head::RoiPredictions;
 use burn::prelude::*;
 use burn::tensor::activation::{log_softmax, relu, sigmoid};
+use fusiondet_nn::reduce::sum_all;
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -119,8 +120,7 @@ pub fn anchor_loss(
     let pt = t.clone() * p.clone().neg().add_scalar(1.0) + t.clone().neg().add_scalar(1.0) * p;
     let bce = relu(x.clone()) - x.clone() * t + x.abs().neg().exp().log1p();
     let focal = alpha * pt.powf_scalar(config.focal_gamma) * bce;
-    let cls = (focal * targets.cls_weights.clone().unsqueeze_dim::<3>(2))
-        .sum()
+    let cls = sum_all(focal * targets.cls_weights.clone().unsqueeze_dim::<3>(2))
         .div_scalar(batch)
         .mul_scalar(config.cls_weight);
 
@@ -135,8 +135,7 @@ pub fn anchor_loss(
         vec![pb.slice_dim(2, 0..6) - tb.slice_dim(2, 0..6), p_sin - t_sin],
         2,
     );
-    let loc = (smooth_l1(diff, 1.0 / 9.0) * targets.reg_weights.clone().reshape([b, a, 1]))
-        .sum()
+    let loc = sum_all(smooth_l1(diff, 1.0 / 9.0) * targets.reg_weights.clone().reshape([b, a, 1]))
         .div_scalar(batch)
         .mul_scalar(config.loc_weight);
 
@@ -145,8 +144,7 @@ pub fn anchor_loss(
         .sum_dim(2)
         .neg()
         .reshape([b, a]);
-    let dir = (ce * targets.reg_weights.clone())
-        .sum()
+    let dir = sum_all(ce * targets.reg_weights.clone())
         .div_scalar(batch)
         .mul_scalar(config.dir_weight);
     [cls, loc, dir]
@@ -223,9 +221,8 @@ pub fn roi_residual_loss(
     let rows = targets.fg_rows.as_ref()?;
     let [f] = rows.dims();
     let code = pred.boxes.clone().select(0, rows.clone()); // [F, 7]
-    let reg = smooth_l1(code.clone() - targets.reg.clone(), 1.0 / 9.0)
-        .sum()
-        .div_scalar(f as f64);
+    let reg =
+        sum_all(smooth_l1(code.clone() - targets.reg.clone(), 1.0 / 9.0)).div_scalar(f as f64);
     Some((reg, code))
 }
 
