@@ -25,8 +25,8 @@
 #                  MODELS_DIR (a git-ignored folder carried with the call); CHECK_OUT is kept
 #                  between calls on a warm machine, so later calls reuse the simulated frames.
 #                  The 2026-11-29 run took 164 s and 243 s in two calls; PREPARE_AB,
-#                  PROFILE and TRAIN_QUERY_AB (added since, not yet run on a GPU) add two
-#                  benches, two profiled trainings, two profiled detections (each profiled
+#                  STAGE_ONE_AB, PROFILE and TRAIN_QUERY_AB (added since, not yet run on a GPU)
+#                  add four benches, two profiled trainings, two profiled detections (each profiled
 #                  run stopped after PROFILE_SECONDS) and two trainings: where a lent
 #                  machine's minutes are short, the second call can leave them to a third
 #                  (TRAIN=0 in one call, MODELS=" " in the other).
@@ -56,6 +56,10 @@
 #   PREPARE_AB     the published configurations' benches also run with one thread preparing
 #                  frames beside the network (FUSIONDET_PREPARE_THREADS=1; beside a GPU the
 #                  default is a quarter of the cores, 1 to 4): 1 or 0 (default: 1)
+#   STAGE_ONE_AB   the published configurations' benches also run with each frame's stage one
+#                  on the network's thread (FUSIONDET_STAGE_ONE_AHEAD=off; beside a GPU the
+#                  default runs it on the threads that prepare frames, on device streams of
+#                  their own beside stage two): 1 or 0 (default: 1)
 #   PROFILE        the published configurations also train one more epoch and detect once with
 #                  every kernel launch timed on the device (FUSIONDET_KERNEL_PROFILE; slower,
 #                  so the step times and frames/s above are measured without it), summed per
@@ -84,7 +88,8 @@
 #              training run wrote (two epochs: the weights are untrained, the work per frame is
 #              the configuration's), with the defaults, the RoI grid query on the host, the
 #              sparse kernels' tables built on the host (TABLES_AB), one thread preparing frames
-#              (PREPARE_AB) and the kernel map (SPARSE_AB).
+#              (PREPARE_AB), stage one on the network's thread (STAGE_ONE_AB) and the kernel
+#              map (SPARSE_AB).
 #   s/step     a training run of two epochs of STEPS_FRAMES frames: the second epoch's seconds
 #              divided by its steps (the first holds kernel compilation and tuning), on each
 #              device (and on the device with the sparse kernels, SPARSE_AB); and the loss of the first step on both (`first_step_loss`), which must
@@ -146,6 +151,7 @@ train_query_ab="${TRAIN_QUERY_AB:-1}"
 sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
 tables_ab="${TABLES_AB:-1}"
 prepare_ab="${PREPARE_AB:-1}"
+stage_one_ab="${STAGE_ONE_AB:-1}"
 profile="${PROFILE:-1}"
 profile_seconds="${PROFILE_SECONDS:-150}"
 export FUSIONDET_AUTOTUNE_LOG="${FUSIONDET_AUTOTUNE_LOG:-$out/autotune.log}"
@@ -413,6 +419,11 @@ if [ "$train" = 1 ]; then
                         no_probes=1 bench_into "$run-bench-one-preparer.log" "$run/model.bpk" "$d" "" "" "" 1
                         record "$(printf '%-26s bench on %s with one thread preparing frames: %s frames/s; stages: %s' \
                             "$name" "$d" "$(frames_per_second "$run-bench-one-preparer.log" || echo '?')" "$(stage_ms "$run-bench-one-preparer.log")")"
+                    fi
+                    if [ "$stage_one_ab" = 1 ]; then
+                        FUSIONDET_STAGE_ONE_AHEAD=off no_probes=1 bench_into "$run-bench-stage-one-behind.log" "$run/model.bpk" "$d"
+                        record "$(printf '%-26s bench on %s with stage one on the network'"'"'s thread: %s frames/s; stages: %s' \
+                            "$name" "$d" "$(frames_per_second "$run-bench-stage-one-behind.log" || echo '?')" "$(stage_ms "$run-bench-stage-one-behind.log")")"
                     fi
                     if [ "$profile" = 1 ]; then
                         # Every launch timed on its own: one more epoch, and a detection of the val

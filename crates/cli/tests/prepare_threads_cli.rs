@@ -1,7 +1,8 @@
 //! How many threads prepare frames beside the network (`FUSIONDET_PREPARE_THREADS`; beside a
 //! GPU by default a quarter of the cores): the shipped DASANet writes the same result files,
 //! byte for byte, with three threads preparing its five bundled val frames as with the CPU's
-//! one, and a value out of range is refused before anything is written.
+//! one, and a value out of range is refused before anything is written; the voxel family's
+//! stage one on the preparing thread (`FUSIONDET_STAGE_ONE_AHEAD=on`) writes the same files.
 
 mod common;
 
@@ -54,6 +55,48 @@ fn a_number_of_threads_out_of_range_is_refused() {
     assert!(!o.status.success(), "{text}");
     assert!(
         text.contains("FUSIONDET_PREPARE_THREADS=\"0\"") && text.contains("from 1 to 8"),
+        "{text}"
+    );
+    assert!(!text.contains("panicked"), "{text}");
+    assert!(!out.exists(), "the result directory was made");
+}
+
+/// Stage one on the preparing thread (a GPU's default, `FUSIONDET_STAGE_ONE_AHEAD=on`) writes
+/// the CPU's result files byte for byte for both voxel-family models.
+#[test]
+fn stage_one_on_the_preparing_thread_writes_the_same_results() {
+    let dir = tempfile::tempdir().unwrap();
+    for model in ["voxel-rcnn-car", "dasanet-car"] {
+        let behind = dir.path().join(format!("{model}-behind"));
+        let ahead = dir.path().join(format!("{model}-ahead"));
+        let detect = |out: &Path, value: Option<&str>| {
+            common::detect_bundled_val(model, out, "FUSIONDET_STAGE_ONE_AHEAD", value)
+        };
+        let o = detect(&behind, None);
+        assert!(o.status.success(), "{}", all_output(&o));
+        let o = detect(&ahead, Some("on"));
+        assert!(o.status.success(), "{}", all_output(&o));
+        let (behind, ahead) = (result_files(&behind), result_files(&ahead));
+        assert_eq!(behind.len(), 5, "{model}: {:?}", behind.keys());
+        assert!(behind.values().any(|bytes| !bytes.is_empty()), "{model}");
+        assert_eq!(behind, ahead, "{model}");
+    }
+}
+
+#[test]
+fn a_stage_one_setting_other_than_on_or_off_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let o = common::detect_bundled_val(
+        "voxel-rcnn-car",
+        &out,
+        "FUSIONDET_STAGE_ONE_AHEAD",
+        Some("yes"),
+    );
+    let text = all_output(&o);
+    assert!(!o.status.success(), "{text}");
+    assert!(
+        text.contains("FUSIONDET_STAGE_ONE_AHEAD=\"yes\"") && text.contains("`on`"),
         "{text}"
     );
     assert!(!text.contains("panicked"), "{text}");

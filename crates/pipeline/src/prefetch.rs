@@ -26,19 +26,57 @@ pub const PREPARERS_VAR: &str = "FUSIONDET_PREPARE_THREADS";
 /// Most preparing threads: each holds its frames' clouds and uploaded inputs.
 pub const MAX_PREPARERS: usize = 8;
 
+/// The environment variable that says where a frame's stage one (the network up to its
+/// proposals) runs: `on`, on the thread that prepared the frame, `off`, on the network's
+/// thread after the frames before it. For A/B runs; by default on beside a GPU
+/// ([`stage_one_ahead_for`]).
+pub const STAGE_ONE_VAR: &str = "FUSIONDET_STAGE_ONE_AHEAD";
+
+/// Whether `device` is a GPU backend's.
+fn on_gpu(device: &Device) -> bool {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    return fusiondet_nn::cube::cube_runtime(device).is_some();
+    // A build without a GPU backend has only the CPU.
+    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
+    {
+        let _ = device;
+        false
+    }
+}
+
 /// How many threads prepare frames for a network on `device`: [`preparers_for`] with this
 /// machine's cores and [`PREPARERS_VAR`].
 pub fn preparers(device: &Device) -> Result<usize, String> {
-    #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    let on_gpu = fusiondet_nn::cube::cube_runtime(device).is_some();
-    // A build without a GPU backend has only the CPU.
-    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
-    let on_gpu = {
-        let _ = device;
-        false
-    };
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    preparers_for(on_gpu, cores, std::env::var(PREPARERS_VAR).ok().as_deref())
+    preparers_for(
+        on_gpu(device),
+        cores,
+        std::env::var(PREPARERS_VAR).ok().as_deref(),
+    )
+}
+
+/// Whether the voxel family's detectors run each frame's stage one on the thread that
+/// prepared it, for a network on `device`: [`stage_one_ahead_for`] with [`STAGE_ONE_VAR`].
+pub fn stage_one_ahead(device: &Device) -> Result<bool, String> {
+    stage_one_ahead_for(on_gpu(device), std::env::var(STAGE_ONE_VAR).ok().as_deref())
+}
+
+/// Beside a GPU, stage one runs on the preparing threads: each thread's work goes to a
+/// device stream of its own, so frame k + 1's stage one runs on the device while the
+/// network's thread takes frame k through stage two, and the host's proposal NMS, which
+/// waits for stage one's outputs, no longer leaves the device idle. On the CPU the network
+/// already runs on every core, so stage one stays on the network's thread. `setting` (the
+/// value of [`STAGE_ONE_VAR`]: `on` or `off`) overrides both.
+pub fn stage_one_ahead_for(on_gpu: bool, setting: Option<&str>) -> Result<bool, String> {
+    match setting.map(str::trim) {
+        None => Ok(on_gpu),
+        Some("on") => Ok(true),
+        Some("off") => Ok(false),
+        Some(text) => Err(format!(
+            "{STAGE_ONE_VAR}={text:?}: give `on` (stage one on the threads that prepare \
+             frames) or `off` (on the network's thread), or unset it to let the device decide"
+        )),
+    }
 }
 
 /// One thread beside a network on the CPU, which already runs on every core (a second
@@ -247,6 +285,21 @@ mod tests {
             let err = preparers_for(true, 16, Some(bad)).unwrap_err();
             assert!(
                 err.contains(PREPARERS_VAR) && err.contains("1 to 8"),
+                "{bad:?}: {err}"
+            );
+        }
+    }
+
+    #[test]
+    fn stage_one_follows_the_device_and_the_variable() {
+        assert_eq!(stage_one_ahead_for(false, None), Ok(false));
+        assert_eq!(stage_one_ahead_for(true, None), Ok(true));
+        assert_eq!(stage_one_ahead_for(false, Some("on")), Ok(true));
+        assert_eq!(stage_one_ahead_for(true, Some(" off ")), Ok(false));
+        for bad in ["1", "yes", "", "ON"] {
+            let err = stage_one_ahead_for(true, Some(bad)).unwrap_err();
+            assert!(
+                err.contains(STAGE_ONE_VAR) && err.contains("`on`"),
                 "{bad:?}: {err}"
             );
         }

@@ -49,6 +49,49 @@ fn the_voxel_family_trains_to_the_same_first_losses_on_cuda_as_on_the_cpu() {
     training_parity(ComputeDevice::Cuda(0), "CUDA", VOXEL_FAMILY, false);
 }
 
+/// The voxel family's stage one on the threads that prepare frames (a GPU's default) and on
+/// the network's thread give the same boxes to the bit on wgpu: the shipped Voxel R-CNN
+/// and DASANet on the bundled val frames (stage one of the next frames on the preparing
+/// threads' device streams while the network's thread takes a frame through stage two).
+#[cfg(feature = "wgpu")]
+#[test]
+fn stage_one_on_the_preparing_threads_gives_the_same_boxes_on_wgpu() {
+    use fusiondet_pipeline::SplitInputs;
+    let gpu = ComputeDevice::Wgpu;
+    if let Err(why) = gpu.check() {
+        eprintln!("skipped: {why}; stage one ahead was not checked");
+        return;
+    }
+    let device = gpu.device();
+    let data = repo().join("data/kitti-sample");
+    for model in ["voxel-rcnn-car", "dasanet-car"] {
+        let path = repo().join(format!("models/{model}.bpk"));
+        let config = ExperimentConfig::for_checkpoint(&path, None).unwrap();
+        let detector = Detector::load(config, &path, &device).unwrap();
+        let inputs = detector
+            .load_split(&data, "val", 0, SideInputs::default())
+            .unwrap();
+        let run = |ahead: bool| {
+            let timing = &mut StageTimes::default();
+            let results = match (&detector, &inputs) {
+                (Detector::VoxelRcnn(d), SplitInputs::Lidar { frames }) => {
+                    d.detect_frames_with(&device, frames, ahead, timing)
+                }
+                (Detector::Dasanet(d), SplitInputs::Camera { frames, depth_dir }) => {
+                    d.detect_frames_with(&device, frames, depth_dir.as_deref(), ahead, timing)
+                }
+                _ => unreachable!("{model}: a voxel-family model"),
+            };
+            results.unwrap().objects
+        };
+        let (ahead, behind) = (run(true), run(false));
+        let boxes: usize = ahead.values().map(Vec::len).sum();
+        assert!(boxes > 0, "{model}: no boxes");
+        assert_eq!(ahead, behind, "{model}");
+        eprintln!("{model}: {boxes} boxes, the same bits with stage one ahead and behind");
+    }
+}
+
 /// (configuration, frames, batch size) of the voxel family's training parity: two batches of
 /// 2 frames.
 const VOXEL_FAMILY: &[(&str, usize, usize)] = &[("tiny-voxel-rcnn", 4, 2), ("tiny-dasanet", 4, 2)];

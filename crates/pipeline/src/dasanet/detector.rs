@@ -3,7 +3,7 @@
 //! head → refined boxes → NMS → KITTI results. Batch 1, as Voxel R-CNN's detector.
 
 use super::config::DasanetSection;
-use super::data::{DasanetData, collate};
+use super::data::{DasanetBatch, DasanetData, collate};
 use crate::config::ExperimentConfig;
 use crate::detection::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
@@ -111,12 +111,28 @@ impl DasanetDetector {
     /// boxes. `depth_dir` holds completed maps to use instead of completing. Each frame's
     /// pseudo cloud, voxels and rulebooks are prepared on threads beside the network (one
     /// beside the CPU, several beside a GPU) while it runs on the frames before
-    /// ([`crate::prefetch`]).
+    /// ([`crate::prefetch`]); beside a GPU those threads also run the frame's stage one
+    /// ([`crate::prefetch::stage_one_ahead`]).
     pub fn detect_frames(
         &self,
         device: &Device,
         frames: &InMemoryFrames<SensorFrame>,
         depth_dir: Option<&Path>,
+        timing: &mut StageTimes,
+    ) -> Result<FrameResults> {
+        let ahead = crate::prefetch::stage_one_ahead(device).map_err(PipelineError::Invalid)?;
+        self.detect_frames_with(device, frames, depth_dir, ahead, timing)
+    }
+
+    /// [`Self::detect_frames`] with stage one on the preparing threads (`stage_one_ahead`)
+    /// or on the network's thread. The same operations run on each frame either way, so
+    /// the results are the same bits.
+    pub fn detect_frames_with(
+        &self,
+        device: &Device,
+        frames: &InMemoryFrames<SensorFrame>,
+        depth_dir: Option<&Path>,
+        stage_one_ahead: bool,
         timing: &mut StageTimes,
     ) -> Result<FrameResults> {
         let section = &self.data.voxel.section;
@@ -136,47 +152,35 @@ impl DasanetDetector {
                 let sample = data.sample_with_cloud(&frame, pseudo, None)?;
                 timing.add(STAGE_VOXELIZE, t.elapsed());
                 if !sample.has_voxels() {
-                    return Ok((frame, None));
+                    return Ok((frame, FrameStage::Empty));
                 }
                 let t = Instant::now();
                 let batch = collate(data, vec![sample], false, device)?;
                 timing.add(STAGE_RULEBOOKS, t.elapsed());
-                Ok((frame, Some(batch)))
+                Ok((
+                    frame,
+                    match stage_one_ahead {
+                        true => self.stage_one(batch, timing),
+                        false => FrameStage::Inputs(Box::new(batch)),
+                    },
+                ))
             },
-            |(frame, batch), timing| {
+            |(frame, stage), timing| {
                 let objects = results.objects.entry(frame.id.clone()).or_default();
-                let Some(batch) = batch else {
+                let stage = match stage {
+                    FrameStage::Inputs(batch) => self.stage_one(*batch, timing),
+                    stage => stage,
+                };
+                let FrameStage::Proposed(proposed) = stage else {
                     return Ok(());
                 };
-                let t = Instant::now();
-                let lidar = self
-                    .model
-                    .lidar_backbone
-                    .forward(batch.lidar_features, &batch.lidar_plan);
-                let _ = values(&lidar.output.features.clone().slice([0..1, 0..1]));
-                timing.add(STAGE_LIDAR_BACKBONE, t.elapsed());
-                let t = Instant::now();
-                let pseudo = self
-                    .model
-                    .pseudo_backbone
-                    .forward(batch.pseudo_features, &batch.pseudo_plan);
-                let _ = values(&pseudo.output.features.clone().slice([0..1, 0..1]));
-                timing.add(STAGE_PSEUDO_BACKBONE, t.elapsed());
-                let t = Instant::now();
-                let anchors = self.model.bev_and_anchors(&lidar, &pseudo);
-                let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
-                timing.add(STAGE_BEV, t.elapsed());
-                let proposals = timed_frame_proposals(&self.data.voxel, &anchors, section, timing);
-                if proposals.is_empty() {
-                    return Ok(());
-                }
+                let Proposed {
+                    stage_one,
+                    proposals,
+                    clouds,
+                } = *proposed;
                 let rois = single_frame_rois(&proposals);
-                let stage_one = DasanetStageOne {
-                    lidar,
-                    pseudo,
-                    anchors,
-                };
-                let pred = self.refine_timed(&stage_one, &rois, &batch.clouds, timing);
+                let pred = self.refine_timed(&stage_one, &rois, &clouds, timing);
                 objects.extend(timed_frame_objects(
                     section, &proposals, &pred, &frame, timing,
                 ));
@@ -185,6 +189,44 @@ impl DasanetDetector {
             },
         )?;
         Ok(results)
+    }
+
+    /// Stage one of a frame: both 3D backbones, the BEV backbone and anchor head, the
+    /// proposals (each timed as its stage; a GPU is waited for after each network stage so
+    /// that its time shows). [`FrameStage::Empty`] where there are no proposals.
+    fn stage_one(&self, batch: DasanetBatch, timing: &mut StageTimes) -> FrameStage {
+        let section = &self.data.voxel.section;
+        let t = Instant::now();
+        let lidar = self
+            .model
+            .lidar_backbone
+            .forward(batch.lidar_features, &batch.lidar_plan);
+        let _ = values(&lidar.output.features.clone().slice([0..1, 0..1]));
+        timing.add(STAGE_LIDAR_BACKBONE, t.elapsed());
+        let t = Instant::now();
+        let pseudo = self
+            .model
+            .pseudo_backbone
+            .forward(batch.pseudo_features, &batch.pseudo_plan);
+        let _ = values(&pseudo.output.features.clone().slice([0..1, 0..1]));
+        timing.add(STAGE_PSEUDO_BACKBONE, t.elapsed());
+        let t = Instant::now();
+        let anchors = self.model.bev_and_anchors(&lidar, &pseudo);
+        let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
+        timing.add(STAGE_BEV, t.elapsed());
+        let proposals = timed_frame_proposals(&self.data.voxel, &anchors, section, timing);
+        if proposals.is_empty() {
+            return FrameStage::Empty;
+        }
+        FrameStage::Proposed(Box::new(Proposed {
+            stage_one: DasanetStageOne {
+                lidar,
+                pseudo,
+                anchors,
+            },
+            proposals,
+            clouds: batch.clouds,
+        }))
     }
 
     /// Stage two with each module's time. TDIS is queued before STCA's points are cropped
@@ -232,4 +274,20 @@ impl DasanetDetector {
         timing.add(STAGE_HEAD, t.elapsed());
         pred
     }
+}
+
+/// How far a frame has come before the network's thread takes it: nothing to detect, its
+/// inputs, or through stage one.
+enum FrameStage {
+    Empty,
+    Inputs(Box<DasanetBatch>),
+    Proposed(Box<Proposed>),
+}
+
+/// A frame through stage one: its backbones' maps and anchors, its proposals, and its
+/// clouds for STCA's crops.
+struct Proposed {
+    stage_one: DasanetStageOne,
+    proposals: Vec<fusiondet_voxel::Proposal>,
+    clouds: Vec<(Vec<f32>, Vec<f32>)>,
 }

@@ -13,8 +13,8 @@ use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
 use fusiondet_geometry::{alpha_from_ry, normalize_angle, project_to_image};
 use fusiondet_kitti::Object;
 use fusiondet_models::voxel_rcnn::{
-    AnchorPredictions, BackboneOutput, RoiBox, RoiGridIndex, RoiPredictions, VoxelGeometry,
-    VoxelRcnn, load_voxel_rcnn, pooled_maps,
+    AnchorPredictions, BackboneOutput, BackbonePlan, RoiBox, RoiGridIndex, RoiPredictions,
+    VoxelGeometry, VoxelRcnn, load_voxel_rcnn, pooled_maps,
 };
 use fusiondet_voxel::{LidarBox, Proposal, decode_roi};
 use rayon::prelude::*;
@@ -263,11 +263,26 @@ impl VoxelRcnnDetector {
     /// Detects on every frame; a frame without a LiDAR point in range gets no boxes. Each
     /// frame's voxels and rulebooks are prepared on threads beside the network (one beside
     /// the CPU, several beside a GPU) while it runs on the frames before
-    /// ([`crate::prefetch`]).
+    /// ([`crate::prefetch`]); beside a GPU those threads also run the frame's stage one
+    /// ([`crate::prefetch::stage_one_ahead`]).
     pub fn detect_frames(
         &self,
         device: &Device,
         frames: &InMemoryFrames<SensorFrame>,
+        timing: &mut StageTimes,
+    ) -> Result<FrameResults> {
+        let ahead = crate::prefetch::stage_one_ahead(device).map_err(PipelineError::Invalid)?;
+        self.detect_frames_with(device, frames, ahead, timing)
+    }
+
+    /// [`Self::detect_frames`] with stage one on the preparing threads (`stage_one_ahead`)
+    /// or on the network's thread. The same operations run on each frame either way, so
+    /// the results are the same bits.
+    pub fn detect_frames_with(
+        &self,
+        device: &Device,
+        frames: &InMemoryFrames<SensorFrame>,
+        stage_one_ahead: bool,
         timing: &mut StageTimes,
     ) -> Result<FrameResults> {
         let section = &self.data.section;
@@ -284,7 +299,7 @@ impl VoxelRcnnDetector {
                 let sample = data.sample(&frame, None)?;
                 timing.add(STAGE_VOXELIZE, t.elapsed());
                 if sample.voxels.is_empty() {
-                    return Ok((frame, None));
+                    return Ok((frame, FrameStage::Empty));
                 }
                 let t = Instant::now();
                 let inputs = batch_inputs(
@@ -293,31 +308,24 @@ impl VoxelRcnnDetector {
                     device,
                 )?;
                 timing.add(STAGE_RULEBOOKS, t.elapsed());
-                Ok((frame, Some(inputs)))
+                Ok((
+                    frame,
+                    match stage_one_ahead {
+                        true => self.stage_one(inputs, timing),
+                        false => FrameStage::Inputs(inputs),
+                    },
+                ))
             },
-            |(frame, inputs), timing| {
+            |(frame, stage), timing| {
                 let objects = results.objects.entry(frame.id.clone()).or_default();
-                let Some((features, plan)) = inputs else {
-                    return Ok(());
+                let (backbone, proposals) = match stage {
+                    FrameStage::Inputs(inputs) => match self.stage_one(inputs, timing) {
+                        FrameStage::Proposed(backbone, proposals) => (backbone, proposals),
+                        _ => return Ok(()),
+                    },
+                    FrameStage::Proposed(backbone, proposals) => (backbone, proposals),
+                    FrameStage::Empty => return Ok(()),
                 };
-                let t = Instant::now();
-                let backbone = self.model.backbone.forward(features, &plan);
-                let _ = values(&backbone.output.features.clone().slice([0..1, 0..1]));
-                timing.add(STAGE_BACKBONE, t.elapsed());
-                let t = Instant::now();
-                let bev = self
-                    .model
-                    .bev
-                    .forward(fusiondet_models::voxel_rcnn::height_compression(
-                        &backbone.output,
-                    ));
-                let anchors = self.model.anchor_head.forward(bev);
-                let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
-                timing.add(STAGE_BEV, t.elapsed());
-                let proposals = timed_frame_proposals(&self.data, &anchors, section, timing);
-                if proposals.is_empty() {
-                    return Ok(());
-                }
                 let rois = single_frame_rois(&proposals);
                 let pred = refine(&self.model, section, &backbone, &rois, Some(timing));
                 objects.extend(timed_frame_objects(
@@ -329,4 +337,42 @@ impl VoxelRcnnDetector {
         )?;
         Ok(results)
     }
+
+    /// Stage one of a frame: the 3D backbone, the BEV backbone and anchor head, the
+    /// proposals (each timed as its stage; a GPU is waited for after each network stage so
+    /// that its time shows). [`FrameStage::Empty`] where there are no proposals.
+    fn stage_one(
+        &self,
+        (features, plan): (Tensor<2>, BackbonePlan),
+        timing: &mut StageTimes,
+    ) -> FrameStage {
+        let section = &self.data.section;
+        let t = Instant::now();
+        let backbone = self.model.backbone.forward(features, &plan);
+        let _ = values(&backbone.output.features.clone().slice([0..1, 0..1]));
+        timing.add(STAGE_BACKBONE, t.elapsed());
+        let t = Instant::now();
+        let bev = self
+            .model
+            .bev
+            .forward(fusiondet_models::voxel_rcnn::height_compression(
+                &backbone.output,
+            ));
+        let anchors = self.model.anchor_head.forward(bev);
+        let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
+        timing.add(STAGE_BEV, t.elapsed());
+        let proposals = timed_frame_proposals(&self.data, &anchors, section, timing);
+        match proposals.is_empty() {
+            true => FrameStage::Empty,
+            false => FrameStage::Proposed(backbone, proposals),
+        }
+    }
+}
+
+/// How far a frame has come before the network's thread takes it: nothing to detect, its
+/// inputs, or through stage one (its backbone's maps and its proposals).
+enum FrameStage {
+    Empty,
+    Inputs((Tensor<2>, BackbonePlan)),
+    Proposed(BackboneOutput, Vec<Proposal>),
 }
