@@ -318,13 +318,12 @@ impl VoxelRcnnDetector {
             },
             |(frame, stage), timing| {
                 let objects = results.objects.entry(frame.id.clone()).or_default();
-                let (backbone, proposals) = match stage {
-                    FrameStage::Inputs(inputs) => match self.stage_one(inputs, timing) {
-                        FrameStage::Proposed(backbone, proposals) => (backbone, proposals),
-                        _ => return Ok(()),
-                    },
-                    FrameStage::Proposed(backbone, proposals) => (backbone, proposals),
-                    FrameStage::Empty => return Ok(()),
+                let stage = match stage {
+                    FrameStage::Inputs(inputs) => self.stage_one(inputs, timing),
+                    stage => stage,
+                };
+                let FrameStage::Proposed(backbone, proposals) = stage else {
+                    return Ok(());
                 };
                 let rois = single_frame_rois(&proposals);
                 let pred = refine(&self.model, section, &backbone, &rois, Some(timing));
