@@ -51,12 +51,18 @@ fn a_number_of_threads_out_of_range_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let o = detect(&out, Some("0"));
-    let text = all_output(&o);
-    assert!(!o.status.success(), "{text}");
-    assert!(
-        text.contains("FUSIONDET_PREPARE_THREADS=\"0\"") && text.contains("from 1 to 8"),
-        "{text}"
+    assert_refused(
+        &o,
+        &out,
+        &["FUSIONDET_PREPARE_THREADS=\"0\"", "from 1 to 8"],
     );
+}
+
+/// `o` failed without a panic, saying each of `says`, and made no result directory `out`.
+fn assert_refused(o: &Output, out: &Path, says: &[&str]) {
+    let text = all_output(o);
+    assert!(!o.status.success(), "{text}");
+    assert!(says.iter().all(|s| text.contains(s)), "{text}");
     assert!(!text.contains("panicked"), "{text}");
     assert!(!out.exists(), "the result directory was made");
 }
@@ -93,12 +99,5 @@ fn a_stage_one_setting_other_than_on_or_off_is_refused() {
         "FUSIONDET_STAGE_ONE_AHEAD",
         Some("yes"),
     );
-    let text = all_output(&o);
-    assert!(!o.status.success(), "{text}");
-    assert!(
-        text.contains("FUSIONDET_STAGE_ONE_AHEAD=\"yes\"") && text.contains("`on`"),
-        "{text}"
-    );
-    assert!(!text.contains("panicked"), "{text}");
-    assert!(!out.exists(), "the result directory was made");
+    assert_refused(&o, &out, &["FUSIONDET_STAGE_ONE_AHEAD=\"yes\"", "`on`"]);
 }
