@@ -57,9 +57,9 @@
 #                  frames beside the network (FUSIONDET_PREPARE_THREADS=1; beside a GPU the
 #                  default is a quarter of the cores, 1 to 4): 1 or 0 (default: 1)
 #   STAGE_ONE_AB   the published configurations' benches also run with each frame's stage one
-#                  on the network's thread (FUSIONDET_STAGE_ONE_AHEAD=off; beside a GPU the
-#                  default runs it on the threads that prepare frames, on device streams of
-#                  their own beside stage two): 1 or 0 (default: 1)
+#                  on the network's thread (FUSIONDET_STAGE_ONE_AHEAD=off; by default it runs
+#                  on the threads that prepare frames, on a GPU on device streams of their
+#                  own beside stage two): 1 or 0 (default: 1)
 #   PROFILE        the published configurations also train one more epoch and detect once with
 #                  every kernel launch timed on the device (FUSIONDET_KERNEL_PROFILE; slower,
 #                  so the step times and frames/s above are measured without it), summed per

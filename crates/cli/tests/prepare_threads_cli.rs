@@ -2,7 +2,8 @@
 //! GPU by default a quarter of the cores): the shipped DASANet writes the same result files,
 //! byte for byte, with three threads preparing its five bundled val frames as with the CPU's
 //! one, and a value out of range is refused before anything is written; the voxel family's
-//! stage one on the preparing thread (`FUSIONDET_STAGE_ONE_AHEAD=on`) writes the same files.
+//! stage one on the network's thread (`FUSIONDET_STAGE_ONE_AHEAD=off`) writes the same files
+//! as on the preparing thread (the default).
 
 mod common;
 
@@ -67,25 +68,26 @@ fn assert_refused(o: &Output, out: &Path, says: &[&str]) {
     assert!(!out.exists(), "the result directory was made");
 }
 
-/// Stage one on the preparing thread (a GPU's default, `FUSIONDET_STAGE_ONE_AHEAD=on`) writes
-/// the CPU's result files byte for byte for both voxel-family models.
+/// Stage one on the preparing thread (the default) and on the network's thread
+/// (`FUSIONDET_STAGE_ONE_AHEAD=off`) write the same result files, byte for byte, for both
+/// voxel-family models.
 #[test]
-fn stage_one_on_the_preparing_thread_writes_the_same_results() {
+fn stage_one_on_either_thread_writes_the_same_results() {
     let dir = tempfile::tempdir().unwrap();
     for model in ["voxel-rcnn-car", "dasanet-car"] {
-        let behind = dir.path().join(format!("{model}-behind"));
         let ahead = dir.path().join(format!("{model}-ahead"));
+        let behind = dir.path().join(format!("{model}-behind"));
         let detect = |out: &Path, value: Option<&str>| {
             common::detect_bundled_val(model, out, "FUSIONDET_STAGE_ONE_AHEAD", value)
         };
-        let o = detect(&behind, None);
+        let o = detect(&ahead, None);
         assert!(o.status.success(), "{}", all_output(&o));
-        let o = detect(&ahead, Some("on"));
+        let o = detect(&behind, Some("off"));
         assert!(o.status.success(), "{}", all_output(&o));
-        let (behind, ahead) = (result_files(&behind), result_files(&ahead));
-        assert_eq!(behind.len(), 5, "{model}: {:?}", behind.keys());
-        assert!(behind.values().any(|bytes| !bytes.is_empty()), "{model}");
-        assert_eq!(behind, ahead, "{model}");
+        let (ahead, behind) = (result_files(&ahead), result_files(&behind));
+        assert_eq!(ahead.len(), 5, "{model}: {:?}", ahead.keys());
+        assert!(ahead.values().any(|bytes| !bytes.is_empty()), "{model}");
+        assert_eq!(ahead, behind, "{model}");
     }
 }
 

@@ -337,7 +337,7 @@ pub fn detect_in_chunks(options: &DetectOptions, chunk_frames: usize) -> Result<
     // A bad FUSIONDET_PREPARE_THREADS or FUSIONDET_STAGE_ONE_AHEAD is refused before the
     // result directory is made.
     crate::prefetch::preparers(&device).map_err(PipelineError::Invalid)?;
-    crate::prefetch::stage_one_ahead(&device).map_err(PipelineError::Invalid)?;
+    crate::prefetch::stage_one_ahead().map_err(PipelineError::Invalid)?;
     let detector = Detector::load(options.config.clone(), &options.checkpoint, &device)?;
     let SplitSide {
         detections,

@@ -1,14 +1,17 @@
 //! Frames prepared ahead of the network: threads beside it run each frame's host-side work
-//! (voxelisation, depth completion, rulebooks) while the network runs on the frames before.
+//! (voxelisation, depth completion, rulebooks) and then, for the voxel family, its stage one
+//! ([`stage_one_ahead`]), while the network's thread takes the frames before through stage
+//! two.
 //!
 //! Why: run one after the other, a GPU idles through all of a frame's host-side stages (on
 //! an H200, Voxel R-CNN's host rulebooks alone were 20.6 of its 38.9 ms a frame, and
 //! DASANet's depth completion 41 of 166 ms). With one thread preparing beside a GPU the
 //! host is still the bound where a frame prepares slower than the network runs (the
 //! published DASANet on the H200: about 150 ms of host work a frame, 163 ms a frame in
-//! all), so beside a GPU several threads prepare frames at once ([`preparers_for`]). The preparation of a frame reads nothing the network or another
-//! frame's preparation writes, so the results are the same bits in any order and with any
-//! number of threads; the trainer's data thread does the same for batches.
+//! all), so beside a GPU several threads prepare frames at once ([`preparers_for`]). The
+//! preparation of a frame reads nothing the network or another frame's preparation writes
+//! (stage one reads the weights only), so the results are the same bits in any order and
+//! with any number of threads; the trainer's data thread does the same for batches.
 
 use crate::detection::StageTimes;
 use burn::prelude::*;
@@ -27,9 +30,9 @@ pub const PREPARERS_VAR: &str = "FUSIONDET_PREPARE_THREADS";
 pub const MAX_PREPARERS: usize = 8;
 
 /// The environment variable that says where a frame's stage one (the network up to its
-/// proposals) runs: `on`, on the thread that prepared the frame, `off`, on the network's
-/// thread after the frames before it. For A/B runs; by default on beside a GPU
-/// ([`stage_one_ahead_for`]).
+/// proposals) runs: `on` (the default, [`stage_one_ahead_for`]), on the thread that
+/// prepared the frame, `off`, on the network's thread after the frames before it. For A/B
+/// runs.
 pub const STAGE_ONE_VAR: &str = "FUSIONDET_STAGE_ONE_AHEAD";
 
 /// Whether `device` is a GPU backend's.
@@ -55,30 +58,6 @@ pub fn preparers(device: &Device) -> Result<usize, String> {
     )
 }
 
-/// Whether the voxel family's detectors run each frame's stage one on the thread that
-/// prepared it, for a network on `device`: [`stage_one_ahead_for`] with [`STAGE_ONE_VAR`].
-pub fn stage_one_ahead(device: &Device) -> Result<bool, String> {
-    stage_one_ahead_for(on_gpu(device), std::env::var(STAGE_ONE_VAR).ok().as_deref())
-}
-
-/// Beside a GPU, stage one runs on the preparing threads: each thread's work goes to a
-/// device stream of its own, so frame k + 1's stage one runs on the device while the
-/// network's thread takes frame k through stage two, and the host's proposal NMS, which
-/// waits for stage one's outputs, no longer leaves the device idle. On the CPU the network
-/// already runs on every core, so stage one stays on the network's thread. `setting` (the
-/// value of [`STAGE_ONE_VAR`]: `on` or `off`) overrides both.
-pub fn stage_one_ahead_for(on_gpu: bool, setting: Option<&str>) -> Result<bool, String> {
-    match setting.map(str::trim) {
-        None => Ok(on_gpu),
-        Some("on") => Ok(true),
-        Some("off") => Ok(false),
-        Some(text) => Err(format!(
-            "{STAGE_ONE_VAR}={text:?}: give `on` (stage one on the threads that prepare \
-             frames) or `off` (on the network's thread), or unset it to let the device decide"
-        )),
-    }
-}
-
 /// One thread beside a network on the CPU, which already runs on every core (a second
 /// preparer would take cores from it); beside a GPU, a thread per four cores, one to four
 /// (a 16-core GPU machine: four), since there the network leaves the cores idle. `setting`
@@ -94,6 +73,29 @@ pub fn preparers_for(on_gpu: bool, cores: usize, setting: Option<&str>) -> Resul
         };
     }
     Ok(if on_gpu { (cores / 4).clamp(1, 4) } else { 1 })
+}
+
+/// Whether the voxel family's detectors run each frame's stage one on the thread that
+/// prepared it: [`stage_one_ahead_for`] with [`STAGE_ONE_VAR`].
+pub fn stage_one_ahead() -> Result<bool, String> {
+    stage_one_ahead_for(std::env::var(STAGE_ONE_VAR).ok().as_deref())
+}
+
+/// By default stage one runs on the preparing threads. Beside a GPU each thread's work goes
+/// to a device stream of its own, so frame k + 1's stage one runs on the device while the
+/// network's thread takes frame k through stage two, and the host's proposal NMS, which
+/// waits for stage one's outputs, no longer leaves the device idle. On the CPU stage two's
+/// host work (the RoI query, STCA's crops, the NMS) overlaps the next frame's stage one in
+/// the same way. `setting` (the value of [`STAGE_ONE_VAR`]: `on` or `off`) overrides it.
+pub fn stage_one_ahead_for(setting: Option<&str>) -> Result<bool, String> {
+    match setting.map(str::trim) {
+        None | Some("on") => Ok(true),
+        Some("off") => Ok(false),
+        Some(text) => Err(format!(
+            "{STAGE_ONE_VAR}={text:?}: give `on` (stage one on the threads that prepare \
+             frames, the default) or `off` (on the network's thread), or unset it"
+        )),
+    }
 }
 
 /// Runs `prepare(i)` for `i` in `0..count` on `preparers` threads (thread k prepares frames
@@ -291,13 +293,12 @@ mod tests {
     }
 
     #[test]
-    fn stage_one_follows_the_device_and_the_variable() {
-        assert_eq!(stage_one_ahead_for(false, None), Ok(false));
-        assert_eq!(stage_one_ahead_for(true, None), Ok(true));
-        assert_eq!(stage_one_ahead_for(false, Some("on")), Ok(true));
-        assert_eq!(stage_one_ahead_for(true, Some(" off ")), Ok(false));
+    fn stage_one_follows_the_variable() {
+        assert_eq!(stage_one_ahead_for(None), Ok(true));
+        assert_eq!(stage_one_ahead_for(Some("on")), Ok(true));
+        assert_eq!(stage_one_ahead_for(Some(" off ")), Ok(false));
         for bad in ["1", "yes", "", "ON"] {
-            let err = stage_one_ahead_for(true, Some(bad)).unwrap_err();
+            let err = stage_one_ahead_for(Some(bad)).unwrap_err();
             assert!(
                 err.contains(STAGE_ONE_VAR) && err.contains("`on`"),
                 "{bad:?}: {err}"

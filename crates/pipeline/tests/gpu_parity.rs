@@ -49,7 +49,7 @@ fn the_voxel_family_trains_to_the_same_first_losses_on_cuda_as_on_the_cpu() {
     training_parity(ComputeDevice::Cuda(0), "CUDA", VOXEL_FAMILY, false);
 }
 
-/// The voxel family's stage one on the threads that prepare frames (a GPU's default) and on
+/// The voxel family's stage one on the threads that prepare frames (the default) and on
 /// the network's thread give the same boxes to the bit on wgpu: the shipped Voxel R-CNN
 /// and DASANet on the bundled val frames (stage one of the next frames on the preparing
 /// threads' device streams while the network's thread takes a frame through stage two).

@@ -111,8 +111,7 @@ impl DasanetDetector {
     /// boxes. `depth_dir` holds completed maps to use instead of completing. Each frame's
     /// pseudo cloud, voxels and rulebooks are prepared on threads beside the network (one
     /// beside the CPU, several beside a GPU) while it runs on the frames before
-    /// ([`crate::prefetch`]); beside a GPU those threads also run the frame's stage one
-    /// ([`crate::prefetch::stage_one_ahead`]).
+    /// ([`crate::prefetch`]), and then its stage one ([`crate::prefetch::stage_one_ahead`]).
     pub fn detect_frames(
         &self,
         device: &Device,
@@ -120,7 +119,7 @@ impl DasanetDetector {
         depth_dir: Option<&Path>,
         timing: &mut StageTimes,
     ) -> Result<FrameResults> {
-        let ahead = crate::prefetch::stage_one_ahead(device).map_err(PipelineError::Invalid)?;
+        let ahead = crate::prefetch::stage_one_ahead().map_err(PipelineError::Invalid)?;
         self.detect_frames_with(device, frames, depth_dir, ahead, timing)
     }
 

@@ -263,15 +263,14 @@ impl VoxelRcnnDetector {
     /// Detects on every frame; a frame without a LiDAR point in range gets no boxes. Each
     /// frame's voxels and rulebooks are prepared on threads beside the network (one beside
     /// the CPU, several beside a GPU) while it runs on the frames before
-    /// ([`crate::prefetch`]); beside a GPU those threads also run the frame's stage one
-    /// ([`crate::prefetch::stage_one_ahead`]).
+    /// ([`crate::prefetch`]), and then its stage one ([`crate::prefetch::stage_one_ahead`]).
     pub fn detect_frames(
         &self,
         device: &Device,
         frames: &InMemoryFrames<SensorFrame>,
         timing: &mut StageTimes,
     ) -> Result<FrameResults> {
-        let ahead = crate::prefetch::stage_one_ahead(device).map_err(PipelineError::Invalid)?;
+        let ahead = crate::prefetch::stage_one_ahead().map_err(PipelineError::Invalid)?;
         self.detect_frames_with(device, frames, ahead, timing)
     }
 
