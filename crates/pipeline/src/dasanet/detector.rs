@@ -11,7 +11,8 @@ use crate::voxel_rcnn::VoxelRcnnSection;
 // Proposals and the final boxes are Voxel R-CNN's steps, timed under its stage names.
 pub use crate::voxel_rcnn::detector::{STAGE_NMS, STAGE_PROPOSALS};
 use crate::voxel_rcnn::detector::{
-    roi_grid_query, single_frame_rois, timed_frame_objects, timed_frame_proposals, values,
+    roi_grid_query, single_frame_rois, timed_frame_objects, timed_frame_proposals, timed_until,
+    values,
 };
 use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
@@ -195,24 +196,33 @@ impl DasanetDetector {
     /// that its time shows). [`FrameStage::Empty`] where there are no proposals.
     fn stage_one(&self, batch: DasanetBatch, timing: &mut StageTimes) -> FrameStage {
         let section = &self.data.voxel.section;
-        let t = Instant::now();
-        let lidar = self
-            .model
-            .lidar_backbone
-            .forward(batch.lidar_features, &batch.lidar_plan);
-        let _ = values(&lidar.output.features.clone().slice([0..1, 0..1]));
-        timing.add(STAGE_LIDAR_BACKBONE, t.elapsed());
-        let t = Instant::now();
-        let pseudo = self
-            .model
-            .pseudo_backbone
-            .forward(batch.pseudo_features, &batch.pseudo_plan);
-        let _ = values(&pseudo.output.features.clone().slice([0..1, 0..1]));
-        timing.add(STAGE_PSEUDO_BACKBONE, t.elapsed());
-        let t = Instant::now();
-        let anchors = self.model.bev_and_anchors(&lidar, &pseudo);
-        let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
-        timing.add(STAGE_BEV, t.elapsed());
+        let model = &self.model;
+        let lidar = timed_until(
+            timing,
+            STAGE_LIDAR_BACKBONE,
+            || {
+                model
+                    .lidar_backbone
+                    .forward(batch.lidar_features, &batch.lidar_plan)
+            },
+            |b| b.output.features.clone(),
+        );
+        let pseudo = timed_until(
+            timing,
+            STAGE_PSEUDO_BACKBONE,
+            || {
+                model
+                    .pseudo_backbone
+                    .forward(batch.pseudo_features, &batch.pseudo_plan)
+            },
+            |b| b.output.features.clone(),
+        );
+        let anchors = timed_until(
+            timing,
+            STAGE_BEV,
+            || model.bev_and_anchors(&lidar, &pseudo),
+            |a| a.cls.clone(),
+        );
         let proposals = timed_frame_proposals(&self.data.voxel, &anchors, section, timing);
         if proposals.is_empty() {
             return FrameStage::Empty;

@@ -47,6 +47,23 @@ pub fn values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
     t.try_to_vec_as::<f32>().expect("f32 tensor data")
 }
 
+/// `run()`'s output, timed as stage `name` until the device has computed `waited(&output)`
+/// (one of its values read back: on a GPU the stage's time then holds its kernels, not only
+/// their launching).
+pub fn timed_until<T, const D: usize>(
+    timing: &mut StageTimes,
+    name: &'static str,
+    run: impl FnOnce() -> T,
+    waited: impl FnOnce(&T) -> Tensor<D>,
+) -> T {
+    let t = Instant::now();
+    let output = run();
+    let first: [std::ops::Range<usize>; D] = std::array::from_fn(|_| 0..1);
+    let _ = values(&waited(&output).slice(first));
+    timing.add(name, t.elapsed());
+    output
+}
+
 /// Stage one's proposals of every frame of a batch.
 pub fn batch_proposals(
     data: &VoxelData,
@@ -345,20 +362,21 @@ impl VoxelRcnnDetector {
         timing: &mut StageTimes,
     ) -> FrameStage {
         let section = &self.data.section;
-        let t = Instant::now();
-        let backbone = self.model.backbone.forward(features, &plan);
-        let _ = values(&backbone.output.features.clone().slice([0..1, 0..1]));
-        timing.add(STAGE_BACKBONE, t.elapsed());
-        let t = Instant::now();
-        let bev = self
-            .model
-            .bev
-            .forward(fusiondet_models::voxel_rcnn::height_compression(
-                &backbone.output,
-            ));
-        let anchors = self.model.anchor_head.forward(bev);
-        let _ = values(&anchors.cls.clone().slice([0..1, 0..1, 0..1]));
-        timing.add(STAGE_BEV, t.elapsed());
+        let backbone = timed_until(
+            timing,
+            STAGE_BACKBONE,
+            || self.model.backbone.forward(features, &plan),
+            |b| b.output.features.clone(),
+        );
+        let anchors = timed_until(
+            timing,
+            STAGE_BEV,
+            || {
+                let maps = fusiondet_models::voxel_rcnn::height_compression(&backbone.output);
+                self.model.anchor_head.forward(self.model.bev.forward(maps))
+            },
+            |a| a.cls.clone(),
+        );
         let proposals = timed_frame_proposals(&self.data, &anchors, section, timing);
         match proposals.is_empty() {
             true => FrameStage::Empty,
