@@ -63,7 +63,8 @@
 #   PROFILE        the published configurations also train one more epoch and detect once with
 #                  every kernel launch timed on the device (FUSIONDET_KERNEL_PROFILE; slower,
 #                  so the step times and frames/s above are measured without it), summed per
-#                  kernel: 1 or 0 (default: 1); each profiled run is stopped after
+#                  kernel, with the launches of at most 16 cubes counted apart: 1 or 0
+#                  (default: 1); each profiled run is stopped after
 #                  PROFILE_SECONDS (default: 150)
 #   ARCHIVE        a file (e.g. $OUT/gpu-check.tar.xz on a lent machine, whose call brings back
 #                  a few files under $OUT and nothing else): at the end, the run's logs, kernel
@@ -355,16 +356,39 @@ first_loss() { head -1 "$1" | grep -o '"first_step_loss":[0-9.e+-]*' | cut -d: -
 kernel_profile() {
     local log="$1" units="$2"
     [ -s "$log" ] && [ "${units:-0}" -gt 0 ] || { echo "?"; return; }
-    awk -F'|' 'NF >= 3 {
-        d = $2; gsub(/ /, "", d); name = $3; if (NF > 3) name = name ":" $4
-        gsub(/ /, "", name); sub(/<.*/, "", name); sub(/_[0-9a-f]+$/, "", name)
-        ms = d + 0
-        if (d ~ /ns$/) ms /= 1e6; else if (d ~ /µs$/) ms /= 1e3; else if (d ~ /ms$/) ms += 0;
-        else if (d ~ /s$/) ms *= 1e3; else next
-        t[name] += ms; n[name]++
-    } END { for (k in t) printf "%.6f\t%d\t%s\n", t[k], n[k], k }' "$log" | sort -t"$(printf '\t')" -k1,1gr |
-        awk -F'\t' -v u="$units" '{ total += $1; count += $2; if (NR <= 12) top = top sprintf("%s%s ×%.1f %.2f ms", (NR > 1 ? ", " : ""), $3, $2 / u, $1 / u) }
-            END { printf "%.0f launches, %.1f ms of device time; by kernel: %s", count / u, total / u, top }'
+    # A record a launch: "| <time> | <kernel>…", then (CubeCL's `full` level) the kernel's
+    # arguments over several lines, ending in "CubeCount (x, y, z)". Kernels are named by their
+    # type and their first type parameter (KernelBinop:MulOp); launches of at most 16 cubes,
+    # which leave most of a GPU idle, are counted apart.
+    awk '
+        function flush() {
+            if (have) { t[name] += ms; n[name]++; if (cubes > 0 && cubes <= 16) { few++; few_ms += ms } }
+            have = 0; cubes = 0
+        }
+        /^\| / {
+            flush()
+            fields = split($0, f, "|"); d = f[2]; gsub(/ /, "", d); s = f[3]; sub(/^ +/, "", s)
+            base = s; sub(/<.*/, "", base); sub(/: .*$/, "", base); sub(/ +$/, "", base); sub(/.*::/, "", base)
+            sub(/_[0-9a-f]+$/, "", base)
+            name = base
+            if (index(s, "<") > 0) { g = s; sub(/^[^<]*</, "", g); sub(/[,>].*$/, "", g); sub(/.*::/, "", g); name = base ":" g }
+            # CubeCL'"'"'s `basic` level: "| <time> | KernelBinop | MulOp_<hash>".
+            if (fields >= 4) { g = f[4]; gsub(/ /, "", g); sub(/_[0-9a-f]+$/, "", g); name = base ":" g }
+            ms = d + 0
+            if (d ~ /ns$/) ms /= 1e6; else if (d ~ /µs$/) ms /= 1e3; else if (d ~ /ms$/) ms += 0;
+            else if (d ~ /s$/) ms *= 1e3; else next
+            have = 1
+        }
+        /CubeCount \(/ { c = $0; sub(/.*CubeCount \(/, "", c); split(c, x, /[,) ]+/); cubes = x[1] * x[2] * x[3] }
+        END {
+            flush()
+            for (k in t) printf "%.6f\t%d\t%s\n", t[k], n[k], k
+            if (few + 0 > 0 || few_ms + 0 > 0) printf "few\t%d\t%.6f\n", few, few_ms
+        }' "$log" | sort -t"$(printf '\t')" -k1,1gr |
+        awk -F'\t' -v u="$units" '
+            $1 == "few" { few = sprintf("; launches of at most 16 cubes: %.1f, %.2f ms", $2 / u, $3 / u); next }
+            { total += $1; count += $2; if (++k <= 12) top = top sprintf("%s%s ×%.1f %.2f ms", (k > 1 ? ", " : ""), $3, $2 / u, $1 / u) }
+            END { printf "%.0f launches, %.1f ms of device time%s; by kernel: %s", count / u, total / u, few, top }'
 }
 # A profiled run that failed (exit status, configuration, what, device, its log) → a summary
 # line: stopped at PROFILE_SECONDS (status 124), or its log's last line.

@@ -17,10 +17,12 @@
 //! for each tuned shape, with its timings): which convolution and product kernels a GPU
 //! ended up running, without CubeCL's full debug log.
 //!
-//! `FUSIONDET_KERNEL_PROFILE` names a file CubeCL's profiler appends a line to for every
-//! kernel launch, with the time the device spent in it (`| 41.2µs | name`): where a GPU's
-//! time goes, kernel by kernel (`scripts/gpu-check.sh` sums it per kernel). Each launch is
-//! then timed on its own, so the process runs slower; time a run without it.
+//! `FUSIONDET_KERNEL_PROFILE` names a file CubeCL's profiler appends a record to for every
+//! kernel launch, at its `full` level: the time the device spent in it, the kernel with its
+//! compile-time arguments and the cube count it was launched with (`| 41.2µs | name…`,
+//! `CubeCount (x, y, z)`): where a GPU's time goes, kernel by kernel, and which launches give
+//! the GPU too few cubes to fill it (`scripts/gpu-check.sh` sums it per kernel). Each launch
+//! is then timed on its own, so the process runs slower; time a run without it.
 
 use std::path::{Path, PathBuf};
 
@@ -101,7 +103,7 @@ fn runtime_config(
         use cubecl_runtime::config::profiling::ProfilingLogLevel;
         config.profiling.logger.file = Some(PathBuf::from(log));
         config.profiling.logger.append = true;
-        config.profiling.logger.level = ProfilingLogLevel::Basic;
+        config.profiling.logger.level = ProfilingLogLevel::Full;
     }
     config
 }
@@ -182,7 +184,7 @@ mod tests {
         assert!(config.profiling.logger.append);
         assert!(matches!(
             config.profiling.logger.level,
-            cubecl_runtime::config::profiling::ProfilingLogLevel::Basic
+            cubecl_runtime::config::profiling::ProfilingLogLevel::Full
         ));
         let config = runtime_config(
             CubeClRuntimeConfig::default(),
