@@ -55,18 +55,24 @@ impl RowGather {
     }
 
     /// A gather by an index made on the device: `index` [M] names rows 0..=`source_rows`, the
-    /// last the zero row. Where a CubeCL device differentiates, the index is turned around
-    /// there (`gather_device::turn_around`: the same readers in the same order as
-    /// [`RowGather::new`] lists for the same index, so the same gradients to the bit); the
-    /// zero row is appended whether or not a row reads it.
-    pub fn from_device_index(index: Tensor<1, Int>, source_rows: usize) -> Self {
-        let device = index.device();
+    /// last the zero row, for values on `values_device`. Where that is a CubeCL device that
+    /// differentiates, the index is turned around there (`gather_device::turn_around`: the
+    /// same readers in the same order as [`RowGather::new`] lists for the same index, so the
+    /// same gradients to the bit); the zero row is appended whether or not a row reads it.
+    /// The values' device decides, not the index's: a kernel makes its index on the device
+    /// without autodiff (the RoI grid query's), and judged by it a training step's gather
+    /// fell back to burn's `select`, whose backward walks every row per column.
+    pub fn from_device_index(
+        index: Tensor<1, Int>,
+        source_rows: usize,
+        values_device: &Device,
+    ) -> Self {
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        let readers = (on_cube_device(&device) && device.is_autodiff())
+        let readers = (on_cube_device(values_device) && values_device.is_autodiff())
             .then(|| crate::gather_device::turn_around(&index, source_rows));
         #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
         let readers = {
-            let _ = device;
+            let _ = values_device;
             None
         };
         Self {
@@ -110,6 +116,13 @@ impl RowGather {
     /// The [M] index on its device.
     pub fn index(&self) -> &Tensor<1, Int> {
         &self.index
+    }
+
+    /// Whether the readers are listed on a CubeCL device: a backward pass (and
+    /// [`RowGather::sum_by_source`]) then adds each source row's readers there, not through
+    /// burn's `select_assign`.
+    pub fn sums_readers_on_device(&self) -> bool {
+        self.readers.is_some()
     }
 
     /// How many rows the gather reads from (besides the zero row).

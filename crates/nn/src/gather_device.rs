@@ -628,11 +628,13 @@ mod tests {
             )
         };
         let host = RowGather::new(&index, n, &gpu);
+        // Made where a kernel makes its index: on the device without autodiff.
         let device_index = Tensor::<1, Int>::from_data(
             TensorData::new(index.iter().map(|&v| v as i64).collect(), [m]),
-            &gpu,
+            &gpu.clone().without_autodiff(),
         );
-        let device = RowGather::from_device_index(device_index, n);
+        let device = RowGather::from_device_index(device_index, n, &gpu);
+        assert!(device.sums_readers_on_device() && host.sums_readers_on_device());
         assert_eq!(through(&device), through(&host));
     }
 

@@ -737,7 +737,11 @@ impl RoiGridPool {
                         // trains (the same readers, in the same order, as a host index's).
                         LevelIndex::Device(level) => {
                             let [rows, _] = features.dims();
-                            let gather = RowGather::from_device_index(level.rows.clone(), rows);
+                            let gather = RowGather::from_device_index(
+                                level.rows.clone(),
+                                rows,
+                                &features.device(),
+                            );
                             (gather.gather(features), level.offsets.clone())
                         }
                     };
