@@ -35,27 +35,19 @@ pub const MAX_PREPARERS: usize = 8;
 /// runs.
 pub const STAGE_ONE_VAR: &str = "FUSIONDET_STAGE_ONE_AHEAD";
 
-/// Whether `device` is a GPU backend's.
-fn on_gpu(device: &Device) -> bool {
-    #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    return fusiondet_nn::cube::cube_runtime(device).is_some();
-    // A build without a GPU backend has only the CPU.
-    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
-    {
-        let _ = device;
-        false
-    }
-}
-
 /// How many threads prepare frames for a network on `device`: [`preparers_for`] with this
 /// machine's cores and [`PREPARERS_VAR`].
 pub fn preparers(device: &Device) -> Result<usize, String> {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    let on_gpu = fusiondet_nn::cube::cube_runtime(device).is_some();
+    // A build without a GPU backend has only the CPU.
+    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
+    let on_gpu = {
+        let _ = device;
+        false
+    };
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    preparers_for(
-        on_gpu(device),
-        cores,
-        std::env::var(PREPARERS_VAR).ok().as_deref(),
-    )
+    preparers_for(on_gpu, cores, std::env::var(PREPARERS_VAR).ok().as_deref())
 }
 
 /// One thread beside a network on the CPU, which already runs on every core (a second

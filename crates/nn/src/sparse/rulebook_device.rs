@@ -10,7 +10,7 @@
 //! rows`) where there is none. (The inverse map a backward pass reads is made from this
 //! table by the convolution's kernels when one runs.)
 //!
-//! Both are exact integer searches: the same tables, entry for entry, as the host's
+//! It is an exact integer search: the same table, entry for entry, as the host's
 //! ([`super::rulebook`]'s tests on wgpu compare them). The host still finds a strided
 //! layer's output sites (its bitmap, [`super::strided_sites`]): every later stage, the RoI
 //! pooling and the BEV map need them on the host anyway.
