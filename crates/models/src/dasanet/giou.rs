@@ -10,11 +10,16 @@
 //!
 //! Differentiable the way autodiff differentiates any polygon clipping: which points
 //! bound the intersection and the hull (corners inside the other box, edge crossings,
-//! hull corners) and in which order is decided on the CPU from the current values; the
-//! points themselves are tensor functions of the corners, so gradients flow to every
-//! vertex that shapes the areas. Written here because burn has no rotated-box IoU.
+//! hull corners) and in which order is decided from the current values, on the host or,
+//! where the network runs on a CubeCL device, by a kernel there ([`super::giou_device`]:
+//! no read-back in the step); the points themselves are tensor functions of the corners,
+//! so gradients flow to every vertex that shapes the areas, through gathers whose backward
+//! pass on a GPU adds each point's readers (`RowGather`) rather than walking every vertex
+//! on one thread a column (burn's `select`). Written here because burn has no rotated-box
+//! IoU.
 
 use burn::prelude::*;
+use fusiondet_nn::gather::RowGather;
 
 /// Bird's-eye footprint corners, counter-clockwise, of boxes from [`box_corners`]
 /// (corner k has x sign +/− for bit 0, y for bit 1, z for bit 2): indices 0, 1, 3, 2.
@@ -23,13 +28,13 @@ use burn::prelude::*;
 const FOOTPRINT: [usize; 4] = [0, 1, 3, 2];
 /// Candidate points per pair: 4 + 4 corners, then the 16 edge crossings (P edge i, G
 /// edge j at 8 + 4i + j).
-const CANDIDATES: usize = 24;
+pub(super) const CANDIDATES: usize = 24;
 /// The intersection of two convex quadrilaterals, and their hull, have at most 8 corners.
 const MAX_VERTICES: usize = 8;
 /// Edges closer to parallel than this (cross product of unit directions) do not cross.
 const PARALLEL: f64 = 1e-9;
 
-type P2 = [f64; 2];
+pub(super) type P2 = [f64; 2];
 
 fn cross(a: P2, b: P2) -> f64 {
     a[0] * b[1] - a[1] * b[0]
@@ -61,7 +66,11 @@ fn crossing(a0: P2, a1: P2, b0: P2, b1: P2) -> Option<f64> {
 /// Indices into the candidates that bound the intersection, counter-clockwise, padded
 /// by repeating the last (a repeated point adds no area); all zero when the footprints
 /// do not overlap in an area.
-fn intersection_vertices(p: &[P2; 4], g: &[P2; 4], points: &[P2; CANDIDATES]) -> Vec<usize> {
+pub(super) fn intersection_vertices(
+    p: &[P2; 4],
+    g: &[P2; 4],
+    points: &[P2; CANDIDATES],
+) -> Vec<usize> {
     let mut chosen: Vec<usize> = Vec::with_capacity(MAX_VERTICES * 2);
     chosen.extend((0..4).filter(|&i| inside(p[i], g)));
     chosen.extend((0..4).filter(|&j| inside(g[j], p)).map(|j| 4 + j));
@@ -100,7 +109,7 @@ fn counter_clockwise(mut chosen: Vec<usize>, points: &[P2; CANDIDATES]) -> Vec<u
 
 /// The convex hull of the 8 footprint corners (candidates 0–7), counter-clockwise,
 /// padded (Andrew's monotone chain).
-fn hull_vertices(points: &[P2; CANDIDATES]) -> Vec<usize> {
+pub(super) fn hull_vertices(points: &[P2; CANDIDATES]) -> Vec<usize> {
     let mut order: Vec<usize> = (0..8).collect();
     order.sort_by(|&a, &b| {
         points[a][0]
@@ -126,7 +135,7 @@ fn hull_vertices(points: &[P2; CANDIDATES]) -> Vec<usize> {
 }
 
 /// Footprint corners [F, 4, 2] of corner sets [F, 8, 3].
-fn footprint(corners: &Tensor<3>) -> Tensor<3> {
+pub(super) fn footprint(corners: &Tensor<3>) -> Tensor<3> {
     let device = corners.device();
     let index = Tensor::<1, Int>::from_data(
         TensorData::new(FOOTPRINT.map(|k| k as i64).to_vec(), [4]),
@@ -137,7 +146,7 @@ fn footprint(corners: &Tensor<3>) -> Tensor<3> {
 
 /// All 24 candidate points [F, 24, 2]: the 8 corners, then every edge crossing (the
 /// crossing of the lines through the edges; only real crossings are ever gathered).
-fn candidate_points(p: Tensor<3>, g: Tensor<3>) -> Tensor<3> {
+pub(super) fn candidate_points(p: Tensor<3>, g: Tensor<3>) -> Tensor<3> {
     let [f, _, _] = p.dims();
     let device = p.device();
     let next = Tensor::<1, Int>::from_data(TensorData::new(vec![1i64, 2, 3, 0], [4]), &device);
@@ -162,40 +171,70 @@ fn candidate_points(p: Tensor<3>, g: Tensor<3>) -> Tensor<3> {
     Tensor::cat(vec![p, g, crossings], 1)
 }
 
-/// Shoelace areas [F] of the polygons listed by `vertices` (F × 8 indices into `points`).
-fn polygon_areas(points: &Tensor<3>, vertices: &[Vec<usize>]) -> Tensor<1> {
-    let [f, n, _] = points.dims();
-    let device = points.device();
-    let flat = points.clone().reshape([f * n, 2]);
-    let gather = |shift: usize| {
-        let index: Vec<i64> = vertices
-            .iter()
-            .enumerate()
-            .flat_map(|(row, v)| {
-                (0..MAX_VERTICES).map(move |k| (row * n + v[(k + shift) % MAX_VERTICES]) as i64)
-            })
-            .collect();
-        flat.clone()
-            .select(
-                0,
-                Tensor::from_data(TensorData::new(index, [f * MAX_VERTICES]), &device),
-            )
-            .reshape([f, MAX_VERTICES, 2])
-    };
-    let (a, b) = (gather(0), gather(1));
-    let terms = a.clone().slice_dim(2, 0..1) * b.clone().slice_dim(2, 1..2)
-        - a.slice_dim(2, 1..2) * b.slice_dim(2, 0..1);
-    terms.sum_dim(1).reshape([f]).mul_scalar(0.5).abs()
+/// Each pair's polygon as two gathers of rows of its points laid out [F · n, 2]: its
+/// eight (padded) vertices, and each one's successor, the last's being the first.
+struct Polygons {
+    vertices: RowGather,
+    successors: RowGather,
 }
 
-/// Per pair: IoU and GIoU [F] of the boxes with corners `pred` and `gt`, both [F, 8, 3]
-/// (upright boxes: corners 0–3 on top, 4–7 at the bottom, as [`box_corners`] orders them).
-///
-/// [`box_corners`]: crate::voxel_rcnn::loss::box_corners
-pub fn iou_giou_3d(pred: Tensor<3>, gt: Tensor<3>) -> (Tensor<1>, Tensor<1>) {
-    let [f, _, _] = pred.dims();
-    let (p, g) = (footprint(&pred), footprint(&gt));
-    let points = candidate_points(p.clone(), g.clone());
+impl Polygons {
+    /// From vertices chosen on the host (F × 8 indices into each pair's `n` points).
+    fn from_host(vertices: &[Vec<usize>], n: usize, device: &Device) -> Self {
+        let rows = vertices.len() * n;
+        let gather = |shift: usize| {
+            let index: Vec<u32> = vertices
+                .iter()
+                .enumerate()
+                .flat_map(|(row, v)| {
+                    (0..MAX_VERTICES).map(move |k| (row * n + v[(k + shift) % MAX_VERTICES]) as u32)
+                })
+                .collect();
+            RowGather::new(&index, rows, device)
+        };
+        Polygons {
+            vertices: gather(0),
+            successors: gather(1),
+        }
+    }
+
+    /// From vertices chosen on a CubeCL device ([`super::giou_device`]): `vertices` [F · 8]
+    /// rows of the [F · 24] candidate points, for values on `values_device`.
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    fn from_device(vertices: Tensor<1, Int>, values_device: &Device) -> Self {
+        let [len] = vertices.dims();
+        let f = len / MAX_VERTICES;
+        let table = vertices.clone().reshape([f, MAX_VERTICES]);
+        let successors = Tensor::cat(
+            vec![
+                table.clone().slice_dim(1, 1..MAX_VERTICES),
+                table.slice_dim(1, 0..1),
+            ],
+            1,
+        )
+        .reshape([len]);
+        let rows = f * CANDIDATES;
+        Polygons {
+            vertices: RowGather::from_device_index(vertices, rows, values_device),
+            successors: RowGather::from_device_index(successors, rows, values_device),
+        }
+    }
+}
+
+/// The intersections' and the hulls' polygons of the pairs' candidate points [F, 24, 2]:
+/// chosen on the device that holds them where that is a CubeCL device, else on the host
+/// from the points read back (see the module's documentation).
+fn intersections_and_hulls(points: &Tensor<3>) -> (Polygons, Polygons) {
+    let device = points.device();
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if fusiondet_nn::cube::cube_runtime(&device).is_some() {
+        let (inter, hull) = super::giou_device::giou_vertices(points.clone().inner());
+        return (
+            Polygons::from_device(inter, &device),
+            Polygons::from_device(hull, &device),
+        );
+    }
+    let [f, _, _] = points.dims();
     let values: Vec<f64> = points
         .clone()
         .into_data()
@@ -217,11 +256,43 @@ pub fn iou_giou_3d(pred: Tensor<3>, gt: Tensor<3>) -> (Tensor<1>, Tensor<1>) {
             )
         })
         .unzip();
-    let inter_area = polygon_areas(&points, &inter_v);
-    let hull_area = polygon_areas(&points, &hull_v);
+    (
+        Polygons::from_host(&inter_v, CANDIDATES, &device),
+        Polygons::from_host(&hull_v, CANDIDATES, &device),
+    )
+}
+
+/// Shoelace areas [F] of `polygons` over the pairs' `points` [F, n, 2].
+fn polygon_areas(points: &Tensor<3>, polygons: &Polygons) -> Tensor<1> {
+    let [f, n, _] = points.dims();
+    let flat = points.clone().reshape([f * n, 2]);
+    let a = polygons
+        .vertices
+        .gather(flat.clone())
+        .reshape([f, MAX_VERTICES, 2]);
+    let b = polygons
+        .successors
+        .gather(flat)
+        .reshape([f, MAX_VERTICES, 2]);
+    let terms = a.clone().slice_dim(2, 0..1) * b.clone().slice_dim(2, 1..2)
+        - a.slice_dim(2, 1..2) * b.slice_dim(2, 0..1);
+    terms.sum_dim(1).reshape([f]).mul_scalar(0.5).abs()
+}
+
+/// Per pair: IoU and GIoU [F] of the boxes with corners `pred` and `gt`, both [F, 8, 3]
+/// (upright boxes: corners 0–3 on top, 4–7 at the bottom, as [`box_corners`] orders them).
+///
+/// [`box_corners`]: crate::voxel_rcnn::loss::box_corners
+pub fn iou_giou_3d(pred: Tensor<3>, gt: Tensor<3>) -> (Tensor<1>, Tensor<1>) {
+    let [f, _, _] = pred.dims();
+    let (p, g) = (footprint(&pred), footprint(&gt));
+    let points = candidate_points(p.clone(), g.clone());
+    let (inter, hull) = intersections_and_hulls(&points);
+    let inter_area = polygon_areas(&points, &inter);
+    let hull_area = polygon_areas(&points, &hull);
     let own = |q: &Tensor<3>| {
         let v: Vec<Vec<usize>> = vec![(0..4).chain([3; 4]).collect(); f];
-        polygon_areas(q, &v)
+        polygon_areas(q, &Polygons::from_host(&v, 4, &q.device()))
     };
     let (area_p, area_g) = (own(&p), own(&g));
     let z = |c: &Tensor<3>, k: usize| {
@@ -362,6 +433,25 @@ mod tests {
             g[0]
         );
         assert!(g[0] > 0.0, "moving away from the ground truth costs");
+    }
+
+    /// On a GPU the polygons are chosen there and gathered by their readers (not by burn's
+    /// `select`, whose backward pass walks every vertex on one thread a column).
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn on_wgpu_the_polygons_are_chosen_and_gathered_on_the_device() {
+        let Some(gpu) = fusiondet_nn::cube::working_wgpu_device("the GIoU loss's gathers") else {
+            return;
+        };
+        let d = gpu.autodiff();
+        let pred = corners(&[[0.0, 0.0, 0.0, 4.0, 2.0, 1.5, 0.3]], &d);
+        let gt = corners(&[[0.5, 0.2, 0.0, 4.0, 2.0, 1.5, 0.0]], &d);
+        let points = candidate_points(footprint(&pred), footprint(&gt));
+        let (inter, hull) = intersections_and_hulls(&points);
+        for polygons in [&inter, &hull] {
+            assert!(polygons.vertices.sums_readers_on_device());
+            assert!(polygons.successors.sums_readers_on_device());
+        }
     }
 
     /// Identical and axis-parallel boxes (parallel edges everywhere) still give finite

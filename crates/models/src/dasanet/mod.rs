@@ -17,6 +17,8 @@ mod bev_buckets;
 pub mod checkpoint;
 pub mod config;
 pub mod giou;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod giou_device;
 pub mod loss;
 pub mod stca;
 pub mod tca;
