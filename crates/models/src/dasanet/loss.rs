@@ -91,7 +91,7 @@ mod tests {
         let gt = box_corners(zero3.clone(), sizes.clone(), Tensor::zeros([1, 1], &d));
         let targets = RoiLossTargets {
             cls: t2(vec![1.0, 0.0], [2, 1], &d),
-            fg_rows: Some(Tensor::from_data(TensorData::new(vec![0i64], [1]), &d)),
+            fg_rows: Some(fusiondet_nn::gather::RowGather::new(&[0], 2, &d)),
             reg: Tensor::zeros([1, 7], &d),
             roi_sizes: sizes,
             gt_corners: gt.clone(),

@@ -489,7 +489,7 @@ pub(crate) mod tests {
             );
             let targets = RoiLossTargets {
                 cls: Tensor::from_data(TensorData::new(vec![0.8f32, 0.0], [2, 1]), &ad),
-                fg_rows: Some(Tensor::from_data(TensorData::new(vec![0i64], [1]), &ad)),
+                fg_rows: Some(fusiondet_nn::gather::RowGather::new(&[0], 2, &ad)),
                 reg: Tensor::zeros([1, 7], &ad),
                 roi_sizes: sizes,
                 gt_corners: gt.clone(),

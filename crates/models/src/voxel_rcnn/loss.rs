@@ -22,6 +22,7 @@ use super::anchor_head::AnchorPredictions;
 use super::roi_head::RoiPredictions;
 use burn::prelude::*;
 use burn::tensor::activation::{log_softmax, relu, sigmoid};
+use fusiondet_nn::gather::RowGather;
 use fusiondet_nn::reduce::sum_all;
 use serde::{Deserialize, Serialize};
 
@@ -73,8 +74,10 @@ pub struct AnchorLossTargets {
 pub struct RoiLossTargets {
     /// [R, 1] confidence targets in [0, 1].
     pub cls: Tensor<2>,
-    /// [F] rows of the foreground (regressed) RoIs; `None` when there are none.
-    pub fg_rows: Option<Tensor<1, Int>>,
+    /// The foreground (regressed) RoIs' [F] rows of the R; `None` when there are none. A
+    /// `RowGather`, so that on a GPU their gradients go back by their readers rather than
+    /// through burn's `select_assign` (seven threads walking every row).
+    pub fg_rows: Option<RowGather>,
     /// [F, 7] canonical residual targets of those rows.
     pub reg: Tensor<2>,
     /// [F, 3] the RoIs' sizes (dx, dy, dz), for decoding.
@@ -219,8 +222,8 @@ pub fn roi_residual_loss(
     targets: &RoiLossTargets,
 ) -> Option<(Tensor<1>, Tensor<2>)> {
     let rows = targets.fg_rows.as_ref()?;
-    let [f] = rows.dims();
-    let code = pred.boxes.clone().select(0, rows.clone()); // [F, 7]
+    let [f] = rows.index().dims();
+    let code = rows.gather(pred.boxes.clone()); // [F, 7]
     let reg =
         sum_all(smooth_l1(code.clone() - targets.reg.clone(), 1.0 / 9.0)).div_scalar(f as f64);
     Some((reg, code))
@@ -346,7 +349,7 @@ mod tests {
         );
         let targets = RoiLossTargets {
             cls: Tensor::from_data(TensorData::new(vec![1.0f32, 0.0], [2, 1]), &d),
-            fg_rows: Some(Tensor::from_data(TensorData::new(vec![0i64], [1]), &d)),
+            fg_rows: Some(RowGather::new(&[0], 2, &d)),
             reg: Tensor::zeros([1, 7], &d),
             roi_sizes: sizes,
             gt_corners: gt,

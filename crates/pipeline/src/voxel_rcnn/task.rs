@@ -18,6 +18,7 @@ use fusiondet_models::voxel_rcnn::{
     RoiLossTargets, VoxelRcnn, VoxelRcnnShape, anchor_loss, load_voxel_rcnn, roi_loss,
     save_voxel_rcnn,
 };
+use fusiondet_nn::gather::RowGather;
 use fusiondet_voxel::{GtDatabase, GtSampler, RoiTargets, sample_rois};
 use rayon::prelude::*;
 use std::path::Path;
@@ -77,7 +78,7 @@ pub(crate) fn roi_loss_targets(targets: &[RoiTargets], device: &Device) -> RoiLo
     let mut fg_rows = Vec::new();
     let (mut reg, mut sizes, mut centres, mut gt_sizes, mut headings) =
         (vec![], vec![], vec![], vec![], vec![]);
-    let mut row = 0i64;
+    let mut row = 0u32;
     for t in targets {
         for i in 0..t.len() {
             if t.reg_valid[i] {
@@ -100,7 +101,7 @@ pub(crate) fn roi_loss_targets(targets: &[RoiTargets], device: &Device) -> RoiLo
         |h: Vec<f32>| box_corners(t2(centres.clone(), 3), t2(gt_sizes.clone(), 3), t2(h, 1));
     RoiLossTargets {
         cls: Tensor::from_data(TensorData::new(cls, [r, 1]), device),
-        fg_rows: (f > 0).then(|| Tensor::from_data(TensorData::new(fg_rows, [f]), device)),
+        fg_rows: (f > 0).then(|| RowGather::new(&fg_rows, r, device)),
         reg: t2(reg, 7),
         roi_sizes: t2(sizes, 3),
         gt_corners: corners(headings.clone()),
