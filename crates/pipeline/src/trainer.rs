@@ -70,10 +70,45 @@ pub struct TrainSummary {
 /// first is the total).
 pub struct StepLoss {
     pub total: Tensor<1>,
-    pub components: Vec<(&'static str, f32)>,
+    pub components: LossValues,
     /// Where the forward pass's seconds went, by named part (empty where a family does not
     /// split it): summed over an epoch into `metrics.jsonl`'s `step_seconds.forward_parts`.
     pub parts: ForwardParts,
+}
+
+/// A step's named loss values (the first the total): read already, or still on the network's
+/// device, to be read in one transfer once the step's backward pass and update are queued.
+/// Why: read term by term before the backward pass, a GPU step waited for its whole forward
+/// pass, once a term, before a kernel of the backward pass was queued.
+pub enum LossValues {
+    Read(Vec<(&'static str, f32)>),
+    OnDevice {
+        names: Vec<&'static str>,
+        /// [names] values, without autodiff.
+        values: Tensor<1>,
+    },
+}
+
+impl LossValues {
+    /// The values on the host (for values on the device, waiting for the work queued
+    /// before them).
+    pub fn read(self) -> Result<Vec<(&'static str, f32)>> {
+        match self {
+            LossValues::Read(values) => Ok(values),
+            LossValues::OnDevice { names, values } => {
+                let values = values
+                    .into_data()
+                    .convert::<f32>()
+                    .try_into_vec::<f32>()
+                    .map_err(|e| {
+                        PipelineError::Invalid(format!(
+                            "reading the loss back from the device failed: {e:?}"
+                        ))
+                    })?;
+                Ok(names.into_iter().zip(values).collect())
+            }
+        }
+    }
 }
 
 impl StepLoss {
@@ -84,15 +119,19 @@ impl StepLoss {
             .map(|(_, t)| t.clone())
             .reduce(|a, b| a + b)
             .expect("a loss has at least one term");
-        let mut components = vec![("total", total.clone().into_scalar::<f32>())];
-        components.extend(
-            terms
-                .iter()
-                .map(|(n, t)| (*n, t.clone().into_scalar::<f32>())),
+        let names = std::iter::once("total")
+            .chain(terms.iter().map(|(n, _)| *n))
+            .collect();
+        let values = Tensor::cat(
+            std::iter::once(&total)
+                .chain(terms.iter().map(|(_, t)| t))
+                .map(|t| t.clone().inner())
+                .collect(),
+            0,
         );
         StepLoss {
             total,
-            components,
+            components: LossValues::OnDevice { names, values },
             parts: ForwardParts::default(),
         }
     }
@@ -374,11 +413,16 @@ pub fn run_training<T: TrainingTask>(
                     time.forward_loss += forward.elapsed().as_secs_f64();
                     time.forward_parts.absorb(&loss.parts);
                     let update = Instant::now();
-                    if let Some((name, value)) =
-                        loss.components.iter().find(|(_, v)| !v.is_finite())
-                    {
-                        // Stop before the step spreads it into the weights; the run keeps its
-                        // last committed epoch.
+                    let mut grads = GradientsParams::from_grads(loss.total.backward(), &net);
+                    if let Some(max_norm) = global_clip {
+                        grads = crate::grad_clip::clip_global_norm(&net, grads, max_norm).0;
+                    }
+                    let updated = optim.step(lr, net, grads);
+                    let components = loss.components.read()?;
+                    time.backward_update += update.elapsed().as_secs_f64();
+                    if let Some((name, value)) = components.iter().find(|(_, v)| !v.is_finite()) {
+                        // The updated weights are dropped unsaved: the run keeps its last
+                        // committed epoch.
                         return Err(PipelineError::Invalid(format!(
                             "training diverged: loss `{name}` is {value} at epoch {}, step {}; \
                              nothing of this epoch is saved (the run keeps epoch {epoch}); lower \
@@ -387,16 +431,11 @@ pub fn run_training<T: TrainingTask>(
                             steps + 1
                         )));
                     }
-                    let mut grads = GradientsParams::from_grads(loss.total.backward(), &net);
-                    if let Some(max_norm) = global_clip {
-                        grads = crate::grad_clip::clip_global_norm(&net, grads, max_norm).0;
-                    }
-                    slot = Some(optim.step(lr, net, grads));
-                    time.backward_update += update.elapsed().as_secs_f64();
+                    slot = Some(updated);
                     if steps == 0 {
-                        first_step_loss = loss.components.first().map(|&(_, v)| v as f64);
+                        first_step_loss = components.first().map(|&(_, v)| v as f64);
                     }
-                    for (k, (name, value)) in loss.components.into_iter().enumerate() {
+                    for (k, (name, value)) in components.into_iter().enumerate() {
                         if sums.len() <= k {
                             sums.push((name, 0.0));
                         }
@@ -483,9 +522,10 @@ pub fn run_training<T: TrainingTask>(
 
 /// Where an epoch's seconds went, summed over its steps: waiting for the data thread's next
 /// batch, the forward pass with the loss (the host work a task does inside it, such as targets
-/// and the RoI query, included; it reads the loss back, so on a GPU it also waits for the
-/// kernels the previous step queued), and backward with the optimizer update (on a GPU only
-/// their queuing). Written into `metrics.jsonl` as `step_seconds`, so that a slow step can be
+/// and the RoI query, included; on a GPU the voxel family's forward pass waits there only for
+/// its proposals' read-back, the frustum family's for the loss it reads back), and backward with
+/// the optimizer update and the read-back of the loss values (on a GPU the wait for the whole
+/// step's queue). Written into `metrics.jsonl` as `step_seconds`, so that a slow step can be
 /// told data-bound from compute-bound on any device.
 /// Where the family splits its forward pass ([`StepLoss::parts`]), `forward_parts` says how
 /// `forward_loss` divides among those parts.

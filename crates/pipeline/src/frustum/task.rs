@@ -6,7 +6,9 @@ use crate::detection::{FrameResults, StageTimes};
 use crate::error::{PipelineError, Result};
 use crate::frustum::FrustumDetector;
 use crate::run_dir::RunDir;
-use crate::trainer::{StepLoss, TrainOptions, TrainSummary, TrainingTask, open_run, run_training};
+use crate::trainer::{
+    LossValues, StepLoss, TrainOptions, TrainSummary, TrainingTask, open_run, run_training,
+};
 use burn::prelude::*;
 use fusiondet_frustum::{FrameSource, FrustumDataset, InMemoryFrames, PreparedBatch};
 use fusiondet_kitti::{DatasetDir, read_detections2d, write_atomic};
@@ -91,7 +93,7 @@ impl TrainingTask for FrustumTask<'_> {
         let loss = fconvnet_loss(&net.forward_inputs(&inputs), &targets, &cfg.loss)?;
         Ok(StepLoss {
             total: loss.total,
-            components: loss.components.named().to_vec(),
+            components: LossValues::Read(loss.components.named().to_vec()),
             parts: Default::default(),
         })
     }
