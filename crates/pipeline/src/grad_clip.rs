@@ -7,6 +7,7 @@
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
+use fusiondet_nn::reduce::sum_all;
 
 /// L2 norm of all the gradients `grads` holds for `module`'s float parameters. The squared
 /// sums stay on the device and are read back once, not once per parameter tensor.
@@ -18,7 +19,9 @@ pub fn global_norm<M: Module>(module: &M, grads: &GradientsParams) -> f64 {
     impl ModuleVisitor for SquaredSum<'_> {
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
             if let Some(g) = self.grads.get::<D>(param.id) {
-                let part = g.powi_scalar(2).sum();
+                // `sum_all`: on a GPU burn's `sum()` adds its blocks atomically, in no fixed
+                // order, so the norm (and every clipped weight) would move run to run.
+                let part = sum_all(g.powi_scalar(2));
                 self.sum = Some(match self.sum.take() {
                     Some(sum) => sum + part,
                     None => part,
