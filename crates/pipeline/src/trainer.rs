@@ -84,8 +84,8 @@ pub enum LossValues {
     Read(Vec<(&'static str, f32)>),
     OnDevice {
         names: Vec<&'static str>,
-        /// [names] values, without autodiff.
-        values: Tensor<1>,
+        /// [names] values, without autodiff (boxed: a tensor handle is large beside a `Vec`).
+        values: Box<Tensor<1>>,
     },
 }
 
@@ -96,7 +96,7 @@ impl LossValues {
         match self {
             LossValues::Read(values) => Ok(values),
             LossValues::OnDevice { names, values } => {
-                let values = values
+                let values = (*values)
                     .into_data()
                     .convert::<f32>()
                     .try_into_vec::<f32>()
@@ -131,7 +131,10 @@ impl StepLoss {
         );
         StepLoss {
             total,
-            components: LossValues::OnDevice { names, values },
+            components: LossValues::OnDevice {
+                names,
+                values: Box::new(values),
+            },
             parts: ForwardParts::default(),
         }
     }

@@ -369,11 +369,11 @@ mod tests {
                 2 => pred[6] += std::f32::consts::FRAC_PI_2,
                 3 => pred[0] += 30.0,
                 _ => {
-                    for a in 0..3 {
-                        pred[a] += (unit(s) * 3.0 - 1.5) as f32;
+                    for v in &mut pred[0..3] {
+                        *v += (unit(s) * 3.0 - 1.5) as f32;
                     }
-                    for a in 3..6 {
-                        pred[a] *= (0.7 + unit(s) * 0.6) as f32;
+                    for v in &mut pred[3..6] {
+                        *v *= (0.7 + unit(s) * 0.6) as f32;
                     }
                     pred[6] += (unit(s) * 2.0 - 1.0) as f32;
                 }
