@@ -322,12 +322,13 @@ pub fn giou_3d_loss(pred: Tensor<3>, gt: Tensor<3>) -> Tensor<1> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::voxel_rcnn::loss::box_corners;
     use std::f64::consts::{FRAC_PI_4, SQRT_2};
 
-    fn corners(boxes: &[[f32; 7]], d: &Device) -> Tensor<3> {
+    /// Corners [N, 8, 3] of boxes (x, y, z, dx, dy, dz, heading) on `d`.
+    pub(in crate::dasanet) fn corners(boxes: &[[f32; 7]], d: &Device) -> Tensor<3> {
         let n = boxes.len();
         let col = |a: usize, b: usize| {
             let v: Vec<f32> = boxes.iter().flat_map(|x| x[a..b].to_vec()).collect();

@@ -332,6 +332,7 @@ impl GiouVertexOps for CubeBackend {
 
 #[cfg(all(test, feature = "wgpu"))]
 mod tests {
+    use super::super::giou::tests::corners;
     use super::super::giou::{
         CANDIDATES, P2, candidate_points, footprint, giou_3d_loss, hull_vertices,
         intersection_vertices, iou_giou_3d,
@@ -382,15 +383,6 @@ mod tests {
             gts.push(gt);
         }
         (preds, gts)
-    }
-
-    fn corners(boxes: &[[f32; 7]], d: &Device) -> Tensor<3> {
-        let n = boxes.len();
-        let col = |a: usize, b: usize| {
-            let v: Vec<f32> = boxes.iter().flat_map(|x| x[a..b].to_vec()).collect();
-            Tensor::<2>::from_data(TensorData::new(v, [n, b - a]), d)
-        };
-        box_corners(col(0, 3), col(3, 6), col(6, 7))
     }
 
     fn values(t: Tensor<1>) -> Vec<f32> {
