@@ -19,7 +19,7 @@ use std::path::Path;
 /// Metadata key of the checkpoint's family ([`DetectorKind::checkpoint_tag`]).
 const KIND_KEY: &str = "fusiondet.model";
 const CONFIG_KEY: &str = "fusiondet.model_config";
-/// Metadata key of the CRC-32 of every tensor's values ([`tensor_checksum`]), verified on
+/// Metadata key of the CRC-32 of every tensor's values (`scan_tensors`), verified on
 /// load: a file whose bytes were damaged (say, flipped to NaN) is refused.
 const CHECKSUM_KEY: &str = "fusiondet.tensor_crc32";
 
@@ -50,6 +50,9 @@ pub(crate) fn write_tagged<M: ModuleSnapshot>(
     let model = model.valid();
     // One read of every tensor gives both the checksum and the NaN check.
     let scan = scan_tensors(&model);
+    if let Some(error) = scan.unreadable {
+        return Err(ckpt_err(path, format!("not written: {error}")));
+    }
     if let Some(name) = scan.non_finite {
         return Err(ckpt_err(
             path,
@@ -78,6 +81,9 @@ struct TensorScan {
     crc32: u32,
     /// The path of the first tensor holding a NaN or an infinity.
     non_finite: Option<String>,
+    /// Why a tensor could not be read (a GPU run whose device failed: an allocation past what
+    /// it binds, say); the scan stops there.
+    unreadable: Option<String>,
 }
 
 fn scan_tensors<M: Module>(module: &M) -> TensorScan {
@@ -85,6 +91,7 @@ fn scan_tensors<M: Module>(module: &M) -> TensorScan {
         path: Vec<String>,
         hasher: crc32fast::Hasher,
         non_finite: Option<String>,
+        unreadable: Option<String>,
     }
     impl ModuleVisitor for Scanner {
         fn enter_module(&mut self, name: &str, _container_type: &str) {
@@ -94,8 +101,21 @@ fn scan_tensors<M: Module>(module: &M) -> TensorScan {
             self.path.pop();
         }
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            if self.unreadable.is_some() {
+                return;
+            }
+            let data = match param.val().try_into_data() {
+                Ok(data) => data,
+                Err(e) => {
+                    self.unreadable = Some(format!(
+                        "the weights could not be read back from the device (`{}`): {e:?}",
+                        self.path.join(".")
+                    ));
+                    return;
+                }
+            };
             let mut finite = true;
-            for v in param.val().into_data().iter::<f32>() {
+            for v in data.iter::<f32>() {
                 finite &= v.is_finite();
                 self.hasher.update(&v.to_le_bytes());
             }
@@ -108,17 +128,20 @@ fn scan_tensors<M: Module>(module: &M) -> TensorScan {
         path: Vec::new(),
         hasher: crc32fast::Hasher::new(),
         non_finite: None,
+        unreadable: None,
     };
     module.visit(&mut scanner);
     TensorScan {
         crc32: scanner.hasher.finalize(),
         non_finite: scanner.non_finite,
+        unreadable: scanner.unreadable,
     }
 }
 
 /// CRC-32 of the values of every float parameter and batch-norm statistic of `module`, in
-/// the module's own order (little-endian f32).
-pub fn tensor_checksum<M: Module>(module: &M) -> u32 {
+/// the module's own order (little-endian f32), as [`write_tagged`] stores it.
+#[cfg(test)]
+pub(crate) fn tensor_checksum<M: Module>(module: &M) -> u32 {
     scan_tensors(module).crc32
 }
 
@@ -222,7 +245,11 @@ pub(crate) fn load_weights<M: ModuleSnapshot>(mut model: M, path: &Path) -> Resu
     let reader =
         Reader::from_file_exact(path).map_err(|e| ckpt_err(path, format!("cannot read: {e}")))?;
     if let Some(stored) = reader.metadata().get(CHECKSUM_KEY) {
-        let found = format!("{:08x}", tensor_checksum(&model));
+        let scan = scan_tensors(&model);
+        if let Some(error) = scan.unreadable {
+            return Err(ckpt_err(path, format!("cannot check the weights: {error}")));
+        }
+        let found = format!("{:08x}", scan.crc32);
         if *stored != found {
             return Err(ckpt_err(
                 path,
@@ -400,6 +427,37 @@ pub fn load_checkpoint(
 mod tests {
     use super::*;
     use burn::nn::LinearConfig;
+
+    /// A network whose weights a failed device cannot give back is refused with a message
+    /// saying so, not a panic, and nothing is written. The failure: an allocation one value
+    /// past what the adapter binds (lavapipe: 128 MiB), whose result the weights are made of.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn on_wgpu_weights_a_failed_device_cannot_give_back_are_an_error() {
+        let Some(gpu) = fusiondet_nn::cube::working_wgpu_device("a failed device's checkpoint")
+        else {
+            return;
+        };
+        let limit = fusiondet_nn::cube::binding_limit(&gpu).unwrap_or(u64::MAX);
+        if limit > 1 << 30 {
+            eprintln!("this adapter binds {limit} bytes: no failing allocation to test with");
+            return;
+        }
+        let past_the_limit = (limit / 4 + 1) as usize;
+        let failed = Tensor::<1>::ones([past_the_limit], &gpu).mul_scalar(2.0);
+        let mut linear = LinearConfig::new(2, 2).init(&gpu);
+        linear.weight = Param::from_tensor(failed.slice(0..4).reshape([2, 2]));
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("model.bpk");
+        let err = write_tagged(&linear, DetectorKind::Frustum, "{}".into(), &path)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("not written: the weights could not be read back from the device"),
+            "{err}"
+        );
+        assert!(!path.exists());
+    }
 
     /// A burnpack file with `tag` as its family (or none).
     fn pack(path: &Path, tag: Option<&str>) {
