@@ -35,11 +35,20 @@ pub fn int_rows(t: CubeTensor) -> CubeTensor {
 /// no runtime pads a one-dimensional buffer (CUDA pads the rows of 2-D ones), so a kernel
 /// can write it by index and relabel it with a reshape.
 pub fn f32_buffer(like: &CubeTensor, len: usize) -> CubeTensor {
+    buffer(like, len, DType::F32)
+}
+
+/// [`f32_buffer`] of i32 values: a kernel's index output.
+pub fn i32_buffer(like: &CubeTensor, len: usize) -> CubeTensor {
+    buffer(like, len, DType::I32)
+}
+
+fn buffer(like: &CubeTensor, len: usize, dtype: DType) -> CubeTensor {
     empty_device_dtype(
         like.client.clone(),
         like.device.clone(),
         [len].into(),
-        DType::F32,
+        dtype,
     )
 }
 

@@ -4,7 +4,7 @@
 //! Inputs are indexed by their strides and the gradient written one-dimensional, as the
 //! sparse convolution's kernels do (`sparse::device_kernels`: CUDA pads 2-D rows).
 
-use crate::cube::{f32_buffer, float_rows, int_rows, launch_shape, root_blocks};
+use crate::cube::{f32_buffer, float_rows, i32_buffer, int_rows, launch_shape, root_blocks};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
@@ -15,7 +15,7 @@ use burn::backend::{Autodiff, Backend, Dispatch, backend_extension};
 use burn::prelude::*;
 use burn::tensor::DType;
 use burn_cubecl::CubeBackend;
-use burn_cubecl::ops::numeric::{empty_device_dtype, zeros_client};
+use burn_cubecl::ops::numeric::zeros_client;
 use burn_cubecl::tensor::CubeTensor;
 
 /// The gather (see the module's documentation).
@@ -316,13 +316,8 @@ fn turn_around_on_device(index: CubeTensor, source_rows: usize) -> (CubeTensor, 
         [keys * chunks].into(),
         DType::I32,
     );
-    let readers = empty_device_dtype(
-        client.clone(),
-        device.clone(),
-        [m.max(1)].into(),
-        DType::I32,
-    );
-    let starts = empty_device_dtype(client.clone(), device, [keys + 1].into(), DType::I32);
+    let readers = i32_buffer(&index, m.max(1));
+    let starts = i32_buffer(&index, keys + 1);
     if m > 0 {
         let (count, dim) = launch_shape(&client, chunks);
         // SAFETY: threads past the last chunk return first; a chunk's entries are clipped to
@@ -385,12 +380,7 @@ fn exclusive_scan(values: &CubeTensor) {
     }
     let (blocks, block_len) = root_blocks(len);
     let client = values.client.clone();
-    let sums = empty_device_dtype(
-        client.clone(),
-        values.device.clone(),
-        [blocks].into(),
-        DType::I32,
-    );
+    let sums = i32_buffer(values, blocks);
     let (count, dim) = launch_shape(&client, blocks);
     // SAFETY: threads past the last block return first; each block's values are clipped to
     // L, its sum written at its index below the block count.

@@ -19,11 +19,9 @@
 use burn::backend::tensor::{FloatTensor, IntTensor};
 use burn::backend::{Backend, Dispatch, backend_extension};
 use burn::prelude::*;
-use burn::tensor::DType;
 use burn_cubecl::CubeBackend;
-use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
-use fusiondet_nn::cube::{float_rows, launch_shape};
+use fusiondet_nn::cube::{float_rows, i32_buffer, launch_shape};
 use kernels::polygon_vertices;
 
 /// The kernel (see the module's documentation).
@@ -300,15 +298,10 @@ impl GiouVertexOps for CubeBackend {
         let points = float_rows(points);
         let pairs = points.meta.shape()[0];
         let client = points.client.clone();
-        let buffer = || {
-            empty_device_dtype(
-                client.clone(),
-                points.device.clone(),
-                [pairs * 8].into(),
-                DType::I32,
-            )
-        };
-        let (inter, hull) = (buffer(), buffer());
+        let (inter, hull) = (
+            i32_buffer(&points, pairs * 8),
+            i32_buffer(&points, pairs * 8),
+        );
         if pairs > 0 {
             let (count, dim) = launch_shape(&client, pairs);
             // SAFETY: threads past the last pair return first; a pair reads its own 24

@@ -36,10 +36,9 @@ use burn::backend::{Backend, Dispatch, backend_extension};
 use burn::prelude::*;
 use burn::tensor::{FloatDType, IntDType};
 use burn_cubecl::CubeBackend;
-use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
 pub use fusiondet_nn::cube::cube_runtime;
-use fusiondet_nn::cube::launch_shape;
+use fusiondet_nn::cube::{f32_buffer, i32_buffer, launch_shape};
 use fusiondet_nn::sparse::SparseSites;
 use kernels::{fill_table, scan_neighbours};
 
@@ -239,20 +238,10 @@ impl VoxelQueryOps for CubeBackend {
         }
         let num_points = points.meta.shape()[0];
         let slots = num_points * query.samples as usize;
-        let rows = empty_device_dtype(
-            client.clone(),
-            device.clone(),
-            [slots].into(),
-            burn::tensor::DType::I32,
-        );
+        let rows = i32_buffer(&points, slots);
         // One dimension, so no runtime pads its rows (see the module's documentation); the
         // reshape below only relabels it.
-        let offsets = empty_device_dtype(
-            client.clone(),
-            device,
-            [slots * 3].into(),
-            burn::tensor::DType::F32,
-        );
+        let offsets = f32_buffer(&points, slots * 3);
         if num_points > 0 {
             let (count, dim) = launch_shape(&client, num_points);
             // SAFETY: threads past the last grid point return first; a point's RoI is in

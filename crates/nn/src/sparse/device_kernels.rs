@@ -33,7 +33,7 @@
 //! output may be) are un-tiled first. The kernels are launched unchecked, as burn launches
 //! its own: every index is in bounds by construction (the `SAFETY` notes below).
 
-use crate::cube::{f32_buffer as buffer, float_rows, int_rows, launch_shape};
+use crate::cube::{f32_buffer as buffer, float_rows, i32_buffer, int_rows, launch_shape};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
@@ -42,9 +42,7 @@ use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::{FloatTensor, IntTensor};
 use burn::backend::{Autodiff, Backend, Dispatch, backend_extension};
 use burn::prelude::*;
-use burn::tensor::DType;
 use burn_cubecl::CubeBackend;
-use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
 
 /// The convolution (see the module's documentation).
@@ -321,12 +319,7 @@ fn forward(features: CubeTensor, weight: CubeTensor, table: CubeTensor) -> CubeT
 fn invert(table: &CubeTensor, input_rows: usize, volume: usize) -> CubeTensor {
     let [entries] = dims(table);
     let len = input_rows * volume;
-    let inverse = empty_device_dtype(
-        table.client.clone(),
-        table.device.clone(),
-        [len].into(),
-        DType::I32,
-    );
+    let inverse = i32_buffer(table, len);
     let client = table.client.clone();
     if len > 0 {
         let (count, dim) = launch_shape(&client, len);

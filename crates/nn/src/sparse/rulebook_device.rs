@@ -21,16 +21,15 @@
 
 use super::rulebook::ConvGeometry;
 use super::sites::SparseSites;
-use crate::cube::launch_shape;
+use crate::cube::{i32_buffer, launch_shape};
 use burn::backend::Autodiff;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::ops::IntTensorOps;
 use burn::backend::tensor::IntTensor;
 use burn::backend::{Backend, Dispatch, backend_extension};
 use burn::prelude::*;
-use burn::tensor::{DType, IntDType};
+use burn::tensor::IntDType;
 use burn_cubecl::CubeBackend;
-use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
 
 /// The search (see the module's documentation).
@@ -123,12 +122,7 @@ fn search(
     let cast = |t: CubeTensor| CubeBackend::int_cast(t, IntDType::I32);
     let (from, keys, rows, geometry) = (cast(from), cast(keys), cast(rows), cast(geometry));
     let units = from.meta.shape()[0] / 4 * volume;
-    let out = empty_device_dtype(
-        from.client.clone(),
-        from.device.clone(),
-        [units].into(),
-        DType::I32,
-    );
+    let out = i32_buffer(&from, units);
     if units > 0 {
         let client = from.client.clone();
         let (count, dim) = launch_shape(&client, units);
