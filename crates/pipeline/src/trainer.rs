@@ -96,15 +96,17 @@ impl LossValues {
         match self {
             LossValues::Read(values) => Ok(values),
             LossValues::OnDevice { names, values } => {
-                let values = (*values)
-                    .into_data()
+                let failed = |e: String| {
+                    PipelineError::Invalid(format!(
+                        "reading the loss back from the device failed: {e}"
+                    ))
+                };
+                let values = values
+                    .try_into_data()
+                    .map_err(|e| failed(format!("{e:?}")))?
                     .convert::<f32>()
                     .try_into_vec::<f32>()
-                    .map_err(|e| {
-                        PipelineError::Invalid(format!(
-                            "reading the loss back from the device failed: {e:?}"
-                        ))
-                    })?;
+                    .map_err(|e| failed(format!("{e:?}")))?;
                 Ok(names.into_iter().zip(values).collect())
             }
         }

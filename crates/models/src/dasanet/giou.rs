@@ -290,11 +290,12 @@ pub fn iou_giou_3d(pred: Tensor<3>, gt: Tensor<3>) -> (Tensor<1>, Tensor<1>) {
     let (inter, hull) = intersections_and_hulls(&points);
     let inter_area = polygon_areas(&points, &inter);
     let hull_area = polygon_areas(&points, &hull);
-    let own = |q: &Tensor<3>| {
-        let v: Vec<Vec<usize>> = vec![(0..4).chain([3; 4]).collect(); f];
-        polygon_areas(q, &Polygons::from_host(&v, 4, &q.device()))
-    };
-    let (area_p, area_g) = (own(&p), own(&g));
+    // Each footprint is its own polygon: corners 0–3, the last repeated (one gather for both).
+    let footprints = Polygons::from_host(&vec![(0..4).chain([3; 4]).collect(); f], 4, &p.device());
+    let (area_p, area_g) = (
+        polygon_areas(&p, &footprints),
+        polygon_areas(&g, &footprints),
+    );
     let z = |c: &Tensor<3>, k: usize| {
         c.clone()
             .slice_dim(1, k..k + 1)
