@@ -47,6 +47,12 @@
 #                  (FUSIONDET_ROI_QUERY=check), a `detect` with the host query compared box
 #                  by box with the kernels' on the same device, and a bench, beside the
 #                  default (default: voxel-rcnn-car dasanet-car; empty to skip)
+#   PROPOSALS_AB   models also detect with stage one's proposals checked against the host's
+#                  (FUSIONDET_PROPOSALS=check: a GPU's default ranks, decodes and suppresses
+#                  them on the device; each frame whose proposals differ is counted), and the
+#                  published configurations also bench with the proposals chosen on the host
+#                  (FUSIONDET_PROPOSALS=host) (default: voxel-rcnn-car dasanet-car; empty to
+#                  skip)
 #   TRAIN_QUERY_AB the published configurations also train with the RoI grid query on the host
 #                  (FUSIONDET_ROI_QUERY=host; a GPU's default in training, as in detection, is
 #                  its kernels, the index turned around on the device): 1 or 0 (default: 1)
@@ -149,6 +155,7 @@ repeats="${REPEATS:-3}"
 steps_frames="${STEPS_FRAMES:-8}"
 query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
 train_query_ab="${TRAIN_QUERY_AB:-1}"
+proposals_ab="${PROPOSALS_AB-voxel-rcnn-car dasanet-car}"
 sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
 tables_ab="${TABLES_AB:-1}"
 prepare_ab="${PREPARE_AB:-1}"
@@ -289,6 +296,21 @@ for m in $models; do
         fi
         no_probes=1 bench_into "$det/bench-dev-host-query.log" "$ckpt" "$device" host
         host_query=" (host RoI query $(frames_per_second "$det/bench-dev-host-query.log" || echo '?'))"
+    fi
+    if [[ " $proposals_ab " == *" $m "* ]]; then
+        # The device's proposals against the host's, frame by frame (voxel_rcnn/proposals.rs,
+        # ProposalPlace); the boxes are the host's, so only the count of differing frames says
+        # anything.
+        if FUSIONDET_PROPOSALS=check "$bin" detect --checkpoint "$ckpt" --data "$data" --split val \
+            --out "$det/dev-proposals-check" --device "$device" >"$det/dev-proposals-check.log" 2>&1; then
+            record "$(printf '%-16s proposals chosen on %s: %s of %s frames differ from the host'"'"'s' \
+                "$m" "$device" "$(grep -c '^proposals check' "$det/dev-proposals-check.log" || true)" \
+                "$(grep -c . "$data/ImageSets/val.txt")")"
+            grep '^proposals check' "$det/dev-proposals-check.log" | head -3 | sed 's/^/  /' || true
+        else
+            record "$m: detect with FUSIONDET_PROPOSALS=check failed: $(tail -1 "$det/dev-proposals-check.log")"
+            failures=$((failures + 1))
+        fi
     fi
     if [[ " $sparse_ab " == *" $m "* ]]; then
         # The sparse convolution as a kernel map of burn's operations (sparse/rulebook.rs in
@@ -443,6 +465,11 @@ if [ "$train" = 1 ]; then
                         no_probes=1 bench_into "$run-bench-one-preparer.log" "$run/model.bpk" "$d" "" "" "" 1
                         record "$(printf '%-26s bench on %s with one thread preparing frames: %s frames/s; stages: %s' \
                             "$name" "$d" "$(frames_per_second "$run-bench-one-preparer.log" || echo '?')" "$(stage_ms "$run-bench-one-preparer.log")")"
+                    fi
+                    if [ -n "$proposals_ab" ]; then
+                        FUSIONDET_PROPOSALS=host no_probes=1 bench_into "$run-bench-host-proposals.log" "$run/model.bpk" "$d"
+                        record "$(printf '%-26s bench on %s with the proposals chosen on the host: %s frames/s; stages: %s' \
+                            "$name" "$d" "$(frames_per_second "$run-bench-host-proposals.log" || echo '?')" "$(stage_ms "$run-bench-host-proposals.log")")"
                     fi
                     if [ "$stage_one_ab" = 1 ]; then
                         FUSIONDET_STAGE_ONE_AHEAD=off no_probes=1 bench_into "$run-bench-stage-one-behind.log" "$run/model.bpk" "$d"

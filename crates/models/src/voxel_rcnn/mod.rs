@@ -13,6 +13,8 @@ pub mod bev;
 pub mod checkpoint;
 pub mod config;
 pub mod loss;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod proposals_device;
 pub mod roi_head;
 pub mod roi_pool;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]

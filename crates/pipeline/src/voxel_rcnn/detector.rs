@@ -64,8 +64,33 @@ pub fn timed_until<T, const D: usize>(
     output
 }
 
-/// Stage one's proposals of every frame of a batch.
+/// Stage one's proposals of every frame of a batch: on the host, or on a GPU backend's
+/// device with only the kept anchors read back ([`super::proposals::ProposalPlace`]).
 pub fn batch_proposals(
+    data: &VoxelData,
+    anchors: &AnchorPredictions,
+    nms: &super::config::NmsConfig,
+) -> Vec<Vec<Proposal>> {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    {
+        use super::proposals::ProposalPlace;
+        let ranked = nms.pre_max.min(data.assigner.anchors().len());
+        let fits = ranked <= fusiondet_models::voxel_rcnn::proposals_device::MAX_RANKED;
+        match ProposalPlace::for_device(&anchors.cls.device()) {
+            ProposalPlace::Device if fits => return device_batch_proposals(data, anchors, nms),
+            ProposalPlace::Check if fits => {
+                let host = host_batch_proposals(data, anchors, nms);
+                report_proposal_differences(&host, &device_batch_proposals(data, anchors, nms));
+                return host;
+            }
+            _ => {}
+        }
+    }
+    host_batch_proposals(data, anchors, nms)
+}
+
+/// [`batch_proposals`] on the host: every anchor's predictions read back.
+pub fn host_batch_proposals(
     data: &VoxelData,
     anchors: &AnchorPredictions,
     nms: &super::config::NmsConfig,
@@ -93,6 +118,116 @@ pub fn batch_proposals(
             )
         })
         .collect()
+}
+
+/// [`batch_proposals`] on a GPU backend's device.
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub fn device_batch_proposals(
+    data: &VoxelData,
+    anchors: &AnchorPredictions,
+    nms: &super::config::NmsConfig,
+) -> Vec<Vec<Proposal>> {
+    device_proposals(
+        data.assigner.anchors(),
+        &data.classes,
+        &data.assigner.direction_bins(),
+        anchors,
+        nms,
+    )
+}
+
+/// Each frame's proposals from `predictions` over `anchors`, chosen on their GPU device:
+/// the anchors ranked, decoded and suppressed there, and only the kept anchors'
+/// prediction rows read back and decoded in f64 as on the host.
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub fn device_proposals(
+    anchors: &fusiondet_voxel::Anchors,
+    classes: &[fusiondet_kitti::ObjectClass],
+    bins: &fusiondet_voxel::DirectionBins,
+    predictions: &AnchorPredictions,
+    nms: &super::config::NmsConfig,
+) -> Vec<Vec<Proposal>> {
+    use super::proposals::proposals_of_rows;
+    use fusiondet_models::voxel_rcnn::proposals_device::{ProposalSelection, select_proposals};
+    let device = predictions.cls.device();
+    let [b, a, k] = predictions.cls.dims();
+    let nb = bins.bins;
+    let anchor_values: Vec<f32> = anchors
+        .boxes
+        .iter()
+        .flat_map(|anchor| anchor.to_array().map(|v| v as f32))
+        .collect();
+    let anchor_tensor = Tensor::<2>::from_data(TensorData::new(anchor_values, [a, 7]), &device);
+    let selection = ProposalSelection {
+        pre_max: nms.pre_max,
+        post_max: nms.post_max,
+        iou: nms.iou as f32,
+        dir_offset: bins.offset as f32,
+        dir_limit_offset: bins.limit_offset as f32,
+        dir_bins: nb,
+    };
+    let (cls, boxes, dir) = (
+        predictions.cls.clone().inner(),
+        predictions.boxes.clone().inner(),
+        predictions.direction.clone().inner(),
+    );
+    let (counts, rows) = select_proposals(
+        cls.clone(),
+        boxes.clone(),
+        dir.clone(),
+        anchor_tensor,
+        selection,
+    );
+    let width = k + 7 + nb;
+    let table = Tensor::cat(vec![cls, boxes, dir], 2)
+        .reshape([b * a, width])
+        .select(0, rows.clone());
+    let ints = |t: Tensor<1, Int>| -> Vec<usize> {
+        t.into_data()
+            .convert::<i64>()
+            .try_to_vec::<i64>()
+            .expect("integer tensor data")
+            .into_iter()
+            .map(|v| v as usize)
+            .collect()
+    };
+    let (counts, rows) = (ints(counts), ints(rows));
+    let table = values(&table);
+    let post = nms.post_max;
+    (0..b)
+        .map(|f| {
+            let slots = f * post..f * post + counts[f];
+            proposals_of_rows(
+                anchors,
+                classes,
+                bins,
+                slots.map(|slot| (rows[slot] - f * a, &table[slot * width..(slot + 1) * width])),
+            )
+        })
+        .collect()
+}
+
+/// `FUSIONDET_PROPOSALS=check`: one line a frame whose device proposals are not the host's
+/// (other anchors kept, or a box more than 1 mm or a score more than 1e-6 away).
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+fn report_proposal_differences(host: &[Vec<Proposal>], device: &[Vec<Proposal>]) {
+    for (f, (h, d)) in host.iter().zip(device).enumerate() {
+        let same = |p: &Proposal, q: &Proposal| {
+            let (x, y) = (p.bbox.to_array(), q.bbox.to_array());
+            x.iter().zip(&y).all(|(u, v)| (u - v).abs() <= 1e-3)
+                && (p.score - q.score).abs() <= 1e-6
+                && p.class == q.class
+        };
+        let first = h.iter().zip(d).position(|(p, q)| !same(p, q));
+        if h.len() != d.len() || first.is_some() {
+            eprintln!(
+                "proposals check: frame {f}: host kept {}, device {}; first difference at rank {}",
+                h.len(),
+                d.len(),
+                first.unwrap_or(h.len().min(d.len()))
+            );
+        }
+    }
 }
 
 /// The grid points of `rois[b]` of each frame b and their neighbours at every pooling
@@ -391,4 +526,115 @@ enum FrameStage {
     Empty,
     Inputs((Tensor<2>, BackbonePlan)),
     Proposed(BackboneOutput, Vec<Proposal>),
+}
+
+#[cfg(all(test, feature = "wgpu"))]
+mod tests {
+    use super::*;
+    use crate::voxel_rcnn::config::NmsConfig;
+    use fusiondet_dataset::rng::Sampler;
+    use fusiondet_kitti::ObjectClass;
+    use fusiondet_voxel::{AnchorClass, AnchorConfig, Anchors, DirectionBins, VoxelConfig};
+
+    /// Car and pedestrian anchors 0.4 m apart over a 16 × 16 m grid, two headings each
+    /// (2,400 overlapping anchors), and `frames` frames of seeded random predictions:
+    /// logits [frames · A · 2], codes [· 7], direction logits [· 2].
+    fn scene(frames: usize) -> (Anchors, DirectionBins, [Vec<f32>; 3]) {
+        let voxel = VoxelConfig {
+            point_range: [0.0, -8.0, -3.0, 16.0, 8.0, 1.0],
+            voxel_size: [0.2, 0.2, 0.1],
+            ..VoxelConfig::default()
+        };
+        let mut pedestrian = AnchorClass::car();
+        pedestrian.class = ObjectClass::Pedestrian;
+        pedestrian.size = [0.8, 0.6, 1.7];
+        let config = AnchorConfig {
+            classes: vec![AnchorClass::car(), pedestrian],
+            feature_map_stride: 2,
+            ..AnchorConfig::default()
+        };
+        let anchors = Anchors::generate(&voxel, &config).unwrap();
+        let bins = DirectionBins::from_config(&config);
+        let a = anchors.len();
+        let mut s = Sampler::new(2026);
+        let mut draw = |n: usize, scale: f64| -> Vec<f32> {
+            (0..n).map(|_| (s.normal() * scale) as f32).collect()
+        };
+        let cls = draw(frames * a * 2, 2.0);
+        let codes = draw(frames * a * 7, 0.3);
+        let dir = draw(frames * a * 2, 1.0);
+        (anchors, bins, [cls, codes, dir])
+    }
+
+    /// The predictions on `device`, the codes laid out as a transposed view (the kernels
+    /// read every input by its strides).
+    fn predictions(
+        values: &[Vec<f32>; 3],
+        frames: usize,
+        a: usize,
+        device: &Device,
+    ) -> AnchorPredictions {
+        let [cls, codes, dir] = values;
+        let codes_by_column: Vec<f32> = (0..frames)
+            .flat_map(|f| (0..7).flat_map(move |j| (0..a).map(move |i| (f, i, j))))
+            .map(|(f, i, j)| codes[(f * a + i) * 7 + j])
+            .collect();
+        AnchorPredictions {
+            cls: Tensor::from_data(TensorData::new(cls.clone(), [frames, a, 2]), device),
+            boxes: Tensor::<3>::from_data(TensorData::new(codes_by_column, [frames, 7, a]), device)
+                .swap_dims(1, 2),
+            direction: Tensor::from_data(TensorData::new(dir.clone(), [frames, a, 2]), device),
+        }
+    }
+
+    #[test]
+    fn on_wgpu_the_devices_proposals_are_the_hosts() {
+        let Some(device) =
+            fusiondet_nn::cube::working_wgpu_device("the device's choice of proposals")
+        else {
+            return;
+        };
+        let frames = 2;
+        let (anchors, bins, values) = scene(frames);
+        let a = anchors.len();
+        let classes = [ObjectClass::Car, ObjectClass::Pedestrian];
+        let on_device = predictions(&values, frames, a, &device);
+        let [cls, codes, dir] = &values;
+        for nms in [
+            // Ranked and capped: 1,000 of 2,400 ranked, at most 60 kept.
+            NmsConfig {
+                pre_max: 1000,
+                post_max: 60,
+                iou: 0.7,
+            },
+            // Every anchor ranked (fewer than pre_max), a lower threshold, no cap reached.
+            NmsConfig {
+                pre_max: 5000,
+                post_max: 2000,
+                iou: 0.3,
+            },
+        ] {
+            let device_kept = device_proposals(&anchors, &classes, &bins, &on_device, &nms);
+            for (f, kept) in device_kept.iter().enumerate() {
+                let host = decode_proposals(
+                    &anchors,
+                    &classes,
+                    &bins,
+                    &cls[f * a * 2..(f + 1) * a * 2],
+                    &codes[f * a * 7..(f + 1) * a * 7],
+                    &dir[f * a * 2..(f + 1) * a * 2],
+                    &nms,
+                );
+                assert!(host.len() > 10, "frame {f}: {} kept", host.len());
+                assert!(
+                    host.len() < nms.pre_max.min(a),
+                    "frame {f}: nothing suppressed"
+                );
+                assert_eq!(kept, &host, "frame {f}, {nms:?}");
+            }
+            if nms.post_max == 60 {
+                assert_eq!(device_kept[0].len(), 60, "the cap is reached");
+            }
+        }
+    }
 }

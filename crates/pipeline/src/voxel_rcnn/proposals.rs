@@ -58,6 +58,32 @@ pub fn nms_sorted(boxes: &[LidarBox], iou: f64, max_keep: usize) -> Vec<usize> {
     keep
 }
 
+/// An anchor's best class (the first of equal logits) and its score.
+pub fn best_class(logits: &[f32]) -> (usize, f64) {
+    let (c, &logit) = logits
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))
+        .expect("at least one class");
+    (c, sigmoid(logit))
+}
+
+/// The box an anchor's residual `code` (7 values) and direction logits stand for.
+pub fn decode_anchor(
+    anchor: &LidarBox,
+    code: &[f32],
+    dir: &[f32],
+    bins: &DirectionBins,
+) -> LidarBox {
+    let code: [f64; 7] = std::array::from_fn(|j| code[j] as f64);
+    let mut b = decode(&code, anchor);
+    let bin = (0..bins.bins)
+        .max_by(|&a, &c| dir[a].total_cmp(&dir[c]).then(c.cmp(&a)))
+        .unwrap_or(0);
+    b.heading = bins.apply(b.heading, bin);
+    b
+}
+
 /// Stage one's boxes of one frame: `cls` [anchors × classes] logits, `boxes` [anchors × 7]
 /// residuals, `dir` [anchors × bins] logits, all in anchor order.
 pub fn decode_proposals(
@@ -72,29 +98,18 @@ pub fn decode_proposals(
     let k = classes.len();
     let nb = bins.bins;
     let n = anchors.len();
-    let (best_class, scores): (Vec<usize>, Vec<f64>) = (0..n)
-        .map(|i| {
-            let row = &cls[i * k..(i + 1) * k];
-            let (c, &logit) = row
-                .iter()
-                .enumerate()
-                .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))
-                .expect("at least one class");
-            (c, sigmoid(logit))
-        })
-        .unzip();
+    let (best, scores): (Vec<usize>, Vec<f64>) =
+        (0..n).map(|i| best_class(&cls[i * k..(i + 1) * k])).unzip();
     let order = top_k(&scores, nms.pre_max);
     let decoded: Vec<LidarBox> = order
         .iter()
         .map(|&i| {
-            let code: [f64; 7] = std::array::from_fn(|j| boxes[i * 7 + j] as f64);
-            let mut b = decode(&code, &anchors.boxes[i]);
-            let d = &dir[i * nb..(i + 1) * nb];
-            let bin = (0..nb)
-                .max_by(|&a, &c| d[a].total_cmp(&d[c]).then(c.cmp(&a)))
-                .unwrap_or(0);
-            b.heading = bins.apply(b.heading, bin);
-            b
+            decode_anchor(
+                &anchors.boxes[i],
+                &boxes[i * 7..(i + 1) * 7],
+                &dir[i * nb..(i + 1) * nb],
+                bins,
+            )
         })
         .collect();
     nms_sorted(&decoded, nms.iou, nms.post_max)
@@ -102,9 +117,75 @@ pub fn decode_proposals(
         .map(|j| Proposal {
             bbox: decoded[j],
             score: scores[order[j]],
-            class: classes[best_class[order[j]]],
+            class: classes[best[order[j]]],
         })
         .collect()
+}
+
+/// Proposals of anchors kept elsewhere (the device's NMS), in their order: each anchor
+/// with its prediction row, class logits then the 7 residuals then the direction logits,
+/// decoded as [`decode_proposals`] decodes (the same values for the same anchor).
+pub fn proposals_of_rows<'a>(
+    anchors: &Anchors,
+    classes: &[ObjectClass],
+    bins: &DirectionBins,
+    kept: impl IntoIterator<Item = (usize, &'a [f32])>,
+) -> Vec<Proposal> {
+    let k = classes.len();
+    kept.into_iter()
+        .map(|(anchor, row)| {
+            let (class, score) = best_class(&row[..k]);
+            Proposal {
+                bbox: decode_anchor(&anchors.boxes[anchor], &row[k..k + 7], &row[k + 7..], bins),
+                score,
+                class: classes[class],
+            }
+        })
+        .collect()
+}
+
+/// Where stage one's proposals are chosen: decoded, ranked and suppressed on the host from
+/// every anchor's predictions read back, or on a GPU backend's device with only the kept
+/// anchors' rows read back (`fusiondet_models::voxel_rcnn::proposals_device`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProposalPlace {
+    Host,
+    Device,
+    /// Both; the host's are used and each frame's differences reported on stderr.
+    Check,
+}
+
+impl ProposalPlace {
+    /// The host on the CPU; on a CubeCL device `FUSIONDET_PROPOSALS` (`host`, `device` or
+    /// `check`) where set, else the device.
+    pub fn for_device(device: &burn::prelude::Device) -> ProposalPlace {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if fusiondet_nn::cube::cube_runtime(device).is_some() {
+            return Self::from_env().unwrap_or(ProposalPlace::Device);
+        }
+        let _ = device;
+        ProposalPlace::Host
+    }
+
+    /// `FUSIONDET_PROPOSALS`, read once; `None` where unset (or not understood, with a
+    /// warning).
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    fn from_env() -> Option<ProposalPlace> {
+        static FROM_ENV: std::sync::OnceLock<Option<ProposalPlace>> = std::sync::OnceLock::new();
+        *FROM_ENV.get_or_init(|| match std::env::var("FUSIONDET_PROPOSALS").as_deref() {
+            Err(_) => None,
+            Ok("host") => Some(ProposalPlace::Host),
+            Ok("device") => Some(ProposalPlace::Device),
+            Ok("check") => Some(ProposalPlace::Check),
+            Ok(value) => {
+                eprintln!(
+                    "warning: FUSIONDET_PROPOSALS={value:?} is not \"host\", \"device\" or \
+                     \"check\"; proposals are chosen where this device's default puts them"
+                );
+                None
+            }
+        })
+    }
 }
 
 #[cfg(test)]
