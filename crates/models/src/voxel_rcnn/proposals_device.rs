@@ -106,9 +106,7 @@ mod kernels {
             if item_b >= anchors {
                 before = item_a < item_b;
             }
-        } else if item_b >= anchors {
-            before = true;
-        } else if key_a > key_b {
+        } else if item_b >= anchors || key_a > key_b {
             before = true;
         } else if key_a == key_b {
             before = item_a < item_b;
@@ -361,11 +359,10 @@ mod kernels {
         if !apart {
             let inter = intersection_area(boxes, a, b);
             let union = boxes[oa + 12] + boxes[ob + 12] - inter;
-            if inter > 0.0f32 {
-                if union > 0.0f32 {
-                    // The host clamps the ratio to 1, which a threshold below 1 never sees.
-                    overlaps = inter / union > threshold;
-                }
+            // (Both sides of a `&&` are evaluated in a kernel; here both are plain values.)
+            // The host clamps the ratio to 1, which a threshold below 1 never sees.
+            if inter > 0.0f32 && union > 0.0f32 {
+                overlaps = inter / union > threshold;
             }
         }
         overlaps
@@ -374,6 +371,8 @@ mod kernels {
     /// One thread a (frame, box i, word w): bit t of the word set where box 32w + t comes
     /// after box i and overlaps it by more than `threshold`.
     #[cube(launch_unchecked)]
+    // Nested, not `&&`: a kernel evaluates both sides, and box j exists only below `ranked`.
+    #[allow(clippy::collapsible_if)]
     pub fn overlap_mask(
         boxes: &Tensor<f32>,
         mask: &mut Tensor<u32>,
@@ -392,11 +391,9 @@ mod kernels {
         let mut bits = 0u32;
         for t in 0..32usize {
             let j = w * 32 + t;
-            if j > i {
-                if j < ranked as usize {
-                    if suppresses(boxes, row, frame_first + j, threshold) {
-                        bits |= 1u32 << t as u32;
-                    }
+            if j > i && j < ranked as usize {
+                if suppresses(boxes, row, frame_first + j, threshold) {
+                    bits |= 1u32 << t as u32;
                 }
             }
         }
@@ -432,10 +429,8 @@ mod kernels {
         for i in 0..ranked as usize {
             let word = removed[i / 32];
             let mut keep = false;
-            if ((word >> (i % 32) as u32) & 1u32) == 0u32 {
-                if count < post as usize {
-                    keep = true;
-                }
+            if ((word >> (i % 32) as u32) & 1u32) == 0u32 && count < post as usize {
+                keep = true;
             }
             // Every unit has read the word before any writes it.
             sync_cube();
@@ -448,7 +443,7 @@ mod kernels {
                 let row = (frame * ranked as usize + i) * words as usize;
                 let mut v = unit;
                 while v < words as usize {
-                    removed[v] = removed[v] | mask[row + v];
+                    removed[v] |= mask[row + v];
                     v += units;
                 }
             }
