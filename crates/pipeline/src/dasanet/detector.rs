@@ -31,7 +31,10 @@ pub const STAGE_RULEBOOKS: &str = "rulebooks, both clouds (host)";
 pub const STAGE_LIDAR_BACKBONE: &str = "LiDAR 3D backbone";
 pub const STAGE_PSEUDO_BACKBONE: &str = "pseudo 3D backbone";
 pub const STAGE_BEV: &str = "BEV backbone + anchor head";
-pub const STAGE_ROI_QUERY: &str = "RoI queries (both grids; STCA crops on the host)";
+pub const STAGE_ROI_QUERY: &str = "RoI queries (both grids)";
+/// STCA's crops of the points in each RoI: on the threads that prepare frames where stage
+/// one runs there, else on the network's thread while the device pools and fuses.
+pub const STAGE_CROPS: &str = "STCA crops (host)";
 pub const STAGE_TDIS: &str = "RoI grid pooling (both) + TDIS";
 pub const STAGE_STCA: &str = "STCA (encoder, attention)";
 pub const STAGE_HEAD: &str = "detection head";
@@ -160,7 +163,7 @@ impl DasanetDetector {
                 Ok((
                     frame,
                     match stage_one_ahead {
-                        true => self.stage_one(batch, timing),
+                        true => self.stage_one(batch, true, timing),
                         false => FrameStage::Inputs(Box::new(batch)),
                     },
                 ))
@@ -168,7 +171,7 @@ impl DasanetDetector {
             |(frame, stage), timing| {
                 let objects = results.objects.entry(frame.id.clone()).or_default();
                 let stage = match stage {
-                    FrameStage::Inputs(batch) => self.stage_one(*batch, timing),
+                    FrameStage::Inputs(batch) => self.stage_one(*batch, false, timing),
                     stage => stage,
                 };
                 let FrameStage::Proposed(proposed) = stage else {
@@ -177,10 +180,10 @@ impl DasanetDetector {
                 let Proposed {
                     stage_one,
                     proposals,
-                    clouds,
+                    rois,
+                    crops,
                 } = *proposed;
-                let rois = single_frame_rois(&proposals);
-                let pred = self.refine_timed(&stage_one, &rois, &clouds, timing);
+                let pred = self.refine_timed(&stage_one, &rois, crops, timing);
                 objects.extend(timed_frame_objects(
                     section, &proposals, &pred, &frame, timing,
                 ));
@@ -193,8 +196,10 @@ impl DasanetDetector {
 
     /// Stage one of a frame: both 3D backbones, the BEV backbone and anchor head, the
     /// proposals (each timed as its stage; a GPU is waited for after each network stage so
-    /// that its time shows). [`FrameStage::Empty`] where there are no proposals.
-    fn stage_one(&self, batch: DasanetBatch, timing: &mut StageTimes) -> FrameStage {
+    /// that its time shows), and with `crop` STCA's crops of their RoIs (on a preparing
+    /// thread: host work the network's thread then does not wait for).
+    /// [`FrameStage::Empty`] where there are no proposals.
+    fn stage_one(&self, batch: DasanetBatch, crop: bool, timing: &mut StageTimes) -> FrameStage {
         let section = &self.data.voxel.section;
         let model = &self.model;
         let lidar = timed_until(
@@ -227,6 +232,16 @@ impl DasanetDetector {
         if proposals.is_empty() {
             return FrameStage::Empty;
         }
+        let rois = single_frame_rois(&proposals);
+        let crops = match crop {
+            true => {
+                let t = Instant::now();
+                let points = roi_points(&self.shape.network, &rois, &batch.clouds);
+                timing.add(STAGE_CROPS, t.elapsed());
+                Crops::Made(points)
+            }
+            false => Crops::FromClouds(batch.clouds),
+        };
         FrameStage::Proposed(Box::new(Proposed {
             stage_one: DasanetStageOne {
                 lidar,
@@ -234,19 +249,21 @@ impl DasanetDetector {
                 anchors,
             },
             proposals,
-            clouds: batch.clouds,
+            rois,
+            crops,
         }))
     }
 
-    /// Stage two with each module's time. TDIS is queued before STCA's points are cropped
-    /// on the host, so that on a GPU the crops run while the device pools and fuses (on the
-    /// CPU, which computes as it is asked, the order changes nothing); its stage then holds
-    /// what is left to wait for after the crops.
+    /// Stage two with each module's time. Where the crops were not made with stage one,
+    /// TDIS is queued before STCA's points are cropped on the host, so that on a GPU the
+    /// crops run while the device pools and fuses (on the CPU, which computes as it is
+    /// asked, the order changes nothing); its stage then holds what is left to wait for
+    /// after the crops.
     fn refine_timed(
         &self,
         stage_one: &DasanetStageOne,
         rois: &[Vec<RoiBox>],
-        clouds: &[(Vec<f32>, Vec<f32>)],
+        crops: Crops,
         timing: &mut StageTimes,
     ) -> fusiondet_models::voxel_rcnn::RoiPredictions {
         let section = &self.data.voxel.section;
@@ -260,9 +277,15 @@ impl DasanetDetector {
         let t = Instant::now();
         let supplemented = self.model.supplemented(network, stage_one, &inputs);
         let queued = t.elapsed();
-        let t = Instant::now();
-        inputs.points = roi_points(network, rois, clouds);
-        timing.add(STAGE_ROI_QUERY, t.elapsed());
+        inputs.points = match crops {
+            Crops::Made(points) => points,
+            Crops::FromClouds(clouds) => {
+                let t = Instant::now();
+                let points = roi_points(network, rois, &clouds);
+                timing.add(STAGE_CROPS, t.elapsed());
+                points
+            }
+        };
         if let Some(f) = &supplemented {
             let t = Instant::now();
             let _ = values(&f.clone().slice([0..1, 0..1]));
@@ -293,10 +316,18 @@ enum FrameStage {
     Proposed(Box<Proposed>),
 }
 
-/// A frame through stage one: its backbones' maps and anchors, its proposals, and its
-/// clouds for STCA's crops.
+/// A frame through stage one: its backbones' maps and anchors, its proposals and their
+/// RoIs, and STCA's crops of them or the clouds to crop.
 struct Proposed {
     stage_one: DasanetStageOne,
     proposals: Vec<fusiondet_voxel::Proposal>,
-    clouds: Vec<(Vec<f32>, Vec<f32>)>,
+    rois: Vec<Vec<RoiBox>>,
+    crops: Crops,
+}
+
+/// STCA's crops of a frame's RoIs, made with its stage one on a preparing thread, or the
+/// clouds they are cropped from on the network's thread.
+enum Crops {
+    Made(Option<(RoiPoints, RoiPoints)>),
+    FromClouds(Vec<(Vec<f32>, Vec<f32>)>),
 }
