@@ -82,7 +82,7 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
     ] {
         assert!(metrics.contains(term), "{term} not logged: {metrics}");
     }
-    assert_forward_parts_logged(&metrics);
+    assert_forward_parts_logged(&metrics, &["stca", "stca_crops"]);
 
     let val: Vec<String> = std::fs::read_to_string(data.join("ImageSets/val.txt"))
         .unwrap()

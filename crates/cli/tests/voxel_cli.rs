@@ -160,7 +160,7 @@ fn trains_detects_and_evaluates_the_tiny_configuration() {
     ] {
         assert!(metrics.contains(term), "{term} not logged: {metrics}");
     }
-    assert_forward_parts_logged(&metrics);
+    assert_forward_parts_logged(&metrics, &[]);
 
     let results = dir.path().join("results");
     let model = run_dir.join("model.bpk");

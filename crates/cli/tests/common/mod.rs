@@ -123,8 +123,9 @@ pub fn snapshot(root: &Path) -> std::collections::BTreeMap<PathBuf, Vec<u8>> {
 
 /// The voxel family's epochs say where their forward pass went: every line of a run's
 /// `metrics.jsonl` splits `step_seconds.forward_loss` into stage one, proposals, RoI sampling,
-/// the RoI query, stage two and the loss, none negative and together within the whole.
-pub fn assert_forward_parts_logged(metrics: &str) {
+/// the RoI query, stage two and the loss (and DASANet's STCA, `extra`: its crops and the
+/// rest), none negative and together within the whole.
+pub fn assert_forward_parts_logged(metrics: &str, extra: &[&str]) {
     for line in metrics.lines() {
         let record: serde_json::Value = serde_json::from_str(line).unwrap();
         let step = &record["step_seconds"];
@@ -132,18 +133,17 @@ pub fn assert_forward_parts_logged(metrics: &str) {
             .as_object()
             .unwrap_or_else(|| panic!("no forward_parts: {line}"));
         let names: Vec<&str> = parts.keys().map(String::as_str).collect();
-        assert_eq!(
-            names,
-            [
-                "loss",
-                "proposals",
-                "roi_query",
-                "roi_sampling",
-                "stage_one",
-                "stage_two"
-            ],
-            "{line}"
-        );
+        let mut expected = vec![
+            "loss",
+            "proposals",
+            "roi_query",
+            "roi_sampling",
+            "stage_one",
+            "stage_two",
+        ];
+        expected.extend_from_slice(extra);
+        expected.sort_unstable();
+        assert_eq!(names, expected, "{line}");
         let sum: f64 = parts.values().map(|v| v.as_f64().unwrap()).sum();
         assert!(parts.values().all(|v| v.as_f64().unwrap() >= 0.0), "{line}");
         let whole = step["forward_loss"].as_f64().unwrap();

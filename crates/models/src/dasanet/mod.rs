@@ -269,6 +269,18 @@ impl Dasanet {
     ) -> DasanetRoiOutput {
         let device = stage_one.anchors.cls.device();
         let attention = self.attention(inputs, &device);
+        self.heads(supplemented, attention, auxiliary)
+    }
+
+    /// The heads on TDIS's F^T and STCA's F^A ([`Self::attention`]): the detection head and,
+    /// with `auxiliary`, each module's auxiliary head. The end of
+    /// [`Self::stage_two_after_tdis`], apart so that a caller can time STCA on its own.
+    pub fn heads(
+        &self,
+        supplemented: Option<Tensor<2>>,
+        attention: Option<Tensor<2>>,
+        auxiliary: bool,
+    ) -> DasanetRoiOutput {
         let aux = |head: &Option<RoiHead>, x: &Option<Tensor<2>>| match (head, x) {
             (Some(h), Some(x)) if auxiliary => Some(h.forward(x.clone())),
             _ => None,

@@ -17,8 +17,8 @@ use crate::voxel_rcnn::data::VoxelData;
 use crate::voxel_rcnn::detector::batch_proposals;
 use crate::voxel_rcnn::task::{
     PART_LOSS, PART_PROPOSALS, PART_ROI_QUERY, PART_ROI_SAMPLING, PART_STAGE_ONE, PART_STAGE_TWO,
-    augment_sampler, cached_gt_database, data_gt_database_dir, epoch_frame_batches,
-    roi_loss_targets, roi_seed, sample_training_rois,
+    PART_STCA, PART_STCA_CROPS, augment_sampler, cached_gt_database, data_gt_database_dir,
+    epoch_frame_batches, roi_loss_targets, roi_seed, sample_training_rois,
 };
 use burn::prelude::*;
 use fusiondet_dataset::{FrameSource, InMemoryFrames, SensorFrame};
@@ -190,10 +190,13 @@ impl TrainingTask for DasanetTask<'_> {
             points: None,
         };
         let supplemented = parts.time(PART_STAGE_TWO, || net.supplemented(network, &out, &inputs));
-        inputs.points = parts.time(PART_ROI_QUERY, || roi_points(network, &rois, &batch.clouds));
-        let pred = parts.time(PART_STAGE_TWO, || {
-            net.stage_two_after_tdis(&out, &inputs, supplemented, true)
+        inputs.points = parts.time(PART_STCA_CROPS, || {
+            roi_points(network, &rois, &batch.clouds)
         });
+        let attention = parts.time(PART_STCA, || {
+            net.attention(&inputs, &out.anchors.cls.device())
+        });
+        let pred = parts.time(PART_STAGE_TWO, || net.heads(supplemented, attention, true));
         if self.tdis_stats
             && let Some((ratio, largest)) = net.tdis_scale(network, &out, &inputs)
         {

@@ -25,13 +25,18 @@ use std::path::Path;
 
 /// The parts a training step's forward pass is timed in (`metrics.jsonl`,
 /// `step_seconds.forward_parts`), shared by DASANet's. Stage one's part is the network and
-/// its anchor loss; the proposals read its predictions back (on a GPU, waiting for it);
-/// RoI sampling is host work, and so is the RoI query on the CPU (on a GPU its kernels are
-/// queued); the loss part reads every term back.
+/// its anchor loss; the proposals read back what they need of its predictions (on a GPU the
+/// kept anchors' rows, waiting for the queue); RoI sampling is host work, and so is the RoI
+/// query on the CPU (on a GPU its kernels are queued); DASANet's STCA crops its points on
+/// the host (`stca_crops`) and then builds its encoder's indices on the host and queues its
+/// network (`stca`); the loss part queues the terms (they are read once the backward pass
+/// and the update are queued, `trainer::LossValues`).
 pub(crate) const PART_STAGE_ONE: &str = "stage_one";
 pub(crate) const PART_PROPOSALS: &str = "proposals";
 pub(crate) const PART_ROI_SAMPLING: &str = "roi_sampling";
 pub(crate) const PART_ROI_QUERY: &str = "roi_query";
+pub(crate) const PART_STCA_CROPS: &str = "stca_crops";
+pub(crate) const PART_STCA: &str = "stca";
 pub(crate) const PART_STAGE_TWO: &str = "stage_two";
 pub(crate) const PART_LOSS: &str = "loss";
 
