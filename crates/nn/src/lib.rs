@@ -28,6 +28,7 @@ pub mod linear_chunked;
 pub mod matmul;
 pub mod mlp;
 pub mod norm;
+pub mod place;
 pub mod ragged;
 pub mod reduce;
 pub mod row_pairs;

@@ -17,6 +17,7 @@ use burn::nn::{BatchNorm, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use fusiondet_nn::gather::RowGather;
+use fusiondet_nn::place::Place;
 use fusiondet_nn::ragged::{self, Neighbours, Runs};
 use fusiondet_nn::sparse::SparseSites;
 use fusiondet_nn::{batch_norm, norm_rows, norm_rows_relu};
@@ -171,7 +172,7 @@ impl RoiGridIndex {
         }
     }
 
-    /// The query where the network runs on `device`, as [`QueryPlace::for_device`] decides:
+    /// The query where the network runs on `device`, as [`query_place`] decides:
     /// the device's kernels, the host query ([`Self::new`]), or both compared
     /// (`FUSIONDET_ROI_QUERY=check`: the host's index is used, each difference reported).
     pub fn on_device(
@@ -184,7 +185,7 @@ impl RoiGridIndex {
     ) -> RoiGridIndex {
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
         {
-            let place = QueryPlace::for_device(device);
+            let place = query_place(device);
             if place != QueryPlace::Host {
                 let on_device = levels
                     .iter()
@@ -222,56 +223,24 @@ impl RoiGridIndex {
     }
 }
 
-/// Where the RoI grid query runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum QueryPlace {
-    /// The host query, its index uploaded.
-    Host,
-    /// The device's kernels ([`super::roi_query_device`]).
-    Device,
-    /// Both, the host's index used and the device's compared with it.
-    Check,
-}
+/// Where the RoI grid query runs: the host query, its index uploaded; the device's kernels
+/// ([`super::roi_query_device`]); or both, the host's index used and the device's compared
+/// with it.
+pub type QueryPlace = Place;
 
-impl QueryPlace {
-    /// The host on the CPU; on a CubeCL device, `FUSIONDET_ROI_QUERY` (`host`, `device` or
-    /// `check`) where set, else the device's kernels.
-    ///
-    /// In inference the kernels took the shipped Voxel R-CNN from 35 to 50 frames/s on an
-    /// H200 (2026-11-29), with the host query's boxes (111 of 111 paired within 0.01 m);
-    /// `check` there found only grid points at float ties with other rows (2 of 22 levels).
-    /// In training the pooling's gather is differentiated through the index turned around on
-    /// the device ([`fusiondet_nn::gather::RowGather::from_device_index`]), as the host
-    /// index's is on the host, so no step waits for the host query (about 0.06 s of a
-    /// published Voxel R-CNN step on that machine's 16 cores) and its upload.
-    pub fn for_device(device: &Device) -> QueryPlace {
-        #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        if super::roi_query_device::cube_runtime(device).is_some() {
-            return Self::from_env().unwrap_or(QueryPlace::Device);
-        }
-        let _ = device;
-        QueryPlace::Host
-    }
-
-    /// `FUSIONDET_ROI_QUERY`, read once; `None` where unset (or not understood, with a
-    /// warning).
-    #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    fn from_env() -> Option<QueryPlace> {
-        static FROM_ENV: std::sync::OnceLock<Option<QueryPlace>> = std::sync::OnceLock::new();
-        *FROM_ENV.get_or_init(|| match std::env::var("FUSIONDET_ROI_QUERY").as_deref() {
-            Err(_) => None,
-            Ok("host") => Some(QueryPlace::Host),
-            Ok("device") => Some(QueryPlace::Device),
-            Ok("check") => Some(QueryPlace::Check),
-            Ok(value) => {
-                eprintln!(
-                    "warning: FUSIONDET_ROI_QUERY={value:?} is not \"host\", \"device\" or \
-                     \"check\"; the query runs where this device's default puts it"
-                );
-                None
-            }
-        })
-    }
+/// Where the RoI grid query runs on `device`: the host on the CPU; on a CubeCL device
+/// `FUSIONDET_ROI_QUERY` (`host`, `device` or `check`) where set, else the device's kernels.
+///
+/// In inference the kernels took the shipped Voxel R-CNN from 35 to 50 frames/s on an
+/// H200 (2026-11-29), with the host query's boxes (111 of 111 paired within 0.01 m);
+/// `check` there found only grid points at float ties with other rows (2 of 22 levels).
+/// In training the pooling's gather is differentiated through the index turned around on
+/// the device ([`fusiondet_nn::gather::RowGather::from_device_index`]), as the host
+/// index's is on the host, so no step waits for the host query (about 0.06 s of a
+/// published Voxel R-CNN step on that machine's 16 cores) and its upload.
+pub fn query_place(device: &Device) -> QueryPlace {
+    static READ: std::sync::OnceLock<Option<Place>> = std::sync::OnceLock::new();
+    Place::for_device(device, "FUSIONDET_ROI_QUERY", &READ)
 }
 
 /// How the device's index of one level compares with the host's.
@@ -840,7 +809,7 @@ mod tests {
 
     #[test]
     fn the_query_runs_on_the_host_for_the_cpu() {
-        assert_eq!(QueryPlace::for_device(&Device::flex()), QueryPlace::Host);
+        assert_eq!(query_place(&Device::flex()), QueryPlace::Host);
     }
 
     fn matrix(t: Tensor<2>) -> Vec<Vec<f32>> {

@@ -65,7 +65,7 @@ pub fn timed_until<T, const D: usize>(
 }
 
 /// Stage one's proposals of every frame of a batch: on the host, or on a GPU backend's
-/// device with only the kept anchors read back ([`super::proposals::ProposalPlace`]).
+/// device with only the kept anchors read back ([`super::proposals::proposal_place`]).
 pub fn batch_proposals(
     data: &VoxelData,
     anchors: &AnchorPredictions,
@@ -73,10 +73,10 @@ pub fn batch_proposals(
 ) -> Vec<Vec<Proposal>> {
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
     {
-        use super::proposals::ProposalPlace;
+        use super::proposals::{ProposalPlace, proposal_place};
         let ranked = nms.pre_max.min(data.assigner.anchors().len());
         let fits = ranked <= fusiondet_models::voxel_rcnn::proposals_device::MAX_RANKED;
-        match ProposalPlace::for_device(&anchors.cls.device()) {
+        match proposal_place(&anchors.cls.device()) {
             ProposalPlace::Device if fits => return device_batch_proposals(data, anchors, nms),
             ProposalPlace::Check if fits => {
                 let host = host_batch_proposals(data, anchors, nms);

@@ -4,6 +4,7 @@
 
 use super::config::NmsConfig;
 use fusiondet_kitti::ObjectClass;
+use fusiondet_nn::place::Place;
 use fusiondet_voxel::{Anchors, DirectionBins, LidarBox, Proposal, decode, iou_bev};
 
 fn sigmoid(x: f32) -> f64 {
@@ -145,47 +146,16 @@ pub fn proposals_of_rows<'a>(
 }
 
 /// Where stage one's proposals are chosen: decoded, ranked and suppressed on the host from
-/// every anchor's predictions read back, or on a GPU backend's device with only the kept
-/// anchors' rows read back (`fusiondet_models::voxel_rcnn::proposals_device`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ProposalPlace {
-    Host,
-    Device,
-    /// Both; the host's are used and each frame's differences reported on stderr.
-    Check,
-}
+/// every anchor's predictions read back; on a GPU backend's device with only the kept
+/// anchors' rows read back (`fusiondet_models::voxel_rcnn::proposals_device`); or both, the
+/// host's used and each frame's differences reported on stderr.
+pub type ProposalPlace = Place;
 
-impl ProposalPlace {
-    /// The host on the CPU; on a CubeCL device `FUSIONDET_PROPOSALS` (`host`, `device` or
-    /// `check`) where set, else the device.
-    pub fn for_device(device: &burn::prelude::Device) -> ProposalPlace {
-        #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        if fusiondet_nn::cube::cube_runtime(device).is_some() {
-            return Self::from_env().unwrap_or(ProposalPlace::Device);
-        }
-        let _ = device;
-        ProposalPlace::Host
-    }
-
-    /// `FUSIONDET_PROPOSALS`, read once; `None` where unset (or not understood, with a
-    /// warning).
-    #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    fn from_env() -> Option<ProposalPlace> {
-        static FROM_ENV: std::sync::OnceLock<Option<ProposalPlace>> = std::sync::OnceLock::new();
-        *FROM_ENV.get_or_init(|| match std::env::var("FUSIONDET_PROPOSALS").as_deref() {
-            Err(_) => None,
-            Ok("host") => Some(ProposalPlace::Host),
-            Ok("device") => Some(ProposalPlace::Device),
-            Ok("check") => Some(ProposalPlace::Check),
-            Ok(value) => {
-                eprintln!(
-                    "warning: FUSIONDET_PROPOSALS={value:?} is not \"host\", \"device\" or \
-                     \"check\"; proposals are chosen where this device's default puts them"
-                );
-                None
-            }
-        })
-    }
+/// Where stage one's proposals are chosen on `device`: the host on the CPU; on a CubeCL
+/// device `FUSIONDET_PROPOSALS` (`host`, `device` or `check`) where set, else the device.
+pub fn proposal_place(device: &burn::prelude::Device) -> ProposalPlace {
+    static READ: std::sync::OnceLock<Option<Place>> = std::sync::OnceLock::new();
+    Place::for_device(device, "FUSIONDET_PROPOSALS", &READ)
 }
 
 #[cfg(test)]
