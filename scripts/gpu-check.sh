@@ -25,9 +25,10 @@
 #                  MODELS_DIR (a git-ignored folder carried with the call); CHECK_OUT is kept
 #                  between calls on a warm machine, so later calls reuse the simulated frames.
 #                  The 2026-11-29 run took 164 s and 243 s in two calls; PREPARE_AB,
-#                  STAGE_ONE_AB, PROFILE and TRAIN_QUERY_AB (added since, not yet run on a GPU)
-#                  add four benches, two profiled trainings, two profiled detections (each profiled
-#                  run stopped after PROFILE_SECONDS) and two trainings: where a lent
+#                  STAGE_ONE_AB, PROPOSALS_AB, PROFILE and TRAIN_QUERY_AB (added since, not yet
+#                  run on a GPU) add six benches, two checked detections, two profiled
+#                  trainings, two profiled detections (each profiled run stopped after
+#                  PROFILE_SECONDS) and two trainings: where a lent
 #                  machine's minutes are short, the second call can leave them to a third
 #                  (TRAIN=0 in one call, MODELS=" " in the other).
 #   TRAIN          1 (default) to time training steps, 0 to skip them
