@@ -481,13 +481,9 @@ impl ProposalOps for CubeBackend {
             ranked <= MAX_RANKED,
             "{ranked} ranked anchors a frame: the device's NMS holds at most {MAX_RANKED}"
         );
-        let counts = i32_buffer(&cls, frames);
         let kept = i32_buffer(&cls, frames * post);
-        if frames == 0 || post == 0 {
-            return (counts, kept);
-        }
-        if ranked == 0 {
-            // No anchor: nothing kept.
+        if frames == 0 || post == 0 || ranked == 0 {
+            // Nothing to keep: every frame's count 0.
             let zeros = Self::int_full(
                 [frames].into(),
                 0i32.into(),
@@ -592,6 +588,7 @@ impl ProposalOps for CubeBackend {
                 selection.iou,
             );
         }
+        let counts = i32_buffer(&kept, frames);
         // SAFETY: one cube a frame; its units share `words` ≤ MAX_WORDS entries of shared
         // memory (asserted above through `ranked`), each clears and ORs the words
         // unit, unit + CUBE_DIM, …; barriers run in uniform control flow (the loop's bound
