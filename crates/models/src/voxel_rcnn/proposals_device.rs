@@ -481,17 +481,20 @@ impl ProposalOps for CubeBackend {
             ranked <= MAX_RANKED,
             "{ranked} ranked anchors a frame: the device's NMS holds at most {MAX_RANKED}"
         );
-        let kept = i32_buffer(&cls, frames * post);
         if frames == 0 || post == 0 || ranked == 0 {
-            // Nothing to keep: every frame's count 0.
-            let zeros = Self::int_full(
-                [frames].into(),
-                0i32.into(),
-                &device,
-                burn::tensor::IntDType::I32,
-            );
-            return (zeros, kept);
+            // Nothing to keep: every frame's count 0, every slot row 0 (a row a gather may
+            // read).
+            let zeros = |len: usize| {
+                Self::int_full(
+                    [len].into(),
+                    0i32.into(),
+                    &device,
+                    burn::tensor::IntDType::I32,
+                )
+            };
+            return (zeros(frames), zeros(frames * post));
         }
+        let kept = i32_buffer(&cls, frames * post);
 
         // Rank.
         let slots = num_anchors.next_power_of_two();

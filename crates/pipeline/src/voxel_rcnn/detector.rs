@@ -636,13 +636,15 @@ mod tests {
                 assert_eq!(device_kept[0].len(), 60, "the cap is reached");
             }
         }
-        // Nothing to keep: no proposal, as on the host.
-        let none = NmsConfig {
-            pre_max: 1000,
-            post_max: 0,
-            iou: 0.7,
-        };
-        let kept = device_proposals(&anchors, &classes, &bins, &on_device, &none);
-        assert_eq!(kept, vec![Vec::new(); frames]);
+        // Nothing ranked or nothing kept: no proposal, as on the host.
+        for (pre_max, post_max) in [(1000, 0), (0, 60)] {
+            let none = NmsConfig {
+                pre_max,
+                post_max,
+                iou: 0.7,
+            };
+            let kept = device_proposals(&anchors, &classes, &bins, &on_device, &none);
+            assert_eq!(kept, vec![Vec::new(); frames], "{none:?}");
+        }
     }
 }
