@@ -30,7 +30,7 @@ use burn_cubecl::CubeBackend;
 use burn_cubecl::tensor::CubeTensor;
 use cubecl::prelude::{CubeCount, CubeDim};
 use fusiondet_nn::cube::{f32_buffer, float_rows, i32_buffer, launch_shape};
-use kernels::{BOX_VALUES, MAX_WORDS};
+use kernels::{BOX_VALUES, MAX_WORDS, TILE};
 
 /// The most anchors a frame ranks for suppression on the device: the greedy pass holds one
 /// bit a ranked box in shared memory (2 KiB). More falls back to the host.
@@ -96,6 +96,8 @@ mod kernels {
     pub const MAX_WORDS: usize = 512;
     /// Values kept a decoded box: four corners (x, y), bounds (x0, y0, x1, y1), area.
     pub const BOX_VALUES: usize = 13;
+    /// Slots a cube sorts in shared memory ([`bitonic_tile`]).
+    pub const TILE: usize = 1024;
 
     /// Whether (key a, item a) ranks before (key b, item b): padding (items from `anchors`
     /// on) last, then the larger logit, then the lower anchor.
@@ -177,6 +179,75 @@ mod kernels {
                 keys[q] = key;
                 items[q] = item;
             }
+        }
+    }
+
+    /// The bitonic steps of strides below a tile, in shared memory: one cube a tile of
+    /// `tile` (≤ [`TILE`]) consecutive slots of a frame, one unit a compare-exchange pair,
+    /// for every merge level `block` from `first_block` to `last_block` (doubling) and
+    /// every stride from min(block, tile) / 2 down to 1: the same pairs in the same order as
+    /// [`bitonic_step`] launched stride by stride.
+    #[cube(launch_unchecked)]
+    pub fn bitonic_tile(
+        keys: &mut Tensor<f32>,
+        items: &mut Tensor<i32>,
+        anchors: u32,
+        slots: u32,
+        tile: u32,
+        first_block: u32,
+        last_block: u32,
+    ) {
+        let start = CUBE_POS_X as usize * tile as usize;
+        let unit = UNIT_POS as usize;
+        let half = tile as usize / 2;
+        let mut tile_keys = Shared::<[f32]>::new_slice(comptime!(TILE));
+        let mut tile_items = Shared::<[i32]>::new_slice(comptime!(TILE));
+        if unit < half {
+            tile_keys[unit] = keys[start + unit];
+            tile_items[unit] = items[start + unit];
+            tile_keys[unit + half] = keys[start + unit + half];
+            tile_items[unit + half] = items[start + unit + half];
+        }
+        sync_cube();
+        let mut block = first_block as usize;
+        while block <= last_block as usize {
+            let mut stride = block / 2;
+            if stride > half {
+                stride = half;
+            }
+            while stride > 0 {
+                if unit < half {
+                    let i = 2 * stride * (unit / stride) + unit % stride;
+                    let j = i + stride;
+                    // The slot's index in its frame (a frame's slots are a whole number of
+                    // tiles) sets the direction, as in `bitonic_step`.
+                    let best_first = (((start + i) % slots as usize) & block) == 0;
+                    let q_before = ranks_before(
+                        tile_keys[j],
+                        tile_items[j],
+                        tile_keys[i],
+                        tile_items[i],
+                        anchors as i32,
+                    );
+                    if best_first == q_before {
+                        let key = tile_keys[i];
+                        let item = tile_items[i];
+                        tile_keys[i] = tile_keys[j];
+                        tile_items[i] = tile_items[j];
+                        tile_keys[j] = key;
+                        tile_items[j] = item;
+                    }
+                }
+                sync_cube();
+                stride /= 2;
+            }
+            block *= 2;
+        }
+        if unit < half {
+            keys[start + unit] = tile_keys[unit];
+            items[start + unit] = tile_items[unit];
+            keys[start + unit + half] = tile_keys[unit + half];
+            items[start + unit + half] = tile_items[unit + half];
         }
     }
 
@@ -516,10 +587,34 @@ impl ProposalOps for CubeBackend {
                 slots as u32,
             );
         }
-        let mut block = 2;
+        // Strides of at least a tile one launch each; the shorter ones of a merge level (all
+        // levels up to a tile at once) in shared memory, one cube a tile.
+        let tile = slots.min(TILE);
+        let tile_launch = |first_block: usize, last_block: usize| {
+            // SAFETY: one cube a tile of `tile` slots (a power of two dividing `slots`, so a
+            // tile lies within a frame); its first tile / 2 units each load, exchange and
+            // store a pair of the tile's slots, in shared memory of TILE ≥ tile entries;
+            // barriers run in uniform control flow (the loops' bounds are scalars).
+            unsafe {
+                kernels::bitonic_tile::launch_unchecked(
+                    &client,
+                    CubeCount::Static((frames * slots / tile) as u32, 1, 1),
+                    CubeDim::new_1d((TILE / 2) as u32),
+                    keys.clone().into_tensor_arg(),
+                    items.clone().into_tensor_arg(),
+                    num_anchors as u32,
+                    slots as u32,
+                    tile as u32,
+                    first_block as u32,
+                    last_block as u32,
+                );
+            }
+        };
+        tile_launch(2, tile);
+        let mut block = tile * 2;
         while block <= slots {
             let mut stride = block / 2;
-            while stride > 0 {
+            while stride >= tile {
                 // SAFETY: a thread touches its slot and its partner slot ^ stride (below
                 // `slots`, a power of two, within its frame) and only when the partner is
                 // the later, so no two threads touch one entry.
@@ -538,6 +633,7 @@ impl ProposalOps for CubeBackend {
                 }
                 stride /= 2;
             }
+            tile_launch(block, block);
             block *= 2;
         }
 

@@ -536,12 +536,12 @@ mod tests {
     use fusiondet_kitti::ObjectClass;
     use fusiondet_voxel::{AnchorClass, AnchorConfig, Anchors, DirectionBins, VoxelConfig};
 
-    /// Car and pedestrian anchors 0.4 m apart over a 16 × 16 m grid, two headings each
-    /// (2,400 overlapping anchors), and `frames` frames of seeded random predictions:
-    /// logits [frames · A · 2], codes [· 7], direction logits [· 2].
-    fn scene(frames: usize) -> (Anchors, DirectionBins, [Vec<f32>; 3]) {
+    /// Car and pedestrian anchors 0.4 m apart over a 2e × 2e m grid, two headings each
+    /// (2,400 overlapping anchors at e = 8 m), and `frames` frames of seeded random
+    /// predictions: logits [frames · A · 2], codes [· 7], direction logits [· 2].
+    fn scene(frames: usize, e: f64) -> (Anchors, DirectionBins, [Vec<f32>; 3]) {
         let voxel = VoxelConfig {
-            point_range: [0.0, -8.0, -3.0, 16.0, 8.0, 1.0],
+            point_range: [0.0, -e, -3.0, 2.0 * e, e, 1.0],
             voxel_size: [0.2, 0.2, 0.1],
             ..VoxelConfig::default()
         };
@@ -595,7 +595,7 @@ mod tests {
             return;
         };
         let frames = 2;
-        let (anchors, bins, values) = scene(frames);
+        let (anchors, bins, values) = scene(frames, 8.0);
         let a = anchors.len();
         let classes = [ObjectClass::Car, ObjectClass::Pedestrian];
         let on_device = predictions(&values, frames, a, &device);
@@ -635,6 +635,31 @@ mod tests {
             if nms.post_max == 60 {
                 assert_eq!(device_kept[0].len(), 60, "the cap is reached");
             }
+        }
+        // Fewer anchors than one shared-memory tile of the sort (400 of 1,024).
+        let (small, small_bins, small_values) = scene(frames, 2.0);
+        let small_a = small.len();
+        assert!(small_a < 512, "{small_a} anchors");
+        let [cls, codes, dir] = &small_values;
+        let nms = NmsConfig {
+            pre_max: 300,
+            post_max: 100,
+            iou: 0.5,
+        };
+        let on_device_small = predictions(&small_values, frames, small_a, &device);
+        let kept = device_proposals(&small, &classes, &small_bins, &on_device_small, &nms);
+        for (f, kept) in kept.iter().enumerate() {
+            let host = decode_proposals(
+                &small,
+                &classes,
+                &small_bins,
+                &cls[f * small_a * 2..(f + 1) * small_a * 2],
+                &codes[f * small_a * 7..(f + 1) * small_a * 7],
+                &dir[f * small_a * 2..(f + 1) * small_a * 2],
+                &nms,
+            );
+            assert!(!host.is_empty());
+            assert_eq!(kept, &host, "a small frame {f}");
         }
         // Nothing ranked or nothing kept: no proposal, as on the host.
         for (pre_max, post_max) in [(1000, 0), (0, 60)] {
