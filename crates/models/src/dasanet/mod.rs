@@ -244,7 +244,11 @@ impl Dasanet {
         Tensor::cat(parts, 1)
     }
 
-    /// Stage two over the RoIs of `inputs`; the auxiliary heads run when `auxiliary`.
+    /// Stage two over the RoIs of `inputs`; the auxiliary heads run when `auxiliary`. Its
+    /// three steps are public so that a caller can queue TDIS ([`Self::supplemented`]) on a
+    /// GPU before it crops STCA's points on the host (`inputs.points`), the crops then
+    /// running while the device works, and time STCA ([`Self::attention`]) apart from the
+    /// heads ([`Self::heads`]); the same operations in the same order either way.
     pub fn stage_two(
         &self,
         config: &DasanetNetConfig,
@@ -253,28 +257,12 @@ impl Dasanet {
         auxiliary: bool,
     ) -> DasanetRoiOutput {
         let supplemented = self.supplemented(config, stage_one, inputs);
-        self.stage_two_after_tdis(stage_one, inputs, supplemented, auxiliary)
-    }
-
-    /// Stage two from TDIS's F^T ([`Self::supplemented`]) on: STCA, the heads. Split from
-    /// [`Self::stage_two`] so that a caller can queue TDIS on a GPU before it crops STCA's
-    /// points on the host (`inputs.points`), the crops then running while the device works;
-    /// the same operations in the same order either way.
-    pub fn stage_two_after_tdis(
-        &self,
-        stage_one: &DasanetStageOne,
-        inputs: &DasanetRoiInputs,
-        supplemented: Option<Tensor<2>>,
-        auxiliary: bool,
-    ) -> DasanetRoiOutput {
-        let device = stage_one.anchors.cls.device();
-        let attention = self.attention(inputs, &device);
+        let attention = self.attention(inputs, &stage_one.anchors.cls.device());
         self.heads(supplemented, attention, auxiliary)
     }
 
     /// The heads on TDIS's F^T and STCA's F^A ([`Self::attention`]): the detection head and,
-    /// with `auxiliary`, each module's auxiliary head. The end of
-    /// [`Self::stage_two_after_tdis`], apart so that a caller can time STCA on its own.
+    /// with `auxiliary`, each module's auxiliary head.
     pub fn heads(
         &self,
         supplemented: Option<Tensor<2>>,
