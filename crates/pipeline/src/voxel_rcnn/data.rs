@@ -33,6 +33,22 @@ pub struct VoxelData {
     pub assigner: AnchorAssigner,
     pub classes: Vec<ObjectClass>,
     pub gt_sampler: Option<GtSampler>,
+    /// The anchors on the GPU device the proposals are chosen on, uploaded with the first
+    /// frame: every frame and step ranks the same anchors.
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    device_anchors: std::sync::OnceLock<Tensor<2>>,
+}
+
+/// The anchors [A, 7] (x, y, z, dx, dy, dz, heading) as f32 on `device`: what the device's
+/// choice of proposals decodes against.
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub fn anchor_tensor(anchors: &fusiondet_voxel::Anchors, device: &Device) -> Tensor<2> {
+    let values: Vec<f32> = anchors
+        .boxes
+        .iter()
+        .flat_map(|anchor| anchor.to_array().map(|v| v as f32))
+        .collect();
+    Tensor::from_data(TensorData::new(values, [anchors.len(), 7]), device).inner()
 }
 
 fn voxel_err(e: fusiondet_voxel::VoxelError) -> PipelineError {
@@ -40,6 +56,19 @@ fn voxel_err(e: fusiondet_voxel::VoxelError) -> PipelineError {
 }
 
 impl VoxelData {
+    /// [`anchor_tensor`] on `device`, uploaded once (again only for another device).
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    pub fn device_anchors(&self, device: &Device) -> Tensor<2> {
+        let device = device.clone().without_autodiff();
+        let cached = self
+            .device_anchors
+            .get_or_init(|| anchor_tensor(self.assigner.anchors(), &device));
+        match cached.device() == device {
+            true => cached.clone(),
+            false => anchor_tensor(self.assigner.anchors(), &device),
+        }
+    }
+
     pub fn new(section: &VoxelRcnnSection, gt_sampler: Option<GtSampler>) -> Result<VoxelData> {
         Ok(VoxelData {
             voxelizer: Voxelizer::new(&section.voxels).map_err(voxel_err)?,
@@ -47,6 +76,8 @@ impl VoxelData {
             classes: section.anchors.classes.iter().map(|c| c.class).collect(),
             section: section.clone(),
             gt_sampler,
+            #[cfg(any(feature = "wgpu", feature = "cuda"))]
+            device_anchors: std::sync::OnceLock::new(),
         })
     }
 
@@ -196,4 +227,38 @@ pub fn collate(
         gts: samples.into_iter().map(|s| s.gts).collect(),
         anchor_targets,
     })
+}
+
+#[cfg(all(test, feature = "wgpu"))]
+mod tests {
+    use super::*;
+
+    /// The anchors go to the device with the first call only; the next calls on that
+    /// device get the same values from the kept tensor.
+    #[test]
+    fn on_wgpu_the_anchors_are_uploaded_once() {
+        let Some(device) = fusiondet_nn::cube::working_wgpu_device("the anchors' upload") else {
+            return;
+        };
+        // A small grid (3,200 anchors, 90 KB): the tests beside it share the device.
+        let mut section = VoxelRcnnSection::default();
+        section.voxels.point_range = [0.0, -8.0, -3.0, 16.0, 8.0, 1.0];
+        let data = VoxelData::new(&section, None).unwrap();
+        assert_eq!(data.assigner.anchors().len(), 3_200);
+        let first = data.device_anchors(&device);
+        let kept = data
+            .device_anchors
+            .get()
+            .expect("kept after the first call");
+        assert!(
+            kept.device() == device.clone().without_autodiff(),
+            "kept for this device"
+        );
+        let again = data.device_anchors(&device).into_data();
+        assert_eq!(again, first.into_data());
+        assert_eq!(
+            again.shape().to_vec(),
+            vec![data.assigner.anchors().len(), 7]
+        );
+    }
 }

@@ -68,49 +68,61 @@ pub fn timed_until<T, const D: usize>(
 /// device with only the kept anchors read back ([`super::proposals::proposal_place`]).
 pub fn batch_proposals(
     data: &VoxelData,
-    anchors: &AnchorPredictions,
+    predictions: &AnchorPredictions,
     nms: &super::config::NmsConfig,
 ) -> Vec<Vec<Proposal>> {
+    let (anchors, classes, bins) = (
+        data.assigner.anchors(),
+        &data.classes,
+        data.assigner.direction_bins(),
+    );
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
     {
         use super::proposals::{ProposalPlace, proposal_place};
-        let ranked = nms.pre_max.min(data.assigner.anchors().len());
+        let ranked = nms.pre_max.min(anchors.len());
         let fits = ranked <= fusiondet_models::voxel_rcnn::proposals_device::MAX_RANKED;
-        match proposal_place(&anchors.cls.device()) {
-            ProposalPlace::Device if fits => return device_batch_proposals(data, anchors, nms),
+        let device = predictions.cls.device();
+        let on_device = || {
+            let anchor_tensor = data.device_anchors(&device);
+            device_proposals(anchors, classes, &bins, &anchor_tensor, predictions, nms)
+        };
+        match proposal_place(&device) {
+            ProposalPlace::Device if fits => return on_device(),
             ProposalPlace::Check if fits => {
-                let host = host_batch_proposals(data, anchors, nms);
-                report_proposal_differences(&host, &device_batch_proposals(data, anchors, nms));
+                let host = host_proposals(anchors, classes, &bins, predictions, nms);
+                report_proposal_differences(&host, &on_device());
                 return host;
             }
             _ => {}
         }
     }
-    host_batch_proposals(data, anchors, nms)
+    host_proposals(anchors, classes, &bins, predictions, nms)
 }
 
-/// [`batch_proposals`] on the host: every anchor's predictions read back.
-pub fn host_batch_proposals(
-    data: &VoxelData,
-    anchors: &AnchorPredictions,
+/// Each frame's proposals from `predictions` over `anchors`, chosen on the host: every
+/// anchor's predictions read back.
+pub fn host_proposals(
+    anchors: &fusiondet_voxel::Anchors,
+    classes: &[fusiondet_kitti::ObjectClass],
+    bins: &fusiondet_voxel::DirectionBins,
+    predictions: &AnchorPredictions,
     nms: &super::config::NmsConfig,
 ) -> Vec<Vec<Proposal>> {
-    let [b, a, k] = anchors.cls.dims();
-    let bins = data.assigner.direction_bins();
+    let [b, a, k] = predictions.cls.dims();
     let nb = bins.bins;
     let (cls, boxes, dir) = (
-        values(&anchors.cls),
-        values(&anchors.boxes),
-        values(&anchors.direction),
+        values(&predictions.cls),
+        values(&predictions.boxes),
+        values(&predictions.direction),
     );
     // Frames in parallel (each its own NMS), collected in frame order.
     (0..b)
         .into_par_iter()
         .map(|f| {
             decode_proposals(
-                data.assigner.anchors(),
-                &data.classes,
-                &bins,
+                anchors,
+                classes,
+                bins,
                 &cls[f * a * k..(f + 1) * a * k],
                 &boxes[f * a * 7..(f + 1) * a * 7],
                 &dir[f * a * nb..(f + 1) * a * nb],
@@ -120,44 +132,23 @@ pub fn host_batch_proposals(
         .collect()
 }
 
-/// [`batch_proposals`] on a GPU backend's device.
-#[cfg(any(feature = "wgpu", feature = "cuda"))]
-pub fn device_batch_proposals(
-    data: &VoxelData,
-    anchors: &AnchorPredictions,
-    nms: &super::config::NmsConfig,
-) -> Vec<Vec<Proposal>> {
-    device_proposals(
-        data.assigner.anchors(),
-        &data.classes,
-        &data.assigner.direction_bins(),
-        anchors,
-        nms,
-    )
-}
-
-/// Each frame's proposals from `predictions` over `anchors`, chosen on their GPU device:
-/// the anchors ranked, decoded and suppressed there, and only the kept anchors'
+/// Each frame's proposals from `predictions` over `anchors` (`anchor_tensor`: the same
+/// anchors on the predictions' device, [`super::data::anchor_tensor`]), chosen on that GPU
+/// device: the anchors ranked, decoded and suppressed there, and only the kept anchors'
 /// prediction rows read back and decoded in f64 as on the host.
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 pub fn device_proposals(
     anchors: &fusiondet_voxel::Anchors,
     classes: &[fusiondet_kitti::ObjectClass],
     bins: &fusiondet_voxel::DirectionBins,
+    anchor_tensor: &Tensor<2>,
     predictions: &AnchorPredictions,
     nms: &super::config::NmsConfig,
 ) -> Vec<Vec<Proposal>> {
     use super::proposals::proposals_of_rows;
     use fusiondet_models::voxel_rcnn::proposals_device::{ProposalSelection, select_proposals};
-    let device = predictions.cls.device();
     let [b, a, k] = predictions.cls.dims();
     let nb = bins.bins;
-    let anchor_values: Vec<f32> = anchors
-        .boxes
-        .iter()
-        .flat_map(|anchor| anchor.to_array().map(|v| v as f32))
-        .collect();
-    let anchor_tensor = Tensor::<2>::from_data(TensorData::new(anchor_values, [a, 7]), &device);
     let selection = ProposalSelection {
         pre_max: nms.pre_max,
         post_max: nms.post_max,
@@ -175,7 +166,7 @@ pub fn device_proposals(
         cls.clone(),
         boxes.clone(),
         dir.clone(),
-        anchor_tensor,
+        anchor_tensor.clone(),
         selection,
     );
     let width = k + 7 + nb;
@@ -530,6 +521,7 @@ enum FrameStage {
 
 #[cfg(all(test, feature = "wgpu"))]
 mod tests {
+    use super::super::data::anchor_tensor;
     use super::*;
     use crate::voxel_rcnn::config::NmsConfig;
     use fusiondet_dataset::rng::Sampler;
@@ -599,7 +591,18 @@ mod tests {
         let a = anchors.len();
         let classes = [ObjectClass::Car, ObjectClass::Pedestrian];
         let on_device = predictions(&values, frames, a, &device);
-        let [cls, codes, dir] = &values;
+        let anchors_on_device = anchor_tensor(&anchors, &device);
+        // Both ways over the same predictions: the host reads them back.
+        let both = |anchors: &Anchors,
+                    bins: &DirectionBins,
+                    anchor_tensor: &Tensor<2>,
+                    on_device: &AnchorPredictions,
+                    nms: &NmsConfig| {
+            (
+                device_proposals(anchors, &classes, bins, anchor_tensor, on_device, nms),
+                host_proposals(anchors, &classes, bins, on_device, nms),
+            )
+        };
         for nms in [
             // Ranked and capped: 1,000 of 2,400 ranked, at most 60 kept.
             NmsConfig {
@@ -614,23 +617,15 @@ mod tests {
                 iou: 0.3,
             },
         ] {
-            let device_kept = device_proposals(&anchors, &classes, &bins, &on_device, &nms);
-            for (f, kept) in device_kept.iter().enumerate() {
-                let host = decode_proposals(
-                    &anchors,
-                    &classes,
-                    &bins,
-                    &cls[f * a * 2..(f + 1) * a * 2],
-                    &codes[f * a * 7..(f + 1) * a * 7],
-                    &dir[f * a * 2..(f + 1) * a * 2],
-                    &nms,
-                );
+            let (device_kept, host_kept) =
+                both(&anchors, &bins, &anchors_on_device, &on_device, &nms);
+            for (f, (kept, host)) in device_kept.iter().zip(&host_kept).enumerate() {
                 assert!(host.len() > 10, "frame {f}: {} kept", host.len());
                 assert!(
                     host.len() < nms.pre_max.min(a),
                     "frame {f}: nothing suppressed"
                 );
-                assert_eq!(kept, &host, "frame {f}, {nms:?}");
+                assert_eq!(kept, host, "frame {f}, {nms:?}");
             }
             if nms.post_max == 60 {
                 assert_eq!(device_kept[0].len(), 60, "the cap is reached");
@@ -640,26 +635,21 @@ mod tests {
         let (small, small_bins, small_values) = scene(frames, 2.0);
         let small_a = small.len();
         assert!(small_a < 512, "{small_a} anchors");
-        let [cls, codes, dir] = &small_values;
         let nms = NmsConfig {
             pre_max: 300,
             post_max: 100,
             iou: 0.5,
         };
-        let on_device_small = predictions(&small_values, frames, small_a, &device);
-        let kept = device_proposals(&small, &classes, &small_bins, &on_device_small, &nms);
-        for (f, kept) in kept.iter().enumerate() {
-            let host = decode_proposals(
-                &small,
-                &classes,
-                &small_bins,
-                &cls[f * small_a * 2..(f + 1) * small_a * 2],
-                &codes[f * small_a * 7..(f + 1) * small_a * 7],
-                &dir[f * small_a * 2..(f + 1) * small_a * 2],
-                &nms,
-            );
+        let (device_kept, host_kept) = both(
+            &small,
+            &small_bins,
+            &anchor_tensor(&small, &device),
+            &predictions(&small_values, frames, small_a, &device),
+            &nms,
+        );
+        for (f, (kept, host)) in device_kept.iter().zip(&host_kept).enumerate() {
             assert!(!host.is_empty());
-            assert_eq!(kept, &host, "a small frame {f}");
+            assert_eq!(kept, host, "a small frame {f}");
         }
         // Nothing ranked or nothing kept: no proposal, as on the host.
         for (pre_max, post_max) in [(1000, 0), (0, 60)] {
@@ -668,8 +658,9 @@ mod tests {
                 post_max,
                 iou: 0.7,
             };
-            let kept = device_proposals(&anchors, &classes, &bins, &on_device, &none);
+            let (kept, host) = both(&anchors, &bins, &anchors_on_device, &on_device, &none);
             assert_eq!(kept, vec![Vec::new(); frames], "{none:?}");
+            assert_eq!(host, kept, "{none:?}");
         }
     }
 }
