@@ -25,8 +25,8 @@
 #                  MODELS_DIR (a git-ignored folder carried with the call); CHECK_OUT is kept
 #                  between calls on a warm machine, so later calls reuse the simulated frames.
 #                  The 2026-11-29 run took 164 s and 243 s in two calls; PREPARE_AB,
-#                  STAGE_ONE_AB, PROPOSALS_AB, PROFILE and TRAIN_QUERY_AB (added since, not yet
-#                  run on a GPU) add six benches, two checked detections, two profiled
+#                  STAGE_ONE_AB, PROPOSALS_AB, INNER_SPLIT_AB, PROFILE and TRAIN_QUERY_AB (added since,
+#                  not yet run on a GPU) add eight benches, two checked detections, two profiled
 #                  trainings, two profiled detections (each profiled run stopped after
 #                  PROFILE_SECONDS) and two trainings: where a lent
 #                  machine's minutes are short, the second call can leave them to a third
@@ -67,6 +67,10 @@
 #                  on the network's thread (FUSIONDET_STAGE_ONE_AHEAD=off; by default it runs
 #                  on the threads that prepare frames, on a GPU on device streams of their
 #                  own beside stage two): 1 or 0 (default: 1)
+#   INNER_SPLIT_AB the published configurations' benches also run with the products of a long
+#                  inner dimension and few output tiles unsplit (FUSIONDET_INNER_SPLIT=off;
+#                  by default a GPU cuts TDIS's and the RoI head's first products into
+#                  chunks of the inner dimension): 1 or 0 (default: 1)
 #   PROFILE        the published configurations also train one more epoch and detect once with
 #                  every kernel launch timed on the device (FUSIONDET_KERNEL_PROFILE; slower,
 #                  so the step times and frames/s above are measured without it), summed per
@@ -157,6 +161,7 @@ steps_frames="${STEPS_FRAMES:-8}"
 query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
 train_query_ab="${TRAIN_QUERY_AB:-1}"
 proposals_ab="${PROPOSALS_AB-voxel-rcnn-car dasanet-car}"
+inner_split_ab="${INNER_SPLIT_AB:-1}"
 sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
 tables_ab="${TABLES_AB:-1}"
 prepare_ab="${PREPARE_AB:-1}"
@@ -471,6 +476,11 @@ if [ "$train" = 1 ]; then
                         FUSIONDET_PROPOSALS=host no_probes=1 bench_into "$run-bench-host-proposals.log" "$run/model.bpk" "$d"
                         record "$(printf '%-26s bench on %s with the proposals chosen on the host: %s frames/s; stages: %s' \
                             "$name" "$d" "$(frames_per_second "$run-bench-host-proposals.log" || echo '?')" "$(stage_ms "$run-bench-host-proposals.log")")"
+                    fi
+                    if [ "$inner_split_ab" = 1 ]; then
+                        FUSIONDET_INNER_SPLIT=off no_probes=1 bench_into "$run-bench-unsplit.log" "$run/model.bpk" "$d"
+                        record "$(printf '%-26s bench on %s with long inner dimensions unsplit: %s frames/s; stages: %s' \
+                            "$name" "$d" "$(frames_per_second "$run-bench-unsplit.log" || echo '?')" "$(stage_ms "$run-bench-unsplit.log")")"
                     fi
                     if [ "$stage_one_ab" = 1 ]; then
                         FUSIONDET_STAGE_ONE_AHEAD=off no_probes=1 bench_into "$run-bench-stage-one-behind.log" "$run/model.bpk" "$d"

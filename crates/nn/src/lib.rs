@@ -23,6 +23,7 @@ pub mod gather;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 pub mod gather_device;
 pub mod host_max;
+pub mod inner_split;
 pub mod linear;
 pub mod linear_chunked;
 pub mod matmul;

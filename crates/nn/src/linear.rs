@@ -44,9 +44,13 @@ pub trait LinearRowOps: Backend {
 }
 
 /// `layer.forward(x)` on [rows, in]; in training on the flex device through the custom
-/// operation (see the module's documentation), in training on a GPU with the weight gradient
-/// summed over chunks of rows ([`crate::linear_chunked`]).
+/// operation (see the module's documentation); on a GPU, a long input of few rows as
+/// products over chunks of it ([`crate::inner_split`]), and in training many rows with the
+/// weight gradient summed over chunks of rows ([`crate::linear_chunked`]).
 pub fn linear(layer: &Linear, x: Tensor<2>) -> Tensor<2> {
+    if let Some(y) = crate::inner_split::wide_linear(layer, &x) {
+        return y;
+    }
     // Training is told by the weights: an input may be a constant made off the autodiff
     // graph (RoI pooling's offsets from the device query).
     if layer.weight.device().is_autodiff() && custom_device_path(&x) {

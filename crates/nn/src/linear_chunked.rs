@@ -132,7 +132,7 @@ pub fn chunked_linear(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use burn::module::Param;
     use burn::nn::LinearConfig;

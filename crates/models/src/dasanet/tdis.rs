@@ -24,6 +24,7 @@ use super::config::{TdisForm, TdisInit};
 use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::Distribution;
+use fusiondet_nn::inner_split;
 
 /// Added to the mean squares of the gated form's RMS, so a RoI with no feature (all
 /// zeros) divides by a number, not by zero.
@@ -89,9 +90,10 @@ impl Tdis {
             return lidar;
         }
         let difference = pseudo - lidar.clone(); // Eq. 1
-        let spatial = difference.clone().matmul(self.spatial.val()); // Eq. 2, [R, N]
-        let channel = difference.clone().matmul(self.channel.val()); // Eq. 4, [R, C]
-        let global = difference.matmul(self.global.val()); // Eq. 6, [R, 1]
+        // Inner dimension N·C: split into chunks on a GPU (`fusiondet_nn::inner_split`).
+        let spatial = inner_split::matmul(difference.clone(), self.spatial.val()); // Eq. 2, [R, N]
+        let channel = inner_split::matmul(difference.clone(), self.channel.val()); // Eq. 4, [R, C]
+        let global = inner_split::matmul(difference, self.global.val()); // Eq. 6, [R, 1]
         let Some(gate) = &self.gate else {
             let supplemented = lidar.reshape([r, n, c])
                 + spatial.reshape([r, n, 1]) // Eq. 3
@@ -277,6 +279,51 @@ mod tests {
         let gate = tdis.gate.as_ref().unwrap();
         let g: f32 = gate.grad(&grads).unwrap().abs().sum().into_scalar();
         assert!(g > 0.0, "the gate got no gradient");
+    }
+
+    /// On wgpu (over lavapipe in CI) TDIS at N·C = 64 · 128 = 8,192 takes its products in
+    /// two chunks of the inner dimension (`fusiondet_nn::inner_split`): the output and the
+    /// gradients of F^S, F^P and the three weights are the CPU's plain products' within f32
+    /// rounding.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn on_wgpu_the_split_products_are_the_cpus() {
+        use crate::device_test_support::{assert_close, upstream};
+        let Some(gpu) = fusiondet_nn::cube::working_wgpu_device("TDIS's split products") else {
+            return;
+        };
+        let (c, n, r) = (128, 64, 6);
+        assert_eq!(
+            fusiondet_nn::inner_split::inner_chunks(r, n * c, n),
+            Some(2)
+        );
+        let cpu = Device::flex().autodiff();
+        let tdis = Tdis::new(c, n, TdisInit::FanIn, TdisForm::Plain, &cpu);
+        let values = |a: usize| -> Vec<f32> {
+            (0..r * n * c)
+                .map(|i| ((i * a % 193) as f32 - 96.0) / 64.0)
+                .collect()
+        };
+        let run = |device: &Device| {
+            let tdis = tdis.clone().fork(device);
+            let fs = t2(values(37), [r, n * c], device).require_grad();
+            let fp = t2(values(59), [r, n * c], device).require_grad();
+            let y = tdis.forward(fs.clone(), fp.clone());
+            let grads = (y.clone() * upstream(y.dims(), device)).sum().backward();
+            let vec = |t: Tensor<2>| t.try_into_vec_as::<f32>().unwrap();
+            vec![
+                vec(y),
+                vec(fs.grad(&grads).unwrap()),
+                vec(fp.grad(&grads).unwrap()),
+                vec(tdis.spatial.grad(&grads).unwrap()),
+                vec(tdis.channel.grad(&grads).unwrap()),
+                vec(tdis.global.grad(&grads).unwrap()),
+            ]
+        };
+        let want = run(&cpu);
+        for (i, (got, want)) in run(&gpu.autodiff()).iter().zip(&want).enumerate() {
+            assert_close(got, want, 1e-4, &format!("quantity {i}"));
+        }
     }
 
     /// The bypass form hands F^S through untouched, whatever F^P and the weights are.
