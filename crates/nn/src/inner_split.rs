@@ -70,7 +70,7 @@ fn splits_on<const D: usize>(x: &Tensor<D>) -> bool {
 /// plain product.
 pub fn matmul(x: Tensor<2>, w: Tensor<2>) -> Tensor<2> {
     let ([m, k], [_, n]) = (x.dims(), w.dims());
-    match inner_chunks(m, k, n).filter(|_| splits_on(&x)) {
+    match splits_on(&x).then(|| inner_chunks(m, k, n)).flatten() {
         Some(chunks) => split_matmul(x, w, chunks),
         None => x.matmul(w),
     }
@@ -79,7 +79,7 @@ pub fn matmul(x: Tensor<2>, w: Tensor<2>) -> Tensor<2> {
 /// `layer` on x [M, in] where [`matmul`] splits x·W; `None` where it would not.
 pub fn wide_linear(layer: &Linear, x: &Tensor<2>) -> Option<Tensor<2>> {
     let ([m, k], [_, n]) = (x.dims(), layer.weight.dims());
-    let chunks = inner_chunks(m, k, n).filter(|_| splits_on(x))?;
+    let chunks = splits_on(x).then(|| inner_chunks(m, k, n)).flatten()?;
     let y = split_matmul(x.clone(), layer.weight.val(), chunks);
     Some(match &layer.bias {
         Some(bias) => y + bias.val().unsqueeze_dim(0),
