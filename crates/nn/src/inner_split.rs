@@ -51,18 +51,11 @@ pub fn inner_chunks(m: usize, k: usize, n: usize) -> Option<usize> {
 /// on ([`crate::ragged::custom_device_path`]) and `FUSIONDET_INNER_SPLIT` not `off`.
 fn splits_on<const D: usize>(x: &Tensor<D>) -> bool {
     static FROM_ENV: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let enabled = *FROM_ENV.get_or_init(|| match std::env::var("FUSIONDET_INNER_SPLIT") {
-        Err(_) => true,
-        Ok(value) if value == "on" => true,
-        Ok(value) if value == "off" => false,
-        Ok(value) => {
-            eprintln!(
-                "warning: FUSIONDET_INNER_SPLIT={value:?} is neither \"on\" nor \"off\"; long \
-                 inner dimensions stay split on a GPU"
-            );
-            true
-        }
-    });
+    let enabled = crate::place::switch_on_unless_off(
+        "FUSIONDET_INNER_SPLIT",
+        &FROM_ENV,
+        "long inner dimensions stay split on a GPU",
+    );
     enabled && crate::ragged::custom_device_path(x)
 }
 

@@ -1,6 +1,8 @@
 //! Where a step that has both a host and a device implementation runs (the RoI grid query,
 //! stage one's proposals): the host on the CPU; on a GPU backend's device the device, unless
-//! an environment variable of the step's own says `host`, `device` or `check`.
+//! an environment variable of the step's own says `host`, `device` or `check`. And the
+//! on/off switches the environment sets the same way (the custom operations, the inner
+//! split).
 
 use burn::prelude::*;
 use std::sync::OnceLock;
@@ -51,6 +53,20 @@ impl Place {
             }
         })
     }
+}
+
+/// A switch a process reads once from `variable` into `read` (a static of the switch's own):
+/// on when unset or `on`, off when `off`; any other value is warned of once, saying
+/// `stays` (what the default keeps), and leaves the switch on.
+pub fn switch_on_unless_off(variable: &str, read: &OnceLock<bool>, stays: &str) -> bool {
+    *read.get_or_init(|| match std::env::var(variable).as_deref() {
+        Err(_) | Ok("on") => true,
+        Ok("off") => false,
+        Ok(value) => {
+            eprintln!("warning: {variable}={value:?} is neither \"on\" nor \"off\"; {stays}");
+            true
+        }
+    })
 }
 
 #[cfg(test)]

@@ -47,17 +47,11 @@ static ENABLED: AtomicBool = AtomicBool::new(true);
 /// `on` (or no variable) keeps them.
 fn enabled_by_environment() -> bool {
     static FROM_ENV: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *FROM_ENV.get_or_init(|| match std::env::var("FUSIONDET_CUSTOM_OPS").as_deref() {
-        Err(_) | Ok("on") => true,
-        Ok("off") => false,
-        Ok(value) => {
-            eprintln!(
-                "warning: FUSIONDET_CUSTOM_OPS={value:?} is neither \"on\" nor \"off\"; the \
-                 custom operations stay on"
-            );
-            true
-        }
-    })
+    crate::place::switch_on_unless_off(
+        "FUSIONDET_CUSTOM_OPS",
+        &FROM_ENV,
+        "the custom operations stay on",
+    )
 }
 
 /// Turns the custom operations off (or back on) for the whole process, so that burn's
