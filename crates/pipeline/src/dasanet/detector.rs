@@ -234,12 +234,12 @@ impl DasanetDetector {
         }
         let rois = single_frame_rois(&proposals);
         let crops = match crop {
-            true => {
-                let t = Instant::now();
-                let points = roi_points(&self.shape.network, &rois, &batch.clouds);
-                timing.add(STAGE_CROPS, t.elapsed());
-                Crops::Made(points)
-            }
+            true => Crops::Made(timed_crops(
+                &self.shape.network,
+                &rois,
+                &batch.clouds,
+                timing,
+            )),
             false => Crops::FromClouds(batch.clouds),
         };
         FrameStage::Proposed(Box::new(Proposed {
@@ -279,12 +279,7 @@ impl DasanetDetector {
         let queued = t.elapsed();
         inputs.points = match crops {
             Crops::Made(points) => points,
-            Crops::FromClouds(clouds) => {
-                let t = Instant::now();
-                let points = roi_points(network, rois, &clouds);
-                timing.add(STAGE_CROPS, t.elapsed());
-                points
-            }
+            Crops::FromClouds(clouds) => timed_crops(network, rois, &clouds, timing),
         };
         if let Some(f) = &supplemented {
             let t = Instant::now();
@@ -323,6 +318,19 @@ struct Proposed {
     proposals: Vec<fusiondet_voxel::Proposal>,
     rois: Vec<Vec<RoiBox>>,
     crops: Crops,
+}
+
+/// [`roi_points`], its time added to [`STAGE_CROPS`].
+fn timed_crops(
+    network: &DasanetNetConfig,
+    rois: &[Vec<RoiBox>],
+    clouds: &[(Vec<f32>, Vec<f32>)],
+    timing: &mut StageTimes,
+) -> Option<(RoiPoints, RoiPoints)> {
+    let t = Instant::now();
+    let points = roi_points(network, rois, clouds);
+    timing.add(STAGE_CROPS, t.elapsed());
+    points
 }
 
 /// STCA's crops of a frame's RoIs, made with its stage one on a preparing thread, or the
