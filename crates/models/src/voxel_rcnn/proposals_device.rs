@@ -497,12 +497,12 @@ mod kernels {
         }
         sync_cube();
         let mut count = 0usize;
-        for i in 0..ranked as usize {
+        // Every unit reads the same words and keeps the same count, so all leave the scan
+        // together, at the last box or once `post` are kept (the rest could not be).
+        let mut i = 0usize;
+        while i < ranked as usize && count < post as usize {
             let word = removed[i / 32];
-            let mut keep = false;
-            if ((word >> (i % 32) as u32) & 1u32) == 0u32 && count < post as usize {
-                keep = true;
-            }
+            let keep = ((word >> (i % 32) as u32) & 1u32) == 0u32;
             // Every unit has read the word before any writes it.
             sync_cube();
             if keep {
@@ -519,6 +519,7 @@ mod kernels {
                 }
             }
             sync_cube();
+            i += 1;
         }
         if unit == 0 {
             counts[frame] = count as i32;
