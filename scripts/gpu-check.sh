@@ -361,11 +361,11 @@ step_seconds() { # metrics.jsonl → the second epoch's seconds per step
     sed -n 2p "$1" | grep -o '"batches":[0-9]*\|"seconds":[0-9.e+-]*' | cut -d: -f2 | paste -sd' ' |
         awk '{ if ($1 > 0) printf "%.3f", $2 / $1; else print "?" }'
 }
-step_parts() { # metrics.jsonl → the second epoch's seconds per step: data wait / forward+loss / backward+update
+step_parts() { # metrics.jsonl → the second epoch's seconds per step: data wait / forward+loss / backward+update / the data thread's own time making a batch
     local line batches
     line="$(sed -n 2p "$1")"
     batches="$(echo "$line" | grep -o '"batches":[0-9]*' | cut -d: -f2)"
-    for k in data_wait forward_loss backward_update; do
+    for k in data_wait forward_loss backward_update data_prepare; do
         echo "$line" | grep -o "\"$k\":[0-9.e+-]*" | cut -d: -f2
     done | awk -v n="${batches:-0}" '{ if (n > 0) printf "%s%.3f", (NR > 1 ? "/" : ""), $1 / n }'
 }
@@ -451,7 +451,7 @@ if [ "$train" = 1 ]; then
             if env ${sparse:+FUSIONDET_SPARSE_RULES="$sparse"} ${query:+FUSIONDET_ROI_QUERY="$query"} "$bin" train --config "$config" \
                 --data "$data" --out "$run" --epochs 2 \
                 --max-frames "$steps_frames" --device "$d" >"$run.log" 2>&1; then
-                row+=("$r $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
+                row+=("$r $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward/making a batch $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
                 losses+=("$(first_loss "$run/metrics.jsonl")")
                 if [ "$d" != cpu ] && [ -z "$variant" ] && [ -f "$run/model.bpk" ]; then
                     # The configuration's detection speed on the device: the defaults, the

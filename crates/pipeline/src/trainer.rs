@@ -392,12 +392,19 @@ pub fn run_training<T: TrainingTask>(
         let mut slot = Some(model);
         let outcome: Result<()> = std::thread::scope(|scope| {
             let (tx, rx) = std::sync::mpsc::sync_channel::<Result<T::Batch>>(2);
-            scope.spawn(move || {
-                for b in batches {
+            // The data thread's seconds spent making batches, not waiting to hand them on.
+            let preparing = scope.spawn(move || {
+                let mut busy = 0.0;
+                let mut batches = batches;
+                loop {
+                    let started = Instant::now();
+                    let Some(b) = batches.next() else { break };
+                    busy += started.elapsed().as_secs_f64();
                     if tx.send(b).is_err() {
                         break;
                     }
                 }
+                busy
             });
             // The steps run on the compute pool (see `compute_pool`).
             let rx = rx;
@@ -451,7 +458,12 @@ pub fn run_training<T: TrainingTask>(
                     progress.inc(1);
                 }
                 Ok(())
-            })
+            })?;
+            // Every batch was taken, so the data thread has finished.
+            time.data_prepare = preparing
+                .join()
+                .map_err(|_| PipelineError::Invalid("the data thread panicked".into()))?;
+            Ok(())
         });
         progress.finish_and_clear();
         outcome?;
@@ -526,7 +538,7 @@ pub fn run_training<T: TrainingTask>(
 }
 
 /// Where an epoch's seconds went, summed over its steps: waiting for the data thread's next
-/// batch, the forward pass with the loss (the host work a task does inside it, such as targets
+/// batch (and, beside the steps, the data thread's own time making them), the forward pass with the loss (the host work a task does inside it, such as targets
 /// and the RoI query, included; on a GPU the voxel family's forward pass waits there only for
 /// its proposals' read-back, the frustum family's for the loss it reads back), and backward with
 /// the optimizer update and the read-back of the loss values (on a GPU the wait for the whole
@@ -537,6 +549,9 @@ pub fn run_training<T: TrainingTask>(
 #[derive(Debug, Default, Clone)]
 struct StepTime {
     data_wait: f64,
+    /// The data thread's own seconds making the epoch's batches: near the epoch's seconds,
+    /// the steps are data-bound whatever the device.
+    data_prepare: f64,
     forward_loss: f64,
     forward_parts: ForwardParts,
     backward_update: f64,
@@ -546,6 +561,7 @@ impl StepTime {
     fn to_json(&self) -> serde_json::Value {
         let mut record = json!({
             "data_wait": self.data_wait,
+            "data_prepare": self.data_prepare,
             "forward_loss": self.forward_loss,
             "backward_update": self.backward_update,
         });

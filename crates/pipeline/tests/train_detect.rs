@@ -120,6 +120,12 @@ fn resume_after_an_epoch_gives_the_same_weights_as_an_uninterrupted_run() {
             sum > 0.0 && sum <= record["seconds"].as_f64().unwrap(),
             "{line}"
         );
+        // The data thread's own time making the batches, beside the steps.
+        let making = parts["data_prepare"].as_f64().unwrap();
+        assert!(
+            making > 0.0 && making <= record["seconds"].as_f64().unwrap(),
+            "{line}"
+        );
     }
 
     let interrupted = tempfile::tempdir().unwrap();

@@ -150,8 +150,10 @@ impl TrainingTask for VoxelRcnnTask<'_> {
         let seed = self.config.train.seed;
         let batches = epoch_frame_batches(&self.usable, seed, epoch, self.config.train.batch_size);
         Box::new(batches.into_iter().enumerate().map(move |(k, frames)| {
+            // Frames of a batch in parallel (each draws from its own seeded stream), so that
+            // beside a GPU the data thread keeps ahead of the steps.
             let samples = frames
-                .iter()
+                .par_iter()
                 .map(|&i| {
                     let frame = self.frames.frame(i)?;
                     self.data
