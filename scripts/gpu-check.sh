@@ -31,12 +31,32 @@
 #                  PROFILE_SECONDS) and two trainings: where a lent
 #                  machine's minutes are short, the second call can leave them to a third
 #                  (TRAIN=0 in one call, MODELS=" " in the other).
+#                  With 15 minutes of device time a session, starts included, the issue's
+#                  figures come first: AB=0 leaves every A/B run out, and two calls then cover
+#                  what the targets need, the first
+#                    AB=0 TRAIN_CPU=0 CPU_FIRST_LOSSES="…" PROFILE_SECONDS=60 MODELS=" "
+#                    (the published configurations: step times, frames/s, kernel profiles,
+#                    first-step losses against the CPU's given below; about 7 min
+#                    estimated, not yet timed on a GPU)
+#                  and the second
+#                    AB=0 TRAIN=0   (the shipped models' parity and speed on both)
+#                  with the A/Bs left to a session with minutes to spare.
+#   AB             1 (default) or 0: whether the A/B runs below (QUERY_AB, TRAIN_QUERY_AB,
+#                  PROPOSALS_AB, INNER_SPLIT_AB, SPARSE_AB, TABLES_AB, PREPARE_AB,
+#                  STAGE_ONE_AB) run by default; each one's own variable still decides
 #   TRAIN          1 (default) to time training steps, 0 to skip them
 #   TRAIN_CONFIGS  configurations to time (default: the published Voxel R-CNN and DASANet)
 #   TRAIN_CPU      1 (default) to time them on the CPU too; 0 runs them on the device only
 #                  (the published DASANet's CPU run takes minutes a lent machine may not
 #                  have): its first-step loss is then printed for comparison with a CPU run
-#                  made elsewhere on the same frames (same seeds, same simulator)
+#                  made elsewhere on the same frames (same seeds, same simulator), or
+#                  compared with the losses given in CPU_FIRST_LOSSES
+#   CPU_FIRST_LOSSES  with TRAIN_CPU=0, the CPU's first-step loss of each training
+#                  configuration as name=loss pairs, e.g. "voxel-rcnn-car=3.8690762519836426
+#                  dasanet-car=13.488049507141113" (the CPU runs of the default frames,
+#                  2026-12-01, on a 2-core machine: `fusiondet simulate --frames 48 --seed
+#                  2027 --val-fraction 0.5`, both `gt-database` runs, then `train --epochs 1
+#                  --max-frames 8`; rerun them after a change to training)
 #   CHECK_OUT      work directory (default: gpu-check-out in the repository, which git ignores;
 #                  not OUT, which a remote runner may set to a fresh folder per call)
 #   FRAMES         simulated frames, half of them val (default: 48)
@@ -158,14 +178,20 @@ archive="${ARCHIVE:+$(realpath -m "$ARCHIVE")}"
 frames="${FRAMES:-48}"
 repeats="${REPEATS:-3}"
 steps_frames="${STEPS_FRAMES:-8}"
-query_ab="${QUERY_AB-voxel-rcnn-car dasanet-car}"
-train_query_ab="${TRAIN_QUERY_AB:-1}"
-proposals_ab="${PROPOSALS_AB-voxel-rcnn-car dasanet-car}"
-inner_split_ab="${INNER_SPLIT_AB:-1}"
-sparse_ab="${SPARSE_AB-voxel-rcnn-car dasanet-car}"
-tables_ab="${TABLES_AB:-1}"
-prepare_ab="${PREPARE_AB:-1}"
-stage_one_ab="${STAGE_ONE_AB:-1}"
+# AB=0 turns every A/B run off unless its own variable is set.
+case "${AB:-1}" in
+    1) ab_models="voxel-rcnn-car dasanet-car"; ab_flag=1 ;;
+    0) ab_models=""; ab_flag=0 ;;
+    *) echo "error: AB=${AB} must be 1 or 0" >&2; exit 2 ;;
+esac
+query_ab="${QUERY_AB-$ab_models}"
+train_query_ab="${TRAIN_QUERY_AB:-$ab_flag}"
+proposals_ab="${PROPOSALS_AB-$ab_models}"
+inner_split_ab="${INNER_SPLIT_AB:-$ab_flag}"
+sparse_ab="${SPARSE_AB-$ab_models}"
+tables_ab="${TABLES_AB:-$ab_flag}"
+prepare_ab="${PREPARE_AB:-$ab_flag}"
+stage_one_ab="${STAGE_ONE_AB:-$ab_flag}"
 profile="${PROFILE:-1}"
 profile_seconds="${PROFILE_SECONDS:-150}"
 export FUSIONDET_AUTOTUNE_LOG="${FUSIONDET_AUTOTUNE_LOG:-$out/autotune.log}"
@@ -527,10 +553,21 @@ if [ "$train" = 1 ]; then
             fi
         done
         agree="?"
-        if [ "$train_cpu" = 1 ] && [ "${#losses[@]}" -ge 2 ]; then
-            # Each device run's first-step loss against the CPU's.
-            agree=$(for l in "${losses[@]:1}"; do
-                awk -v a="${losses[0]}" -v b="$l" \
+        # The CPU's first-step loss: this run's, or given for this configuration in
+        # CPU_FIRST_LOSSES (name=loss), against which every device run is compared.
+        reference=""
+        if [ "$train_cpu" = 1 ]; then
+            reference="${losses[0]:-}"
+        else
+            for pair in ${CPU_FIRST_LOSSES:-}; do
+                [ "${pair%%=*}" = "$name" ] && reference="${pair#*=}"
+            done
+        fi
+        first_device=1
+        [ "$train_cpu" = 1 ] && first_device=2
+        if [ -n "$reference" ] && [ "${#losses[@]}" -ge "$first_device" ]; then
+            agree=$(for l in "${losses[@]:$((first_device - 1))}"; do
+                awk -v a="$reference" -v b="$l" \
                     'BEGIN { d = a - b; if (d < 0) d = -d; r = d / (a > 0 ? a : 1); printf "%.2e\n", r }'
             done | paste -sd/)
         fi
