@@ -538,10 +538,11 @@ pub fn run_training<T: TrainingTask>(
 }
 
 /// Where an epoch's seconds went, summed over its steps: waiting for the data thread's next
-/// batch (and, beside the steps, the data thread's own time making them), the forward pass with the loss (the host work a task does inside it, such as targets
-/// and the RoI query, included; on a GPU the voxel family's forward pass waits there only for
-/// its proposals' read-back, the frustum family's for the loss it reads back), and backward with
-/// the optimizer update and the read-back of the loss values (on a GPU the wait for the whole
+/// batch (and, beside the steps, the data thread's own time making them), the forward pass
+/// with the loss (the host work a task does inside it, such as targets and the RoI query,
+/// included; on a GPU the voxel family's forward pass waits there only for its proposals'
+/// read-back, the frustum family's for the loss it reads back), and backward with the
+/// optimizer update and the read-back of the loss values (on a GPU the wait for the whole
 /// step's queue). Written into `metrics.jsonl` as `step_seconds`, so that a slow step can be
 /// told data-bound from compute-bound on any device.
 /// Where the family splits its forward pass ([`StepLoss::parts`]), `forward_parts` says how
