@@ -47,23 +47,26 @@ pub fn inner_chunks(m: usize, k: usize, n: usize) -> Option<usize> {
         .map(|c| c.chunks)
 }
 
-/// Whether products on `x`'s device are split: a CubeCL device with the custom operations
-/// on ([`crate::ragged::custom_device_path`]) and `FUSIONDET_INNER_SPLIT` not `off`.
-fn splits_on<const D: usize>(x: &Tensor<D>) -> bool {
+/// The chunks x [M, K] · W [K, `n`] is split into on `x`'s device: [`inner_chunks`] on a
+/// CubeCL device with the custom operations on ([`crate::ragged::custom_device_path`]) and
+/// `FUSIONDET_INNER_SPLIT` not `off`, else `None`.
+fn chunks_on_device(x: &Tensor<2>, n: usize) -> Option<usize> {
     static FROM_ENV: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     let enabled = crate::place::switch_on_unless_off(
         "FUSIONDET_INNER_SPLIT",
         &FROM_ENV,
         "long inner dimensions stay split on a GPU",
     );
-    enabled && crate::ragged::custom_device_path(x)
+    let [m, k] = x.dims();
+    (enabled && crate::ragged::custom_device_path(x))
+        .then(|| inner_chunks(m, k, n))
+        .flatten()
 }
 
 /// x [M, K] · w [K, N]: split along K on a GPU where [`inner_chunks`] says so, else the
 /// plain product.
 pub fn matmul(x: Tensor<2>, w: Tensor<2>) -> Tensor<2> {
-    let ([m, k], [_, n]) = (x.dims(), w.dims());
-    match splits_on(&x).then(|| inner_chunks(m, k, n)).flatten() {
+    match chunks_on_device(&x, w.dims()[1]) {
         Some(chunks) => split_matmul(x, w, chunks),
         None => x.matmul(w),
     }
@@ -71,8 +74,7 @@ pub fn matmul(x: Tensor<2>, w: Tensor<2>) -> Tensor<2> {
 
 /// `layer` on x [M, in] where [`matmul`] splits x·W; `None` where it would not.
 pub fn wide_linear(layer: &Linear, x: &Tensor<2>) -> Option<Tensor<2>> {
-    let ([m, k], [_, n]) = (x.dims(), layer.weight.dims());
-    let chunks = splits_on(x).then(|| inner_chunks(m, k, n)).flatten()?;
+    let chunks = chunks_on_device(x, layer.weight.dims()[1])?;
     let y = split_matmul(x.clone(), layer.weight.val(), chunks);
     Some(match &layer.bias {
         Some(bias) => y + bias.val().unsqueeze_dim(0),

@@ -25,7 +25,6 @@
 //!   host's greedy NMS decision for decision; in f32 a pair whose IoU is within rounding of
 //!   the threshold may be decided the other way.
 
-use burn::backend::ops::IntTensorOps;
 use burn::backend::tensor::{FloatTensor, IntTensor};
 use burn::backend::{Backend, Dispatch, backend_extension};
 use burn::prelude::*;
@@ -589,18 +588,21 @@ impl ProposalOps for CubeBackend {
             ranked <= MAX_RANKED,
             "{ranked} ranked anchors a frame: the device's NMS holds at most {MAX_RANKED}"
         );
+        let zeros = |len: usize, dtype| {
+            burn_cubecl::ops::numeric::zeros_client(
+                client.clone(),
+                device.clone(),
+                [len].into(),
+                dtype,
+            )
+        };
+        // Every frame's count, and its `post` kept rows in rank order: 0 until kept (a row a
+        // gather may read).
+        let counts = zeros(frames, burn::tensor::DType::I32);
+        let kept = zeros(frames * post, burn::tensor::DType::I32);
         if frames == 0 || post == 0 || ranked == 0 {
-            // Nothing to keep: every frame's count 0, every slot row 0 (a row a gather may
-            // read).
-            let zeros = |len: usize| {
-                Self::int_full(
-                    [len].into(),
-                    0i32.into(),
-                    &device,
-                    burn::tensor::IntDType::I32,
-                )
-            };
-            return (zeros(frames), zeros(frames * post));
+            // Nothing to keep.
+            return (counts, kept);
         }
         // Rank.
         let slots = num_anchors.next_power_of_two();
@@ -709,16 +711,6 @@ impl ProposalOps for CubeBackend {
             [frames * ranked * words].into(),
             burn::tensor::DType::U32,
         );
-        let zeros = |len: usize, dtype| {
-            burn_cubecl::ops::numeric::zeros_client(
-                client.clone(),
-                device.clone(),
-                [len].into(),
-                dtype,
-            )
-        };
-        let kept = zeros(frames * post, burn::tensor::DType::I32);
-        let counts = zeros(frames, burn::tensor::DType::I32);
         let removed = zeros(frames * words, burn::tensor::DType::U32);
         let done = zeros(frames, burn::tensor::DType::U32);
         let mut first_row = 0;
