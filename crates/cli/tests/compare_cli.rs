@@ -128,7 +128,7 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
     let losses = out
         .split("first-step loss ")
         .nth(1)
-        .and_then(|rest| rest.split(',').next())
+        .and_then(|rest| rest.split(';').next())
         .unwrap_or("");
     let runs: Vec<f64> = losses.split('/').filter_map(|v| v.parse().ok()).collect();
     assert!(
@@ -139,7 +139,13 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
             && runs[3] == runs[0],
         "{out}"
     );
-    assert!(out.contains("relative difference 0.00e+00/"), "{out}");
+    // The device's loss curve (here the CPU's again) followed the CPU's step by step.
+    assert!(
+        out.contains(
+            "loss curve against the CPU's: first step 0.00e+00, at most 0.00e+00 (step 1 of 2)/"
+        ),
+        "{out}"
+    );
     assert!(out.contains("s/step"), "{out}");
     // Where the time goes: each bench's stages, and the voxel family's training step by part.
     assert!(
@@ -163,6 +169,58 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
         .unwrap_or_default();
     assert!(
         errors.len() == 2 && errors[0] > 0.0 && errors[0] < 1e-5 && errors[0] == errors[1],
+        "{out}"
+    );
+}
+
+/// `scripts/gpu-check.sh` holds a device's loss curve to a CPU curve given on the command line
+/// (`TRAIN_CPU=0 CPU_LOSS_CURVES=…`, the lent machine's way): the CPU's own curve passes, the
+/// same curve with its second step 1% off is a failed check.
+#[test]
+fn the_gpu_check_script_holds_a_device_to_the_cpus_loss_curve() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |curves: Option<&str>| {
+        let mut command = std::process::Command::new("bash");
+        command
+            .arg(repo_root().join("scripts/gpu-check.sh"))
+            .env("FUSIONDET", env!("CARGO_BIN_EXE_fusiondet"))
+            .env("DEVICE", "cpu")
+            .env("MODELS", " ")
+            .env("AB", "0")
+            .env("PROFILE", "0")
+            .env("TRAIN_CONFIGS", "configs/tiny-voxel-rcnn.toml")
+            .env("FRAMES", "6")
+            .env("STEPS_FRAMES", "2")
+            .env("CHECK_OUT", dir.path());
+        if let Some(curves) = curves {
+            command.env("TRAIN_CPU", "0").env("CPU_LOSS_CURVES", curves);
+        }
+        let o = command.output().unwrap();
+        (o.status.success(), all_output(&o))
+    };
+    let (ok, out) = run(None);
+    assert!(ok, "{out}");
+    let curve = out
+        .lines()
+        .find_map(|line| line.split("loss curve, cpu: ").nth(1))
+        .unwrap_or_else(|| panic!("no curve: {out}"))
+        .trim()
+        .to_string();
+    let steps: Vec<f64> = curve.split(',').map(|v| v.parse().unwrap()).collect();
+    assert!(steps.len() == 2 && steps[0] != steps[1], "{out}");
+
+    let (ok, out) = run(Some(&format!("tiny-voxel-rcnn={curve}")));
+    assert!(ok, "{out}");
+    assert!(
+        out.contains("loss curve against the CPU's: first step 0.00e+00, at most 0.00e+00"),
+        "{out}"
+    );
+
+    let off = format!("tiny-voxel-rcnn={},{}", steps[0], steps[1] * 1.01);
+    let (ok, out) = run(Some(&off));
+    assert!(!ok, "{out}");
+    assert!(
+        out.contains("first step 0.00e+00, at most 9.90e-03 (step 2 of 2): outside tolerance"),
         "{out}"
     );
 }

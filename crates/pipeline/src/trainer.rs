@@ -386,7 +386,7 @@ pub fn run_training<T: TrainingTask>(
         progress.set_prefix(format!("epoch {}/{}", epoch + 1, cfg.train.epochs));
         let mut sums: Vec<(&'static str, f64)> = Vec::new();
         let mut steps = 0usize;
-        let mut first_step_loss: Option<f64> = None;
+        let mut loss_curve = LossCurve::default();
         let mut time = StepTime::default();
         // The data thread prepares batch k+1 while the network trains on batch k.
         let mut slot = Some(model);
@@ -444,8 +444,8 @@ pub fn run_training<T: TrainingTask>(
                         )));
                     }
                     slot = Some(updated);
-                    if steps == 0 {
-                        first_step_loss = components.first().map(|&(_, v)| v as f64);
+                    if let Some(&(_, total)) = components.first() {
+                        loss_curve.push(total as f64);
                     }
                     for (k, (name, value)) in components.into_iter().enumerate() {
                         if sums.len() <= k {
@@ -501,7 +501,10 @@ pub fn run_training<T: TrainingTask>(
             "step_seconds": time.to_json(),
             // Before any update of this epoch: what a CPU and a GPU run of the same seed must
             // agree on within float tolerance in their first epoch (scripts/gpu-check.sh).
-            "first_step_loss": first_step_loss,
+            "first_step_loss": loss_curve.0.first(),
+            // The epoch's first steps one by one, each before its own update: the curve a
+            // GPU run's must follow within float tolerance of the CPU's.
+            "loss_curve": loss_curve.0,
         });
         for (name, sum) in &sums {
             record[format!("loss_{name}")] = json!(sum / steps.max(1) as f64);
@@ -535,6 +538,23 @@ pub fn run_training<T: TrainingTask>(
         final_loss,
         model: run.model(),
     })
+}
+
+/// The total losses of an epoch's first [`LossCurve::STEPS`] steps, in order (`loss_curve`
+/// in `metrics.jsonl`).
+#[derive(Debug, Default)]
+struct LossCurve(Vec<f64>);
+
+impl LossCurve {
+    /// Enough to follow a GPU run's first steps against the CPU's, few enough to keep an
+    /// epoch's line short however long the epoch.
+    const STEPS: usize = 32;
+
+    fn push(&mut self, total: f64) {
+        if self.0.len() < Self::STEPS {
+            self.0.push(total);
+        }
+    }
 }
 
 /// Where an epoch's seconds went, summed over its steps: waiting for the data thread's next
@@ -583,6 +603,16 @@ impl StepTime {
 mod tests {
     use super::*;
     use burn::nn::{Linear, LinearConfig};
+
+    #[test]
+    fn the_loss_curve_keeps_the_first_steps_in_order() {
+        let mut curve = LossCurve::default();
+        for step in 0..LossCurve::STEPS + 5 {
+            curve.push(step as f64);
+        }
+        let expected: Vec<f64> = (0..LossCurve::STEPS).map(|s| s as f64).collect();
+        assert_eq!(curve.0, expected);
+    }
 
     #[test]
     fn forward_parts_add_up_by_name_in_the_order_they_first_ran() {

@@ -126,6 +126,23 @@ fn resume_after_an_epoch_gives_the_same_weights_as_an_uninterrupted_run() {
             making > 0.0 && making <= record["seconds"].as_f64().unwrap(),
             "{line}"
         );
+        // Every step's total loss, in order: the first is `first_step_loss`, and their mean
+        // (the epoch being shorter than the curve's cap) the epoch's loss.
+        let curve: Vec<f64> = record["loss_curve"]
+            .as_array()
+            .unwrap_or_else(|| panic!("loss_curve in {line}"))
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let batches = record["batches"].as_u64().unwrap() as usize;
+        assert!(batches >= 2 && curve.len() == batches, "{line}");
+        assert_eq!(curve[0], record["first_step_loss"].as_f64().unwrap());
+        assert!(curve.windows(2).any(|w| w[0] != w[1]), "{line}");
+        let mean = curve.iter().sum::<f64>() / batches as f64;
+        assert!(
+            (mean - record["loss_total"].as_f64().unwrap()).abs() <= 1e-12 * mean.abs(),
+            "{line}"
+        );
     }
 
     let interrupted = tempfile::tempdir().unwrap();
