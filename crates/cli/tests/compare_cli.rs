@@ -4,6 +4,7 @@
 mod common;
 
 use common::{all_output, repo_root, s};
+use std::path::Path;
 
 fn pinned() -> std::path::PathBuf {
     repo_root().join("crates/cli/tests/data/demo-results-fconvnet/sim")
@@ -68,21 +69,29 @@ fn bad_input_is_named() {
     common::assert_fails_with("compare", &[s(&pinned()), s(dir.path())], "000000.txt");
 }
 
+/// `scripts/gpu-check.sh` on the CPU as its device, with this build, six simulated frames,
+/// the tiny Voxel R-CNN's training of two frames and `out` as its work directory.
+fn gpu_check_on_the_cpu(out: &Path) -> std::process::Command {
+    let mut command = std::process::Command::new("bash");
+    command
+        .arg(repo_root().join("scripts/gpu-check.sh"))
+        .env("FUSIONDET", env!("CARGO_BIN_EXE_fusiondet"))
+        .env("DEVICE", "cpu")
+        .env("TRAIN_CONFIGS", "configs/tiny-voxel-rcnn.toml")
+        .env("FRAMES", "6")
+        .env("REPEATS", "1")
+        .env("STEPS_FRAMES", "2")
+        .env("CHECK_OUT", out);
+    command
+}
+
 /// `scripts/gpu-check.sh` as a dry run, the CPU against itself: the script a lent GPU runs
 /// must not fail on its own bugs in the few minutes it has.
 #[test]
 fn the_gpu_check_script_runs_through_against_the_cpu() {
     let dir = tempfile::tempdir().unwrap();
-    let o = std::process::Command::new("bash")
-        .arg(repo_root().join("scripts/gpu-check.sh"))
-        .env("FUSIONDET", env!("CARGO_BIN_EXE_fusiondet"))
-        .env("DEVICE", "cpu")
+    let o = gpu_check_on_the_cpu(dir.path())
         .env("MODELS", "fconvnet-car voxel-rcnn-car")
-        .env("TRAIN_CONFIGS", "configs/tiny-voxel-rcnn.toml")
-        .env("FRAMES", "6")
-        .env("REPEATS", "1")
-        .env("STEPS_FRAMES", "2")
-        .env("CHECK_OUT", dir.path())
         .output()
         .unwrap();
     let out = all_output(&o);
@@ -180,18 +189,11 @@ fn the_gpu_check_script_runs_through_against_the_cpu() {
 fn the_gpu_check_script_holds_a_device_to_the_cpus_loss_curve() {
     let dir = tempfile::tempdir().unwrap();
     let run = |curves: Option<&str>| {
-        let mut command = std::process::Command::new("bash");
+        let mut command = gpu_check_on_the_cpu(dir.path());
         command
-            .arg(repo_root().join("scripts/gpu-check.sh"))
-            .env("FUSIONDET", env!("CARGO_BIN_EXE_fusiondet"))
-            .env("DEVICE", "cpu")
             .env("MODELS", " ")
             .env("AB", "0")
-            .env("PROFILE", "0")
-            .env("TRAIN_CONFIGS", "configs/tiny-voxel-rcnn.toml")
-            .env("FRAMES", "6")
-            .env("STEPS_FRAMES", "2")
-            .env("CHECK_OUT", dir.path());
+            .env("PROFILE", "0");
         if let Some(curves) = curves {
             command.env("TRAIN_CPU", "0").env("CPU_LOSS_CURVES", curves);
         }
