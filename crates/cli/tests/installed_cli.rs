@@ -17,7 +17,8 @@ use std::process::Command;
 /// Voxel R-CNN's and DASANet's were pinned when each joined the demo (DASANet's anew when its
 /// third-form model was shipped), SAF's anew when the shipped SAF was retrained on the
 /// baseline's budget and again when the gated SAF with ω = 0 replaced it, the two-stage and people models' when
-/// they were shipped (each the same with 1 and 2 threads).
+/// they were shipped, SAF people's anew when its gated form replaced it (each the same with 1
+/// and 2 threads).
 #[test]
 fn the_demo_writes_the_same_result_files_as_before_with_every_shipped_model() {
     let dir = tempfile::tempdir().unwrap();

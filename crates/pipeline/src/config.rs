@@ -1116,14 +1116,19 @@ mod shipped_configs {
             own_init(c);
             no_near_region_of(0.85)(c);
         });
-        // The shipped SAF is the gated full row with omega 0, under the shipped name.
-        let mut shipped = ExperimentConfig::from_file(
-            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/saf-car.toml"),
-        )
-        .unwrap();
-        assert_eq!(shipped.name, "saf-car-sim");
-        shipped.name = "saf-gate-w0-car-sim".into();
-        assert_eq!(shipped, load("saf-gate-w0-car-sim.toml"));
+        // The shipped SAF models are the gated full rows with omega 0, under the shipped names.
+        for (model, row) in [
+            ("saf-car", "saf-gate-w0-car-sim"),
+            ("saf-people", "saf-gate-w0-people-sim"),
+        ] {
+            let mut shipped = ExperimentConfig::from_file(
+                &Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../models/{model}.toml")),
+            )
+            .unwrap();
+            assert_eq!(shipped.name, format!("{model}-sim"));
+            shipped.name = row.into();
+            assert_eq!(shipped, load(&format!("{row}.toml")), "models/{model}.toml");
+        }
         // The pairs at twice the budget.
         for (file, row) in [
             ("fconvnet-car-sim-2x.toml", base.clone()),
