@@ -483,7 +483,6 @@ if [ "$train" = 1 ]; then
     for config in $train_configs; do
         name="$(basename "$config" .toml)"
         row=()
-        losses=()
         curves=()
         runs=("$device")
         [ "$train_cpu" = 1 ] && runs=(cpu "$device")
@@ -506,9 +505,7 @@ if [ "$train" = 1 ]; then
                 --data "$data" --out "$run" --epochs 2 \
                 --max-frames "$steps_frames" --device "$d" >"$run.log" 2>&1; then
                 row+=("$r $(step_seconds "$run/metrics.jsonl") s/step (data/forward/backward/making a batch $(step_parts "$run/metrics.jsonl"); forward: $(forward_parts "$run/metrics.jsonl"))")
-                curve="$(loss_curve "$run/metrics.jsonl")"
-                curves+=("$curve")
-                losses+=("${curve%%,*}")
+                curves+=("$(loss_curve "$run/metrics.jsonl")")
                 if [ "$d" != cpu ] && [ -z "$variant" ] && [ -f "$run/model.bpk" ]; then
                     # The configuration's detection speed on the device: the defaults, the
                     # RoI query on the host, the sparse convolution as a kernel map.
@@ -581,7 +578,6 @@ if [ "$train" = 1 ]; then
                 failures=$((failures + 1))
                 row+=("$r failed")
                 curves+=("")
-                losses+=("?")
             fi
         done
         # The CPU's loss curve: this run's, or given for this configuration in
@@ -597,7 +593,7 @@ if [ "$train" = 1 ]; then
         first_device=1
         [ "$train_cpu" = 1 ] && first_device=2
         agree=()
-        if [ -n "$reference" ] && [ "${#curves[@]}" -ge "$first_device" ]; then
+        if [ -n "$reference" ]; then
             for ((i = first_device - 1; i < ${#curves[@]}; i++)); do
                 # A failed training is counted above.
                 [ -n "${curves[$i]}" ] || { agree+=("?"); continue; }
@@ -609,8 +605,14 @@ if [ "$train" = 1 ]; then
                 fi
             done
         fi
+        # Each run's first step: its curve's first value ("?" for a failed run).
+        firsts=()
+        for curve in "${curves[@]}"; do
+            first="${curve%%,*}"
+            firsts+=("${first:-?}")
+        done
         record "$(printf '%-26s %s; first-step loss %s; loss curve against the CPU'"'"'s: %s' \
-            "$name" "$(IFS=,; echo "${row[*]}")" "$(IFS=/; echo "${losses[*]:-?}")" \
+            "$name" "$(IFS=,; echo "${row[*]}")" "$(IFS=/; echo "${firsts[*]:-?}")" \
             "$( [ "${#agree[@]}" -gt 0 ] && (IFS=/; echo "${agree[*]}") || echo '?')")"
         for ((i = 0; i < ${#curves[@]}; i++)); do
             record "$(printf '%-26s loss curve, %s: %s' "$name" "${runs[$i]}" "${curves[$i]:-?}")"
